@@ -1,0 +1,268 @@
+"""The HumanML3D motion representation: joints <-> 263-dim features (251 for KIT-ML).
+
+Feature layout per frame (J joints): root yaw velocity (1, half-angle radians per frame), root XZ
+velocity in the body frame (2, units per frame), root height (1), root-relative joint positions in the
+body frame (3*(J-1)), continuous 6D joint rotations from inverse kinematics (6*(J-1)), joint velocities in
+the body frame (3*J), foot contacts (4: left ankle, left toe, right ankle, right toe).
+The algorithm and its quirks follow the official HumanML3D processing so features agree with the dataset.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy.ndimage import gaussian_filter1d
+
+from ..errors import MotionFormatError
+from .rotation import qbetween, qinv, qmul, qrot, quat_to_cont6d, yaw_quat
+from .skeleton import Skeleton, get_skeleton
+
+_Y = np.array([0.0, 1.0, 0.0])
+_Z = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True)
+class FeatureSlices:
+    """Index ranges of each group inside a feature vector."""
+
+    root_yaw_velocity: slice
+    root_xz_velocity: slice
+    root_height: slice
+    positions: slice
+    rotations: slice
+    velocities: slice
+    contacts: slice
+
+    def items(self) -> list[tuple[str, slice]]:
+        return list(self.__dict__.items())
+
+
+def feature_slices(skeleton: str | Skeleton = "humanml3d") -> FeatureSlices:
+    """Where each group lives in a feature vector of ``skeleton``."""
+    j = get_skeleton(skeleton).num_joints
+    p = 4 + 3 * (j - 1)
+    r = p + 6 * (j - 1)
+    v = r + 3 * j
+    return FeatureSlices(slice(0, 1), slice(1, 3), slice(3, 4), slice(4, p), slice(p, r), slice(r, v), slice(v, v + 4))
+
+
+def _check_joints(joints: np.ndarray, sk: Skeleton, min_frames: int = 1) -> np.ndarray:
+    arr = np.asarray(joints)
+    if arr.ndim != 3 or arr.shape[1:] != (sk.num_joints, 3):
+        raise MotionFormatError(f"expected joints of shape (T, {sk.num_joints}, 3), got {tuple(arr.shape)}")
+    if arr.shape[0] < min_frames:
+        raise MotionFormatError(f"need at least {min_frames} frames, got {arr.shape[0]}")
+    if not np.issubdtype(arr.dtype, np.number) or not np.isfinite(arr).all():
+        raise MotionFormatError("joints contain NaN or inf")
+    return arr.astype(np.float64)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def bone_lengths(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d") -> np.ndarray:
+    """(..., J, 3) joints -> (..., J) length of the bone into each joint (0 for the root)."""
+    sk = get_skeleton(skeleton)
+    parents = np.array(sk.parents)
+    parents[0] = 0
+    return np.linalg.norm(joints - joints[..., parents, :], axis=-1)
+
+
+def uniform_skeleton(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d",
+                     target_lengths: np.ndarray | None = None) -> np.ndarray:
+    """Give every bone the target length, keeping bone directions; scale the root path by leg length.
+
+    joints (T, J, 3). The leg scale compares thigh + shin of frame 0 with the target, as HumanML3D does.
+    """
+    sk = get_skeleton(skeleton)
+    tgt = np.asarray(sk.bone_lengths if target_lengths is None else target_lengths, dtype=np.float64)
+    src = bone_lengths(joints[0], sk)
+    k, a = sk.leg_joints
+    scale = (tgt[k] + tgt[a]) / (src[k] + src[a])
+    out = np.empty_like(joints)
+    out[:, 0] = joints[:, 0] * scale
+    for chain in sk.chains:
+        for p, c in zip(chain[:-1], chain[1:]):
+            out[:, c] = out[:, p] + _unit(joints[:, c] - joints[:, p]) * tgt[c]
+    return out
+
+
+def _across(joints: np.ndarray, sk: Skeleton, official_ik: bool) -> np.ndarray:
+    """Right-pointing body axis from hips and shoulders, (T, 3)."""
+    r_hip, l_hip, r_sh, l_sh = sk.face_joints
+    if official_ik:
+        # HumanML3D's inverse kinematics unpacks the face joints in another order: the hip term points
+        # left and the (wider) shoulder term right. Reproduced on purpose so rotations match the dataset.
+        return (joints[:, l_hip] - joints[:, r_hip]) + (joints[:, r_sh] - joints[:, l_sh])
+    return (joints[:, r_hip] - joints[:, l_hip]) + (joints[:, r_sh] - joints[:, l_sh])
+
+
+def facing_quat(joints: np.ndarray, sk: Skeleton, *, official_ik: bool = False, smooth: float = 0.0) -> np.ndarray:
+    """(T, J, 3) -> (T, 4) yaw quaternion that turns each frame's facing direction to +Z."""
+    forward = np.cross(_Y, _unit(_across(joints, sk, official_ik)))
+    if smooth > 0:
+        forward = gaussian_filter1d(forward, smooth, axis=0, mode="nearest")
+    forward = _unit(forward)
+    return qbetween(forward, np.broadcast_to(_Z, forward.shape))
+
+
+def inverse_kinematics(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d", *,
+                       smooth_forward: bool = True) -> np.ndarray:
+    """HumanML3D inverse kinematics: (T, J, 3) -> (T, J, 4) quaternions.
+
+    Index 0 holds the root yaw (identity on frame 0, as in the official code); index c holds the rotation
+    of the bone parent(c) -> c relative to the accumulated rotation along its chain, taking the bone's
+    rest direction ``raw_offsets[c]`` onto its actual direction by the shortest arc.
+    """
+    sk = get_skeleton(skeleton)
+    root = facing_quat(joints, sk, official_ik=True, smooth=20.0 if smooth_forward else 0.0)
+    root[0] = (1.0, 0.0, 0.0, 0.0)
+    quats = np.zeros(joints.shape[:-1] + (4,))
+    quats[:, 0] = root
+    raw = sk.offsets_array
+    for chain in sk.chains:
+        acc = root
+        for p, c in zip(chain[:-1], chain[1:]):
+            swing = qbetween(np.broadcast_to(raw[c], (len(joints), 3)), _unit(joints[:, c] - joints[:, p]))
+            quats[:, c] = qmul(qinv(acc), swing)
+            acc = swing
+    return quats
+
+
+def canonicalize(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d", *, uniform: bool = True) -> np.ndarray:
+    """Put a motion in HumanML3D's canonical frame: uniform skeleton, feet on the floor (min Y = 0),
+    first root at the XZ origin, first frame facing +Z. (T, J, 3) -> (T, J, 3)."""
+    sk = get_skeleton(skeleton)
+    pos = _check_joints(joints, sk)
+    if uniform and sk.bone_lengths is not None:
+        pos = uniform_skeleton(pos, sk)
+    pos = pos.copy()
+    pos[..., 1] -= pos[..., 1].min()
+    pos -= pos[0, 0] * np.array([1.0, 0.0, 1.0])
+    q0 = facing_quat(pos[:1], sk)[0]
+    return qrot(np.broadcast_to(q0, pos.shape[:-1] + (4,)), pos)
+
+
+def foot_contacts(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d", threshold: float | None = None) -> np.ndarray:
+    """(T, J, 3) -> (T-1, 4) contacts (left ankle, left toe, right ankle, right toe): 1 where the joint's
+    squared displacement to the next frame is below ``threshold`` (units^2; HumanML3D uses 0.002 m^2)."""
+    sk = get_skeleton(skeleton)
+    thr = sk.foot_velocity_threshold if threshold is None else threshold
+    feet = list(sk.foot_left) + list(sk.foot_right)
+    disp = ((joints[1:, feet] - joints[:-1, feet]) ** 2).sum(-1)
+    return (disp < thr).astype(np.float64)
+
+
+def features_from_joints(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d", *, uniform: bool = True,
+                         feet_threshold: float | None = None) -> np.ndarray:
+    """Joint positions (T, J, 3) in metres, Y up -> features (T-1, 263) for HumanML3D (251 for KIT).
+
+    Canonicalises first (see :func:`canonicalize`); ``uniform`` rescales bones to the target skeleton
+    (HumanML3D only: KIT has no known target, so its bone lengths are kept).
+    """
+    sk = get_skeleton(skeleton)
+    pos = canonicalize(_check_joints(joints, sk, min_frames=2), sk, uniform=uniform)
+    contacts = foot_contacts(pos, sk, feet_threshold)
+    quats = inverse_kinematics(pos, sk, smooth_forward=True)
+    r_rot = quats[:, 0]
+    root_vel = qrot(r_rot[1:], pos[1:, 0] - pos[:-1, 0])
+    yaw_vel = np.arcsin(np.clip(qmul(r_rot[1:], qinv(r_rot[:-1]))[:, 2:3], -1.0, 1.0))
+    local = pos.copy()
+    local[..., 0] -= pos[:, :1, 0]
+    local[..., 2] -= pos[:, :1, 2]
+    local = qrot(np.broadcast_to(r_rot[:, None], local.shape[:-1] + (4,)), local)
+    vel = qrot(np.broadcast_to(r_rot[:-1, None], pos[1:].shape[:-1] + (4,)), pos[1:] - pos[:-1])
+    T = len(pos) - 1
+    return np.concatenate([
+        yaw_vel, root_vel[:, [0, 2]], local[:-1, 0, 1:2],
+        local[:-1, 1:].reshape(T, -1),
+        quat_to_cont6d(quats[:-1, 1:]).reshape(T, -1),
+        vel.reshape(T, -1),
+        contacts,
+    ], axis=-1)
+
+
+def _check_features(features, sk: Skeleton):
+    shape = tuple(features.shape)
+    if len(shape) < 2 or shape[-1] != sk.feature_dim:
+        raise MotionFormatError(f"expected features of shape (..., T, {sk.feature_dim}), got {shape}")
+    finite = torch.isfinite(features).all() if isinstance(features, torch.Tensor) else np.isfinite(features).all()
+    if not bool(finite):
+        raise MotionFormatError("features contain NaN or inf")
+
+
+def root_from_features(features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Integrate root yaw and position: (..., T, D) -> yaw quaternions (..., T, 4), root (..., T, 3)."""
+    yaw_vel = features[..., 0]
+    angle = torch.zeros_like(yaw_vel)
+    angle[..., 1:] = yaw_vel[..., :-1]
+    angle = torch.cumsum(angle, dim=-1)
+    # The stored value is the yaw half-angle, so the quaternion uses it directly: (cos a, 0, sin a, 0).
+    quat = yaw_quat(2.0 * angle)
+    step = torch.zeros(features.shape[:-1] + (3,), dtype=features.dtype, device=features.device)
+    step[..., 1:, 0] = features[..., :-1, 1]
+    step[..., 1:, 2] = features[..., :-1, 2]
+    root = torch.cumsum(qrot(qinv(quat), step), dim=-2)
+    root[..., 1] = features[..., 3]
+    return quat, root
+
+
+def joints_from_features(features, skeleton: str | Skeleton = "humanml3d"):
+    """Features (..., T, D) -> joint positions (..., T, J, 3), through the root-relative positions.
+
+    Accepts numpy arrays (returns numpy, float64 math) or torch tensors (returns torch, same dtype/device,
+    differentiable).
+    """
+    sk = get_skeleton(skeleton)
+    _check_features(features, sk)
+    is_numpy = not isinstance(features, torch.Tensor)
+    x = torch.from_numpy(np.asarray(features, dtype=np.float64)) if is_numpy else features
+    quat, root = root_from_features(x)
+    J = sk.num_joints
+    local = x[..., 4:4 + 3 * (J - 1)].reshape(x.shape[:-1] + (J - 1, 3))
+    world = qrot(qinv(quat)[..., None, :].expand(local.shape[:-1] + (4,)), local)
+    world = torch.cat([world[..., :1] + root[..., None, [0]], world[..., 1:2], world[..., 2:] + root[..., None, [2]]], -1)
+    out = torch.cat([root[..., None, :], world], dim=-2)
+    return out.numpy() if is_numpy else out
+
+
+def mirror_joints(joints, skeleton: str | Skeleton = "humanml3d"):
+    """Left/right mirror (..., J, 3): negate X and swap left and right joints (HumanML3D's M-copies)."""
+    sk = get_skeleton(skeleton)
+    out = joints[..., sk.mirror_permutation, :]
+    sign = [-1.0, 1.0, 1.0]
+    return out * (torch.tensor(sign, dtype=out.dtype, device=out.device) if isinstance(out, torch.Tensor) else np.array(sign))
+
+
+def mirror_features(features, skeleton: str | Skeleton = "humanml3d"):
+    """Mirror features (..., D) directly, equal to features_from_joints(mirror_joints(joints)).
+
+    Negates yaw velocity and every X component, swaps left/right joints and contacts; a rotation R
+    becomes M R M with M = diag(-1, 1, 1).
+    """
+    sk = get_skeleton(skeleton)
+    J = sk.num_joints
+    s = feature_slices(sk)
+    perm = sk.mirror_permutation
+    lead = features.shape[:-1]
+    if isinstance(features, torch.Tensor):
+        out = features.clone()
+        flip = lambda n, signs: torch.tensor(signs * n, dtype=features.dtype, device=features.device)  # noqa: E731
+    else:
+        out = np.array(features, dtype=np.float64 if np.asarray(features).dtype == np.float64 else np.float32)
+        flip = lambda n, signs: np.array(signs * n)  # noqa: E731
+    out[..., 0] = -features[..., 0]
+    out[..., 1] = -features[..., 1]
+    ric = features[..., s.positions].reshape(lead + (J - 1, 3))[..., perm[1:] - 1, :]
+    out[..., s.positions] = (ric * flip(1, [-1.0, 1.0, 1.0])).reshape(lead + (-1,))
+    rot = features[..., s.rotations].reshape(lead + (J - 1, 6))[..., perm[1:] - 1, :]
+    out[..., s.rotations] = (rot * flip(1, [1.0, -1.0, -1.0, -1.0, 1.0, 1.0])).reshape(lead + (-1,))
+    vel = features[..., s.velocities].reshape(lead + (J, 3))[..., perm, :]
+    out[..., s.velocities] = (vel * flip(1, [-1.0, 1.0, 1.0])).reshape(lead + (-1,))
+    c = s.contacts.start
+    out[..., c:c + 2] = features[..., c + 2:c + 4]
+    out[..., c + 2:c + 4] = features[..., c:c + 2]
+    return out

@@ -1,0 +1,313 @@
+"""Stick-figure rendering of joint positions to .mp4 / .gif clips and .png stills.
+
+Joints are (T, J, 3) world positions in metres, Y up (HumanML3D convention). Frames are drawn with a
+fixed perspective camera onto a matplotlib Agg canvas (no pyplot), which is built once per clip; each
+frame only updates artist data and is streamed straight to the encoder.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import textwrap
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
+from matplotlib.patches import Circle
+from PIL import Image
+
+from ..errors import SMFError
+from ..io import atomic_path
+from ..motion.skeleton import Skeleton, get_skeleton
+
+__all__ = ["render_video", "render_frame", "VIDEO_SUFFIXES"]
+
+VIDEO_SUFFIXES = (".mp4", ".gif")
+
+_RIGHT, _LEFT, _SPINE = "#d9480f", "#1c7ed6", "#343a40"  # chains 0/3, 1/4, 2
+_BACKGROUND = "#ffffff"
+_ELEVATION = math.radians(22.0)
+_AZIMUTH = math.radians(35.0)  # from the +Z front, towards the character's left (+X)
+_FOV = math.radians(34.0)
+
+
+def _validate(joints: np.ndarray, sk: Skeleton) -> np.ndarray:
+    """Return ``joints`` as a (T, J, 3) float64 array or raise SMFError."""
+    arr = np.asarray(joints)
+    if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
+        raise SMFError(f"joints must be a real numeric array, got dtype {arr.dtype}")
+    if arr.ndim != 3 or arr.shape[1:] != (sk.num_joints, 3):
+        raise SMFError(f"expected joints of shape (T, {sk.num_joints}, 3), got {tuple(arr.shape)}")
+    if arr.shape[0] < 1:
+        raise SMFError("joints have no frames (T=0)")
+    arr = arr.astype(np.float64)
+    if not np.isfinite(arr).all():
+        raise SMFError("joints contain NaN or inf")
+    return arr
+
+
+def _check_size(size: int) -> int:
+    """Validate the frame side in pixels and round it up to an even number (H.264 / yuv420p)."""
+    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or not 64 <= size <= 4096:
+        raise SMFError(f"size must be an integer between 64 and 4096 pixels, got {size!r}")
+    return int(size) + int(size) % 2
+
+
+class _Camera:
+    """Fixed pinhole camera looking at ``target`` from azimuth/elevation at ``distance`` (metres)."""
+
+    def __init__(self, target: np.ndarray, azimuth: float, elevation: float, distance: float) -> None:
+        back = np.array([math.sin(azimuth) * math.cos(elevation), math.sin(elevation),
+                         math.cos(azimuth) * math.cos(elevation)])
+        self.eye = target + distance * back
+        fwd = -back
+        right = np.cross(fwd, [0.0, 1.0, 0.0])
+        right /= np.linalg.norm(right)
+        self.rot = np.stack([right, np.cross(right, fwd), fwd])  # rows: screen x, screen y, depth
+
+    def project(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(..., 3) world points -> ((..., 2) image-plane coords, (...) depth in metres)."""
+        cam = (pts - self.eye) @ self.rot.T
+        depth = cam[..., 2]
+        return cam[..., :2] / np.maximum(depth, 1e-3)[..., None], depth
+
+
+class _Scene:
+    """A matplotlib figure for one clip: build once with :meth:`__init__`, then :meth:`draw` frames."""
+
+    def __init__(self, joints: np.ndarray, sk: Skeleton, title: str | None, size: int, fps: float) -> None:
+        self.joints, self.sk, self.fps, self.size = joints, sk, fps, size
+        parents = sk.parents
+        self.bones = np.array([(p, j) for j, p in enumerate(parents) if p >= 0])  # (B, 2)
+        side = {j: 2 for j in range(sk.num_joints)}
+        for ci, chain in enumerate(sk.chains):  # colour each bone by the chain that owns its child
+            for j in chain[1:]:
+                side[j] = {0: 0, 3: 0, 1: 1, 4: 1}.get(ci, 2)
+        kind = np.array([side[j] for _, j in self.bones])
+        self.bone_colors = np.array([_RIGHT, _LEFT, _SPINE], dtype=object)[kind]
+        px = size / 480.0
+        self.bone_widths = np.where(kind == 2, 5.0, 3.4) * px
+        spine = sk.chains[2] if len(sk.chains) > 2 else sk.chains[0]
+        self.head, self.neck = spine[-1], spine[-2]
+
+        # Body scale (~1.7 for a metre-scaled adult): leg chain + spine chain length, so sizes adapt.
+        ref = [c for c in sk.chains[:3]]
+        lengths = [np.linalg.norm(np.diff(joints[:, list(c)], axis=1), axis=-1).sum(-1) for c in ref]
+        self.scale = float(np.median(lengths[0] + lengths[2])) / 1.7 if len(ref) == 3 else 1.0
+        self.scale = self.scale if self.scale > 1e-6 else 1.0
+        self.floor = float(joints[..., 1].min())
+        self.root = joints[:, 0].copy()
+        self.root[:, 1] = self.floor
+        self.cam = self._make_camera()
+
+        # Figure: a square canvas of size x size pixels; the axes fill it below a title band.
+        dpi = 100.0
+        self.fig = Figure(figsize=(size / dpi, size / dpi), dpi=dpi, facecolor=_BACKGROUND)
+        self.canvas = FigureCanvasAgg(self.fig)
+        lines = textwrap.wrap(title.strip(), width=max(20, int(52 * 480 / size * size / 480))) if title else []
+        if len(lines) > 3:
+            lines = lines[:3]
+            lines[-1] = lines[-1][: max(0, len(lines[-1]) - 1)].rstrip() + "\u2026"
+        fontsize = 12.0 * px
+        band = (len(lines) * 1.35 * fontsize * dpi / 72 + (14 if lines else 6) * px) / size
+        if lines:
+            self.fig.text(0.5, 1 - 6 * px / size, "\n".join(lines), ha="center", va="top",
+                          fontsize=fontsize, color="#212529", linespacing=1.3)
+        ax = self.fig.add_axes((0.0, 0.0, 1.0, 1.0 - band))
+        ax.set_axis_off()
+        self.ax = ax
+        self._set_limits(aspect=(1.0 - band))
+
+        self.grid = LineCollection([], linewidths=0.9 * px, zorder=1, capstyle="butt")
+        self.path_all = LineCollection([self._proj(self.root)], colors="#adb5bd", linewidths=1.2 * px,
+                                       linestyles=(0, (3, 3)), zorder=2)
+        (self.path_done,) = ax.plot([], [], color="#2b8a3e", lw=2.0 * px, zorder=2.5, solid_capstyle="round")
+        self.shadow = LineCollection([], colors="#000000", alpha=0.13, zorder=3, capstyle="round")
+        self.back = LineCollection([], zorder=4, capstyle="round")
+        self.head_patch = Circle((0, 0), 0.01, facecolor="#f1f3f5", edgecolor=_SPINE, lw=2.2 * px, zorder=5)
+        self.front = LineCollection([], zorder=6, capstyle="round")
+        for artist in (self.grid, self.path_all, self.shadow, self.back, self.front):
+            ax.add_collection(artist)
+        ax.add_patch(self.head_patch)
+        self.progress = self.fig.add_artist(
+            LineCollection([], colors="#2b8a3e", linewidths=3.0 * px, transform=self.fig.transFigure))
+        self.clock = self.fig.text(1 - 8 * px / size, 8 * px / size, "", ha="right", va="bottom",
+                                   fontsize=9 * px, color="#868e96")
+
+    # -- camera ---------------------------------------------------------------------------------
+    def _make_camera(self) -> _Camera:
+        """One camera for the whole clip: 3/4 front view, or side-on to a long root trajectory."""
+        pts = self.joints.reshape(-1, 3)
+        lo, hi = pts.min(0), pts.max(0)
+        lo[1] = self.floor
+        target = (lo + hi) / 2
+        azimuth = _AZIMUTH
+        xz = self.root[:, [0, 2]] - self.root[:, [0, 2]].mean(0)
+        if len(xz) > 1:
+            _, s, vt = np.linalg.svd(xz, full_matrices=False)
+            if s[0] / math.sqrt(len(xz)) > 0.6 * self.scale:  # travelling: look across the path
+                dx, dz = vt[0]
+                nx, nz = (-dz, dx) if dx > 0 or (dx == 0 and dz < 0) else (dz, -dx)
+                azimuth = math.atan2(nx, nz) + math.radians(20.0)
+        radius = max(0.5 * float(np.linalg.norm(hi - lo)), 0.9 * self.scale)
+        return _Camera(target, azimuth, _ELEVATION, max(radius / math.sin(_FOV / 2), 3.0 * self.scale))
+
+    def _proj(self, pts: np.ndarray) -> np.ndarray:
+        return self.cam.project(pts)[0]
+
+    def _set_limits(self, aspect: float) -> None:
+        """Fit every frame's joints plus the floor under them; equal scale on both screen axes."""
+        feet = self.joints.copy()
+        feet[..., 1] = self.floor
+        xy = self._proj(np.concatenate([self.joints.reshape(-1, 3), feet.reshape(-1, 3)]))
+        lo, hi = xy.min(0), xy.max(0)
+        pad = 0.08 * (hi - lo).max() + 0.02
+        lo, hi = lo - pad, hi + pad
+        w, h = hi - lo
+        if w * aspect < h:  # widen to the axes' width / height ratio (1 / aspect)
+            lo[0], hi[0] = lo[0] - (h / aspect - w) / 2, hi[0] + (h / aspect - w) / 2
+        else:
+            lo[1], hi[1] = lo[1] - (w * aspect - h) / 2, hi[1] + (w * aspect - h) / 2
+        self.ax.set_xlim(lo[0], hi[0])
+        self.ax.set_ylim(lo[1], hi[1])
+
+    # -- per frame ------------------------------------------------------------------------------
+    def _grid(self, center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World-aligned floor grid around ``center`` (x, z), fading with distance: (segments, rgba)."""
+        step, reach = 0.5 * self.scale, 2.25 * self.scale
+        ticks = np.arange(-reach, reach + 1e-9, step)
+        base = np.round(center / step) * step
+        sub = np.linspace(-reach, reach, 19)
+        segs = []
+        for axis in (0, 1):
+            for t in ticks:
+                line = np.zeros((len(sub), 3))
+                line[:, 1] = self.floor
+                line[:, [0, 2][axis]] = base[axis] + t
+                line[:, [2, 0][axis]] = base[1 - axis] + sub
+                segs.append(np.stack([line[:-1], line[1:]], 1))
+        seg = np.concatenate(segs)  # (S, 2, 3)
+        mid = seg.mean(1)[:, [0, 2]]
+        fade = np.clip(1.0 - np.linalg.norm(mid - center, axis=-1) / reach, 0.0, 1.0) ** 1.5
+        rgba = np.zeros((len(seg), 4))
+        rgba[:, :3] = 0.55
+        rgba[:, 3] = 0.75 * fade
+        xy, depth = self.cam.project(seg)
+        keep = (depth > 0.05 * self.scale).all(1) & (fade > 0)
+        return xy[keep], rgba[keep]
+
+    def draw(self, t: int) -> np.ndarray:
+        """Render frame ``t``; return an (H, W, 3) uint8 RGB image."""
+        pose = self.joints[t]
+        seg3 = pose[self.bones]  # (B, 2, 3)
+        xy, depth = self.cam.project(seg3)
+        order = np.argsort(-depth.mean(1))  # far bones first
+        neck, head = pose[self.neck], pose[self.head]
+        up = head - neck
+        up /= max(np.linalg.norm(up), 1e-9)
+        head_c = head + 0.035 * self.scale * up
+        (hxy, hd) = self.cam.project(head_c)
+        radius = 0.095 * self.scale / hd * 1.0
+        in_front = depth.mean(1)[order] < hd
+        for coll, mask in ((self.back, ~in_front), (self.front, in_front)):
+            idx = order[mask]
+            coll.set_segments(xy[idx])
+            coll.set_colors(list(self.bone_colors[idx]))
+            coll.set_linewidths(self.bone_widths[idx])
+        self.head_patch.set_center(tuple(hxy))
+        self.head_patch.set_radius(radius)
+
+        flat = seg3.copy()
+        flat[..., 1] = self.floor
+        self.shadow.set_segments(self._proj(flat))
+        self.shadow.set_linewidths(self.bone_widths * 1.4)
+        gxy, grgba = self._grid(pose[0, [0, 2]])
+        self.grid.set_segments(gxy)
+        self.grid.set_colors(grgba)
+        done = self._proj(self.root[: t + 1])
+        self.path_done.set_data(done[:, 0], done[:, 1])
+
+        n = len(self.joints)
+        frac = (t + 1) / n
+        self.progress.set_segments([[(0.0, 0.0015 * 480 / self.size * 2), (frac, 0.0015 * 480 / self.size * 2)]])
+        self.clock.set_text(f"{t / self.fps:5.2f} s  {t + 1}/{n}")
+
+        self.canvas.draw()
+        rgba = np.asarray(self.canvas.buffer_rgba())
+        return np.ascontiguousarray(rgba[: self.size, : self.size, :3])
+
+    def frames(self) -> Iterator[np.ndarray]:
+        for t in range(len(self.joints)):
+            yield self.draw(t)
+
+
+def _scene(joints: np.ndarray, skeleton: str | Skeleton, title: str | None, size: int,
+           fps: float | None) -> _Scene:
+    sk = get_skeleton(skeleton)
+    arr = _validate(joints, sk)
+    fps = sk.fps if fps is None else float(fps)
+    if not math.isfinite(fps) or fps <= 0:
+        raise SMFError(f"fps must be a positive number, got {fps!r}")
+    return _Scene(arr, sk, title, _check_size(size), fps)
+
+
+def render_video(joints: np.ndarray, path: str | os.PathLike, *, skeleton: str | Skeleton = "humanml3d",
+                 fps: float | None = None, title: str | None = None, size: int = 480) -> Path:
+    """Render (T, J, 3) joints in metres (Y up) to ``path`` (.mp4 H.264/yuv420p or looping .gif).
+
+    ``fps`` defaults to the skeleton's frame rate; frames are ``size`` x ``size`` pixels (rounded up to
+    even). The file is written atomically; returns its path.
+    """
+    target = Path(path)
+    suffix = target.suffix.lower()
+    if suffix not in VIDEO_SUFFIXES:
+        raise SMFError(f"unsupported video format '{target.suffix}'; use .mp4 or .gif")
+    scene = _scene(joints, skeleton, title, size, fps)
+    with atomic_path(target) as tmp:
+        if suffix == ".mp4":
+            _write_mp4(scene.frames(), tmp, scene.fps)
+        else:
+            _write_gif(scene.frames(), tmp, scene.fps)
+    return target
+
+
+def _write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
+    """Stream RGB frames to H.264 via imageio's ffmpeg plugin (bundled imageio-ffmpeg binary)."""
+    import imageio.v2 as imageio
+
+    writer = imageio.get_writer(path, format="FFMPEG", mode="I", fps=fps, codec="libx264", quality=7,
+                                pixelformat="yuv420p", macro_block_size=2, ffmpeg_log_level="error",
+                                output_params=["-movflags", "+faststart"])
+    with writer:
+        for frame in frames:
+            writer.append_data(frame)
+
+
+def _write_gif(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
+    """Write a looping GIF with Pillow; frames are palettised as they arrive (1 byte per pixel kept)."""
+    palette: Image.Image | None = None
+    images: list[Image.Image] = []
+    for frame in frames:
+        im = Image.fromarray(frame)
+        if palette is None:
+            palette = im.quantize(colors=255, method=Image.Quantize.MEDIANCUT)
+        images.append(im.quantize(palette=palette, dither=Image.Dither.NONE))
+    images[0].save(path, format="GIF", save_all=True, append_images=images[1:], loop=0,
+                   duration=max(20, round(1000.0 / fps)), disposal=1)
+
+
+def render_frame(joints: np.ndarray, frame: int, path: str | os.PathLike, *,
+                 skeleton: str | Skeleton = "humanml3d", title: str | None = None, size: int = 480) -> Path:
+    """Render frame ``frame`` of (T, J, 3) joints in metres to a ``size`` x ``size`` PNG; returns its path."""
+    scene = _scene(joints, skeleton, title, size, None)
+    n = len(scene.joints)
+    if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) or not 0 <= frame < n:
+        raise SMFError(f"frame {frame!r} is out of range; valid frames are 0..{n - 1}")
+    image = Image.fromarray(scene.draw(int(frame)))
+    with atomic_path(path, suffix=".png") as tmp:
+        image.save(tmp, format="PNG")
+    return Path(path)

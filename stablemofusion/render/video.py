@@ -2,7 +2,8 @@
 
 Joints are (T, J, 3) world positions in metres, Y up (HumanML3D convention). Frames are drawn with a
 fixed perspective camera onto a matplotlib Agg canvas (no pyplot), which is built once per clip; each
-frame only updates artist data and is streamed straight to the encoder.
+frame only updates artist data and is streamed to the encoder (ffmpeg for .mp4; for .gif Pillow needs
+every frame before writing, so frames are kept palettised at one byte per pixel).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Iterator
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
+from matplotlib.colors import to_rgb
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 from PIL import Image
@@ -29,6 +31,7 @@ __all__ = ["render_video", "render_frame", "VIDEO_SUFFIXES"]
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
 _RIGHT, _LEFT, _SPINE = "#d9480f", "#1c7ed6", "#343a40"  # chains 0/3, 1/4, 2
+_PATH = "#2b8a3e"
 _BACKGROUND = "#ffffff"
 _ELEVATION = math.radians(22.0)
 _AZIMUTH = math.radians(35.0)  # from the +Z front, towards the character's left (+X)
@@ -95,10 +98,9 @@ class _Scene:
         self.head, self.neck = spine[-1], spine[-2]
 
         # Body scale (~1.7 for a metre-scaled adult): leg chain + spine chain length, so sizes adapt.
-        ref = [c for c in sk.chains[:3]]
-        lengths = [np.linalg.norm(np.diff(joints[:, list(c)], axis=1), axis=-1).sum(-1) for c in ref]
-        self.scale = float(np.median(lengths[0] + lengths[2])) / 1.7 if len(ref) == 3 else 1.0
-        self.scale = self.scale if self.scale > 1e-6 else 1.0
+        body = [np.linalg.norm(np.diff(joints[:, list(c)], axis=1), axis=-1).sum(-1) for c in (sk.chains[0], spine)]
+        scale = float(np.median(body[0] + body[1])) / 1.7
+        self.scale = scale if scale > 1e-6 else 1.0
         self.floor = float(joints[..., 1].min())
         self.root = joints[:, 0].copy()
         self.root[:, 1] = self.floor
@@ -108,7 +110,7 @@ class _Scene:
         dpi = 100.0
         self.fig = Figure(figsize=(size / dpi, size / dpi), dpi=dpi, facecolor=_BACKGROUND)
         self.canvas = FigureCanvasAgg(self.fig)
-        lines = textwrap.wrap(title.strip(), width=max(20, int(52 * 480 / size * size / 480))) if title else []
+        lines = textwrap.wrap(title.strip(), width=52) if title else []
         if len(lines) > 3:
             lines = lines[:3]
             lines[-1] = lines[-1][: max(0, len(lines[-1]) - 1)].rstrip() + "\u2026"
@@ -125,8 +127,8 @@ class _Scene:
         self.grid = LineCollection([], linewidths=0.9 * px, zorder=1, capstyle="butt")
         self.path_all = LineCollection([self._proj(self.root)], colors="#adb5bd", linewidths=1.2 * px,
                                        linestyles=(0, (3, 3)), zorder=2)
-        (self.path_done,) = ax.plot([], [], color="#2b8a3e", lw=2.0 * px, zorder=2.5, solid_capstyle="round")
-        self.shadow = LineCollection([], colors="#000000", alpha=0.13, zorder=3, capstyle="round")
+        (self.path_done,) = ax.plot([], [], color=_PATH, lw=2.0 * px, zorder=2.5, solid_capstyle="round")
+        self.shadow = LineCollection([], colors="#000000", alpha=0.1, zorder=3, capstyle="round")
         self.back = LineCollection([], zorder=4, capstyle="round")
         self.head_patch = Circle((0, 0), 0.01, facecolor="#f1f3f5", edgecolor=_SPINE, lw=2.2 * px, zorder=5)
         self.front = LineCollection([], zorder=6, capstyle="round")
@@ -134,7 +136,7 @@ class _Scene:
             ax.add_collection(artist)
         ax.add_patch(self.head_patch)
         self.progress = self.fig.add_artist(
-            LineCollection([], colors="#2b8a3e", linewidths=3.0 * px, transform=self.fig.transFigure))
+            LineCollection([], colors=_PATH, linewidths=3.0 * px, transform=self.fig.transFigure))
         self.clock = self.fig.text(1 - 8 * px / size, 8 * px / size, "", ha="right", va="bottom",
                                    fontsize=9 * px, color="#868e96")
 
@@ -160,10 +162,8 @@ class _Scene:
         return self.cam.project(pts)[0]
 
     def _set_limits(self, aspect: float) -> None:
-        """Fit every frame's joints plus the floor under them; equal scale on both screen axes."""
-        feet = self.joints.copy()
-        feet[..., 1] = self.floor
-        xy = self._proj(np.concatenate([self.joints.reshape(-1, 3), feet.reshape(-1, 3)]))
+        """Fit every frame's joints plus the root path on the floor; equal scale on both screen axes."""
+        xy = self._proj(np.concatenate([self.joints.reshape(-1, 3), self.root]))
         lo, hi = xy.min(0), xy.max(0)
         pad = 0.08 * (hi - lo).max() + 0.02
         lo, hi = lo - pad, hi + pad
@@ -210,8 +210,8 @@ class _Scene:
         up = head - neck
         up /= max(np.linalg.norm(up), 1e-9)
         head_c = head + 0.035 * self.scale * up
-        (hxy, hd) = self.cam.project(head_c)
-        radius = 0.095 * self.scale / hd * 1.0
+        hxy, hd = self.cam.project(head_c)
+        radius = 0.085 * self.scale / hd
         in_front = depth.mean(1)[order] < hd
         for coll, mask in ((self.back, ~in_front), (self.front, in_front)):
             idx = order[mask]
@@ -233,7 +233,8 @@ class _Scene:
 
         n = len(self.joints)
         frac = (t + 1) / n
-        self.progress.set_segments([[(0.0, 0.0015 * 480 / self.size * 2), (frac, 0.0015 * 480 / self.size * 2)]])
+        y = 1.5 / self.size  # a thin timeline along the bottom edge (also keeps GIF frames distinct)
+        self.progress.set_segments([[(0.0, y), (frac, y)]])
         self.clock.set_text(f"{t / self.fps:5.2f} s  {t + 1}/{n}")
 
         self.canvas.draw()
@@ -287,15 +288,20 @@ def _write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
             writer.append_data(frame)
 
 
+def _gif_palette() -> Image.Image:
+    """A fixed 255-colour palette: white-to-colour ramps of every drawing colour plus a grey ramp."""
+    ramp = np.linspace(0.0, 1.0, 51)[:, None]
+    rgb = [np.asarray(to_rgb(c)) for c in (_RIGHT, _LEFT, _SPINE, _PATH, "#000000")]
+    colors = np.concatenate([1.0 - ramp * (1.0 - c) for c in rgb])  # (255, 3)
+    palette = Image.new("P", (1, 1))
+    palette.putpalette(np.round(colors * 255).astype(np.uint8).ravel().tolist())
+    return palette
+
+
 def _write_gif(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
     """Write a looping GIF with Pillow; frames are palettised as they arrive (1 byte per pixel kept)."""
-    palette: Image.Image | None = None
-    images: list[Image.Image] = []
-    for frame in frames:
-        im = Image.fromarray(frame)
-        if palette is None:
-            palette = im.quantize(colors=255, method=Image.Quantize.MEDIANCUT)
-        images.append(im.quantize(palette=palette, dither=Image.Dither.NONE))
+    palette = _gif_palette()
+    images = [Image.fromarray(frame).quantize(palette=palette, dither=Image.Dither.NONE) for frame in frames]
     images[0].save(path, format="GIF", save_all=True, append_images=images[1:], loop=0,
                    duration=max(20, round(1000.0 / fps)), disposal=1)
 

@@ -13,6 +13,7 @@ from ..errors import SMFError
 COMMANDS = {
     "render": "render",
     "convert": "convert",
+    "prepare": "prepare",
 }
 
 

@@ -76,8 +76,9 @@ def _load_bvh(path: Path, skeleton: str | Skeleton | None) -> Motion:
     bvh = read_bvh(path)
     candidates = [get_skeleton(skeleton)] if skeleton is not None else [get_skeleton("humanml3d"), get_skeleton("kit")]
     for sk in candidates:
-        if list(bvh.names) == list(sk.joint_names):
-            return Motion(resample(forward_kinematics(bvh), bvh.fps, sk.fps), sk, sk.fps)
+        if sorted(bvh.names) == sorted(sk.joint_names):  # BVH lists joints depth-first, we index by SMPL order
+            order = [list(bvh.names).index(n) for n in sk.joint_names]
+            return Motion(resample(forward_kinematics(bvh)[:, order], bvh.fps, sk.fps), sk, sk.fps)
     raise SMFError(
         f"{path}: BVH joints {bvh.names[:3]}... are not a {'/'.join(s.name for s in candidates)} skeleton; "
         "retarget it first with `smf prepare bvh --joint-map`"

@@ -1,0 +1,97 @@
+"""End-to-end tests of the `smf` command through its entry point (and one real subprocess)."""
+
+import subprocess
+import sys
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from stablemofusion.cli.main import main
+from stablemofusion.motion.features import canonicalize, features_from_joints
+
+
+def run(*argv):
+    return main([str(a) for a in argv])
+
+
+@pytest.fixture
+def ref_joints_file(hml_ref):
+    return hml_ref / "new_joints" / "000000.npy"
+
+
+def test_render_video_and_still_of_reference_motion(ref_joints_file, hml_ref, tmp_path):
+    assert run("render", ref_joints_file, "--out", tmp_path / "m.mp4", "--title", "kick") == 0
+    frames = iio.imread(tmp_path / "m.mp4", index=None)
+    assert frames.shape[0] == 116
+    # features input is detected by shape
+    assert run("render", hml_ref / "new_joint_vecs" / "000000.npy", "--frame", 20, "--out", tmp_path / "s.png") == 0
+    img = iio.imread(tmp_path / "s.png")
+    assert img.shape[0] == 480 and (img[..., :3] < 200).any(axis=-1).mean() > 0.01
+
+
+def test_convert_joints_features_joints(ref_joints_file, tmp_path):
+    assert run("convert", ref_joints_file, tmp_path / "f.npy") == 0
+    feats = np.load(tmp_path / "f.npy")
+    assert feats.shape == (115, 263)
+    assert run("convert", tmp_path / "f.npy", tmp_path / "j.npy") == 0
+    joints = np.load(tmp_path / "j.npy")
+    ref = canonicalize(np.load(ref_joints_file))[:-1]
+    assert joints.shape == (115, 22, 3) and np.abs(joints - ref).max() < 1e-4
+
+
+def test_bvh_export_then_import_within_a_centimetre(ref_motion, tmp_path):
+    _, joints, feats = ref_motion
+    np.save(tmp_path / "f.npy", feats)
+    assert run("convert", tmp_path / "f.npy", tmp_path / "m.bvh") == 0
+    text = (tmp_path / "m.bvh").read_text()
+    assert text.startswith("HIERARCHY") and "ROOT pelvis" in text and "Frame Time: 0.05" in text
+    assert run("convert", tmp_path / "m.bvh", tmp_path / "back.npy", "--to", "joints") == 0
+    back = np.load(tmp_path / "back.npy")
+    assert back.shape == joints.shape
+    assert np.linalg.norm(back - joints, axis=-1).max() < 0.01
+
+
+def test_bvh_round_trip_of_features(ref_motion, tmp_path):
+    _, joints, _ = ref_motion
+    np.save(tmp_path / "j.npy", joints)
+    assert run("convert", tmp_path / "j.npy", tmp_path / "m.bvh") == 0
+    assert run("convert", tmp_path / "m.bvh", tmp_path / "f.npy", "--to", "features") == 0
+    assert np.abs(np.load(tmp_path / "f.npy") - features_from_joints(joints)).max() < 0.05
+
+
+@pytest.mark.parametrize("setup, argv, message", [
+    (None, ["render", "{d}/missing.npy", "--out", "{d}/x.mp4"], "no such file"),
+    ("bad_shape", ["render", "{d}/in.npy", "--out", "{d}/x.mp4"], "neither joints"),
+    ("nan", ["convert", "{d}/in.npy", "{d}/x.bvh"], "NaN"),
+    ("good", ["convert", "{d}/in.npy", "{d}/x.txt"], "unsupported output extension"),
+    ("good_txt", ["convert", "{d}/in.txt", "{d}/x.npy"], "unsupported motion file extension"),
+    ("good", ["render", "{d}/in.npy", "--out", "{d}/x.avi"], "unsupported output format"),
+    ("good", ["render", "{d}/in.npy", "--frame", "500", "--out", "{d}/x.png"], "out of range"),
+    ("garbage", ["render", "{d}/in.npy", "--out", "{d}/x.mp4"], "not a readable .npy"),
+])
+def test_bad_input_is_one_line_exit_2(tmp_path, capsys, setup, argv, message):
+    good = np.zeros((10, 22, 3)) + np.linspace(0, 1, 22)[None, :, None]
+    if setup == "bad_shape":
+        np.save(tmp_path / "in.npy", np.zeros((10, 5)))
+    elif setup == "nan":
+        np.save(tmp_path / "in.npy", np.full((10, 22, 3), np.nan))
+    elif setup == "good":
+        np.save(tmp_path / "in.npy", good)
+    elif setup == "good_txt":
+        (tmp_path / "in.txt").write_text("x")
+    elif setup == "garbage":
+        (tmp_path / "in.npy").write_bytes(b"not numpy")
+    code = run(*[a.format(d=tmp_path) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert message in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not any(p.name.startswith("x.") for p in tmp_path.iterdir())
+
+
+def test_console_script_exit_code(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "stablemofusion.cli.main", "convert", str(tmp_path / "nope.npy"),
+                           str(tmp_path / "o.npy")], capture_output=True, text=True)
+    assert proc.returncode == 2 and proc.stderr.startswith("smf: error: no such file")
+    proc = subprocess.run([sys.executable, "-m", "stablemofusion.cli.main", "render"], capture_output=True, text=True)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1

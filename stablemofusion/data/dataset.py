@@ -1,0 +1,172 @@
+"""Text-motion training dataset over a HumanML3D-style folder (the official Text2MotionDatasetV2 behaviour)."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from ..errors import SMFError
+from ..motion.features import feature_slices
+from ..motion.skeleton import Skeleton
+from .layout import CaptionLine, MotionLayout
+
+MAX_SOURCE_FRAMES = 200  # official upper bound: clips (and sub-clips) with >= 200 frames are dropped
+MIN_FRAMES = {"humanml3d": 40, "kit": 24}  # official lower bounds (2 s at 20 fps, ~2 s at 12.5 fps)
+
+
+@dataclass(frozen=True)
+class _Entry:
+    """One training item: frames [start, end) of clip ``index`` and the captions describing them."""
+
+    index: int
+    start: int
+    end: int
+    captions: tuple[CaptionLine, ...]
+
+
+def biased_std(std: np.ndarray, skeleton: str | Skeleton, feat_bias: float) -> np.ndarray:
+    """(D,) std with the root dims (0:4) and the foot contacts divided by ``feat_bias`` (they weigh more)."""
+    s = feature_slices(skeleton)
+    out = np.array(std, dtype=np.float64)
+    out[0:4] /= feat_bias
+    out[s.contacts] /= feat_bias
+    return out
+
+
+class MotionTextDataset(Dataset):
+    """(normalised motion, caption) pairs from ``<root>/<split>.txt``, all held in memory as float32.
+
+    Each clip with frames in [min_frames, 200) and at least one whole-clip caption is one item; each caption
+    with a sub-range [start, end) s is its own item over ``motion[int(start*fps):int(end*fps)]`` when that
+    length is in bounds (clips with only sub-range captions get no whole-clip item, as officially).
+    ``__getitem__`` picks a random caption and a random crop whose length is the clip length floored to a
+    multiple of ``unit_length`` (one unit shorter with probability 1/3 when unit_length < 10), at most
+    ``max_frames``. With ``seed`` set, item ``i`` of epoch ``e`` is a function of (seed, e, i), so results
+    are reproducible and independent of DataLoader workers: call :meth:`set_epoch` each epoch. With
+    ``seed=None`` every call draws fresh randomness.
+    """
+
+    def __init__(self, root: str | os.PathLike | MotionLayout, split: str = "train", *,
+                 skeleton: str | Skeleton | None = None, min_frames: int | None = None, max_frames: int = 196,
+                 unit_length: int = 4, feat_bias: float = 5.0, seed: int | None = None,
+                 ids: Sequence[str] | None = None):
+        self.layout = root if isinstance(root, MotionLayout) else MotionLayout(root, skeleton)
+        self.layout.validate()
+        sk = self.skeleton = self.layout.skeleton
+        self.split = split
+        self.min_frames = MIN_FRAMES.get(sk.name, 40) if min_frames is None else int(min_frames)
+        self.max_frames, self.unit_length, self.feat_bias = int(max_frames), int(unit_length), float(feat_bias)
+        if self.unit_length < 1 or self.max_frames < self.unit_length or self.min_frames < self.unit_length:
+            raise SMFError(f"need 1 <= unit_length ({unit_length}) <= min_frames ({self.min_frames}) and "
+                           f"<= max_frames ({max_frames})")
+        if not feat_bias > 0:
+            raise SMFError(f"feat_bias must be positive, got {feat_bias}")
+        self.seed = seed
+        self.epoch = 0
+        self.mean = np.asarray(self.layout.mean, dtype=np.float32)
+        self.std = biased_std(self.layout.std, sk, self.feat_bias).astype(np.float32)
+
+        id_list = list(self.layout.ids(split) if ids is None else ids)
+        self.ids: list[str] = []
+        self.motions: list[np.ndarray] = []  # normalised (T, D) float32
+        self.entries: list[_Entry] = []
+        for mid in id_list:
+            self._add_clip(mid)
+        if not self.entries:
+            where = f"split '{split}' ({self.layout.split_path(split)})" if ids is None else "the given ids"
+            raise SMFError(f"{where}: no motions left after filtering {len(id_list)} id(s) (clip length must be "
+                           f"in [{self.min_frames}, {MAX_SOURCE_FRAMES}) frames, with usable captions)")
+
+    def _in_bounds(self, n: int) -> bool:
+        return self.min_frames <= n < MAX_SOURCE_FRAMES
+
+    def _add_clip(self, mid: str) -> None:
+        feats = self.layout.load_features(mid)
+        T = len(feats)
+        if not self._in_bounds(T):
+            return
+        texts = self.layout.load_texts(mid)
+        fps = self.skeleton.fps
+        index = len(self.motions)
+        subs = [_Entry(index, a, min(b, T), (c,)) for c in texts if not c.whole_clip
+                for a, b in [(max(int(c.start * fps), 0), int(c.end * fps))] if self._in_bounds(min(b, T) - a)]
+        whole = tuple(c for c in texts if c.whole_clip)
+        if not whole and not subs:
+            return
+        self.ids.append(mid)
+        self.motions.append(self.normalize(np.asarray(feats, dtype=np.float32)))
+        if whole:
+            self.entries.append(_Entry(index, 0, T, whole))
+        self.entries.extend(subs)
+
+    def __len__(self) -> int:
+        return len(self.entries)
+
+    def set_epoch(self, epoch: int) -> None:
+        """Select the random stream of an epoch (only matters with a seed)."""
+        self.epoch = int(epoch)
+
+    def _rng(self, i: int) -> np.random.Generator:
+        return np.random.default_rng() if self.seed is None else np.random.default_rng([self.seed, self.epoch, i])
+
+    def crop_length(self, n: int, rng: np.random.Generator) -> int:
+        """Training length for a clip of ``n`` frames: a multiple of unit_length in [unit_length, max_frames]."""
+        u = self.unit_length
+        units = n // u
+        if u < 10 and units > 1 and rng.random() < 1 / 3:  # official coin: 'single', 'single', 'double'
+            units -= 1
+        return min(units, self.max_frames // u) * u
+
+    def __getitem__(self, i: int) -> dict[str, Any]:
+        """dict: motion (max_frames, D) float32 normalised and zero-padded, mask (max_frames,) bool,
+        length int, caption str, tokens list[str], id str, frames (start, end) of the crop in the source file."""
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"index {i} out of range for {len(self)} items")
+        e = self.entries[i]
+        rng = self._rng(i % len(self))
+        cap = e.captions[int(rng.integers(len(e.captions)))]
+        n = self.crop_length(e.end - e.start, rng)
+        a = e.start + int(rng.integers(0, e.end - e.start - n + 1))
+        motion = torch.zeros(self.max_frames, self.mean.shape[0], dtype=torch.float32)
+        motion[:n] = torch.from_numpy(self.motions[e.index][a:a + n])
+        mask = torch.zeros(self.max_frames, dtype=torch.bool)
+        mask[:n] = True
+        return {"motion": motion, "mask": mask, "length": n, "caption": cap.caption, "tokens": list(cap.tokens),
+                "id": self.ids[e.index], "frames": (a, a + n)}
+
+    def _stats_like(self, x):
+        if isinstance(x, torch.Tensor):
+            return (torch.as_tensor(self.mean, dtype=x.dtype, device=x.device),
+                    torch.as_tensor(self.std, dtype=x.dtype, device=x.device))
+        return self.mean, self.std
+
+    def normalize(self, x):
+        """(..., D) raw features -> (x - mean) / biased std; numpy or torch."""
+        mean, std = self._stats_like(x)
+        return (x - mean) / std
+
+    def denormalize(self, x):
+        """(..., D) normalised features -> raw features; numpy or torch."""
+        mean, std = self._stats_like(x)
+        return x * std + mean
+
+
+def collate(batch: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """DataLoader collate: motion (B, T, D), mask (B, T), length (B,) long, frames (B, 2) long; lists of
+    caption / tokens / id."""
+    if not batch:
+        raise SMFError("collate: empty batch")
+    return {
+        "motion": torch.stack([b["motion"] for b in batch]),
+        "mask": torch.stack([b["mask"] for b in batch]),
+        "length": torch.tensor([b["length"] for b in batch], dtype=torch.long),
+        "frames": torch.tensor([b["frames"] for b in batch], dtype=torch.long),
+        "caption": [b["caption"] for b in batch],
+        "tokens": [b["tokens"] for b in batch],
+        "id": [b["id"] for b in batch],
+    }

@@ -1,0 +1,99 @@
+"""The one interface every denoiser implements, and the registry that builds one from its config."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any, ClassVar
+
+import torch
+from torch import nn
+
+from ..errors import SMFError
+from ..text.transformer import TextTransformer
+
+
+@dataclass
+class TextConfig:
+    """The trainable text transformer on top of the frozen encoder (whose width is ``in_dim``)."""
+
+    in_dim: int = 384
+    latent: int = 256
+    layers: int = 4
+    heads: int = 4
+    ff: int = 1024
+    dropout: float = 0.1
+    max_tokens: int = 77
+
+
+class Denoiser(nn.Module):
+    """Base class: ``forward(x_t, t, text_tokens, text_mask, drop_cond, motion_mask) -> x0``.
+
+    x_t (B, T, D) noisy normalised features; t (B,) diffusion steps; text_tokens (B, L, C) frozen
+    language-model token embeddings; text_mask (B, L) bool, True on real tokens; drop_cond (B,) bool,
+    True where the text is dropped (classifier-free guidance: the text features become zeros);
+    motion_mask (B, T) bool, True on valid frames (None = all valid). Returns x0 (B, T, D).
+    """
+
+    config_class: ClassVar[type]
+
+    def __init__(self, text: TextConfig):
+        super().__init__()
+        self.text = TextTransformer(text.in_dim, text.latent, text.layers, text.heads, text.ff, text.dropout,
+                                    text.max_tokens)
+
+    def encode_text(self, tokens: torch.Tensor, mask: torch.Tensor, drop_cond: torch.Tensor | None) -> torch.Tensor:
+        """(B, L, C) frozen tokens -> (B, L, latent) text features, zeroed where ``drop_cond``."""
+        h = self.text(tokens, mask)
+        if drop_cond is not None:
+            h = h * (~drop_cond).to(h.dtype)[:, None, None]
+        return h
+
+    def num_parameters(self) -> int:
+        return sum(p.numel() for p in self.parameters())
+
+
+DENOISERS: dict[str, type[Denoiser]] = {}
+
+
+def register(name: str):
+    """Class decorator adding a denoiser to the registry under ``name``."""
+
+    def wrap(cls):
+        DENOISERS[name] = cls
+        return cls
+
+    return wrap
+
+
+@dataclass
+class ModelConfig:
+    """Everything needed to rebuild a denoiser: its architecture name and that architecture's options."""
+
+    arch: str = "unet"
+    motion_dim: int = 263
+    text: TextConfig = field(default_factory=TextConfig)
+    options: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict) -> "ModelConfig":
+        known = {f.name for f in fields(TextConfig)}
+        text = TextConfig(**{k: v for k, v in d.get("text", {}).items() if k in known})
+        return ModelConfig(arch=d["arch"], motion_dim=d.get("motion_dim", 263), text=text,
+                           options=dict(d.get("options", {})))
+
+
+def build_denoiser(config: ModelConfig) -> Denoiser:
+    """Instantiate the denoiser named by ``config.arch`` with ``config.options``."""
+    from . import dit, retnet, unet1d  # noqa: F401  (register the architectures)
+
+    if config.arch not in DENOISERS:
+        raise SMFError(f"unknown architecture {config.arch!r}; known: {', '.join(sorted(DENOISERS))}")
+    cls = DENOISERS[config.arch]
+    try:
+        arch_cfg = cls.config_class(**config.options)
+    except TypeError as e:
+        raise SMFError(f"bad options for {config.arch}: {e}") from None
+    return cls(arch_cfg, config.motion_dim, config.text)

@@ -1,0 +1,34 @@
+"""The small trainable text transformer on top of a frozen language model's token embeddings."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+class TextTransformer(nn.Module):
+    """Frozen token embeddings (B, L, in_dim) -> contextual tokens (B, L, latent), padding masked.
+
+    A linear projection, learned positions, then ``layers`` pre-norm transformer encoder layers.
+    """
+
+    def __init__(self, in_dim: int, latent: int = 256, layers: int = 4, heads: int = 4, ff: int = 1024,
+                 dropout: float = 0.1, max_tokens: int = 77):
+        super().__init__()
+        self.proj = nn.Linear(in_dim, latent)
+        self.pos = nn.Parameter(torch.zeros(1, max_tokens, latent))
+        nn.init.normal_(self.pos, std=0.02)
+        layer = nn.TransformerEncoderLayer(latent, heads, ff, dropout, activation="gelu", batch_first=True,
+                                           norm_first=True)
+        self.encoder = nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
+        self.norm = nn.LayerNorm(latent)
+        self.max_tokens = max_tokens
+
+    def forward(self, tokens: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """tokens (B, L, in_dim), mask (B, L) bool True on real tokens -> (B, L, latent), zero on padding."""
+        L = tokens.shape[1]
+        if L > self.max_tokens:
+            raise ValueError(f"text has {L} tokens, more than the {self.max_tokens} this model takes")
+        x = self.proj(tokens) + self.pos[:, :L]
+        x = self.encoder(x, src_key_padding_mask=~mask)
+        return self.norm(x) * mask[..., None].to(x.dtype)

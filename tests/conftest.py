@@ -30,3 +30,26 @@ def ref_motion(request, hml_ref) -> tuple[str, np.ndarray, np.ndarray]:
     """(id, new_joints (T, 22, 3), new_joint_vecs (T, 263)) of a reference HumanML3D motion."""
     mid = request.param
     return mid, np.load(hml_ref / "new_joints" / f"{mid}.npy"), np.load(hml_ref / "new_joint_vecs" / f"{mid}.npy")
+
+
+# A handful of real Bandai-Namco clips in the archive's own folder layout (labels included).
+BANDAI_MINI = (
+    "dataset-1_walk_normal_001", "dataset-1_walk_normal_002", "dataset-1_run_normal_001", "dataset-1_dash_normal_001",
+    "dataset-2_walk-turn-left_normal_001", "dataset-2_walk-turn-left_normal_002", "dataset-2_wave-left-hand_active_001",
+)
+
+
+@pytest.fixture(scope="session")
+def bandai_mini_source(tmp_path_factory) -> Path:
+    """Unpack the label files and the BANDAI_MINI clips (one streaming pass over the archive, ~10 s)."""
+    import tarfile
+
+    need(BANDAI_ARCHIVE)
+    out = tmp_path_factory.mktemp("bandai-mini")
+    wanted = {f"{n}.{ext}" for n in BANDAI_MINI for ext in ("bvh", "json")}
+    with tarfile.open(BANDAI_ARCHIVE, "r|xz") as tar:
+        for member in tar:
+            name = member.name.rsplit("/", 1)[-1]
+            if member.isfile() and (name in wanted or "/cfg/" in member.name):
+                tar.extract(member, out, filter="data")
+    return out

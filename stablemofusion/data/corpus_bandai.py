@@ -112,8 +112,7 @@ def process_clip(clip: Clip, first_id: int, out: Path, n_captions: int) -> dict:
     speed = np.linalg.norm(np.diff(joints[:, 0, [0, 2]], axis=0), axis=-1).mean() * 20.0
     record["mean_root_speed_m_s"] = float(speed)
     for k, (a, b) in enumerate(segment_bounds(len(joints) - 1)):
-        if b - a < MIN_FRAMES:
-            continue
+        # short clips are kept (as HumanML3D keeps them); the loader's length filter decides their use
         mid = f"{first_id + k:06d}"
         seg = joints[a:b + 1]
         caps = captions_for(clip.content, clip.style, n=n_captions, seed=mid)
@@ -146,6 +145,9 @@ def assign_splits(records: list[dict], seed: int = 0) -> dict[str, list[str]]:
     for key in sorted(groups):
         clips = sorted(groups[key], key=lambda r: r["clip"])
         random.Random(zlib.crc32(f"{seed}:{key}".encode())).shuffle(clips)
+        # the pair's longest clip goes to train (last), so the pair stays trainable at the 40-frame minimum
+        longest = max(clips, key=lambda r: (max((s["frames"] for s in r["segments"]), default=0), r["clip"]))
+        clips = [r for r in clips if r is not longest] + [longest]
         n = len(clips)
         n_test = 0 if n < 2 else max(1, round(0.15 * n))
         n_val = round(0.05 * n) if n - n_test - round(0.05 * n) >= 1 else 0
@@ -241,6 +243,7 @@ def _write_clips_csv(path: Path, records: list[dict], splits: dict[str, list[str
 def corpus_stats(records: list[dict], splits: dict[str, list[str]]) -> dict:
     """Sanity figures: counts, hours, captions, bone-length constancy, speeds of walk/run/dash."""
     segs = [s for r in records for s in r["segments"]]
+    train = set(splits["train"])
     frames = sum(s["frames"] for s in segs)
     speed: dict[str, list[float]] = defaultdict(list)
     for r in records:
@@ -257,6 +260,10 @@ def corpus_stats(records: list[dict], splits: dict[str, list[str]]) -> dict:
         "split_sizes": {k: len(v) for k, v in splits.items()},
         "contents": len({r["content"] for r in records}),
         "content_style_pairs": len({(r["dataset"], r["content"], r["style"]) for r in records}),
+        "motions_under_40_frames": sum(s["frames"] < MIN_FRAMES for s in segs),
+        "content_style_pairs_trainable": len({(r["dataset"], r["content"], r["style"]) for r in records
+                                              if any(s["frames"] >= MIN_FRAMES and s["id"] in train for s in
+                                                     r["segments"])}),
         "bone_length_std_within_clip_cm": {"max": max(bone_std), "median": float(np.median(bone_std))},
         "mean_root_speed_m_s": {k: float(np.mean(v)) for k, v in sorted(speed.items())},
     }
@@ -269,6 +276,8 @@ def format_stats(stats: dict) -> str:
         f"clips {stats['clips']}, motions {stats['motions']} (+{stats['motions']} mirrored), "
         f"frames {stats['frames']}, hours {stats['hours']:.2f}, captions {stats['captions']}",
         "splits " + ", ".join(f"{k} {v}" for k, v in stats["split_sizes"].items()),
+        f"content x style pairs {stats['content_style_pairs']}, with a train motion of >= 40 frames "
+        f"{stats['content_style_pairs_trainable']}; motions under 40 frames {stats['motions_under_40_frames']}",
         f"bone length std within a clip: max {stats['bone_length_std_within_clip_cm']['max']:.4f} cm, "
         f"median {stats['bone_length_std_within_clip_cm']['median']:.4f} cm",
         "mean root speed (m/s): " + ", ".join(f"{k} {v:.2f}" for k, v in sp.items()),

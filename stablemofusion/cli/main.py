@@ -14,6 +14,8 @@ COMMANDS = {
     "render": "render",
     "convert": "convert",
     "prepare": "prepare",
+    "train": "train",
+    "info": "info",
 }
 
 

@@ -1,0 +1,33 @@
+"""`smf info [--preset NAME ...]`: parameter counts of the model presets (and a checkpoint's config)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_parser(sub, name: str) -> None:
+    p = sub.add_parser(name, help="parameter counts of model presets and architectures")
+    p.add_argument("--preset", action="append", default=None, help="preset name (repeatable; default: all)")
+    p.add_argument("--checkpoint", type=Path, default=None, help="describe a checkpoint folder instead")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> None:
+    from ..models.base import build_denoiser
+    from ..models.presets import PRESETS, describe, get_preset
+
+    if args.checkpoint is not None:
+        from ..diffusion.checkpoint import load_checkpoint
+
+        ck = load_checkpoint(args.checkpoint)
+        print(f"{ck.path}: {ck.config['model']['arch']}, {ck.model.num_parameters():,} parameters, "
+              f"text encoder {ck.text_encoder}, step {ck.config.get('step', '?')}")
+        return
+    names = args.preset or list(PRESETS)
+    print(f"{'preset':<15} {'arch':<7} {'parameters':>13} {'text part':>11}  description")
+    for n in names:
+        cfg = get_preset(n)
+        model = build_denoiser(cfg)
+        text = sum(p.numel() for p in model.text.parameters())
+        print(f"{n:<15} {cfg.arch:<7} {model.num_parameters():>13,} {text:>11,}  {describe(n)}")

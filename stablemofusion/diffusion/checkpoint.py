@@ -1,0 +1,118 @@
+"""Checkpoint folders: model + EMA weights (safetensors), config JSON, Mean/Std, optional training state.
+
+A folder alone rebuilds its pipeline: ``config.json`` holds the model, schedule, training and text-encoder
+settings; ``Mean.npy``/``Std.npy`` the normalisation (Std already divided by the feature bias).
+Folders are written to a temporary sibling and renamed into place, so a crash never leaves a half folder.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from safetensors.torch import load_file, save_file
+
+from ..errors import SMFError
+from ..models.base import Denoiser, ModelConfig, build_denoiser
+
+CONFIG = "config.json"
+MODEL = "model.safetensors"
+EMA = "ema.safetensors"
+STATE = "training_state.pt"
+CHECKPOINT_DIR = "checkpoint"  # inside a training run folder, beside log.csv and text-cache/
+
+
+@dataclass
+class Checkpoint:
+    """A loaded checkpoint: the denoiser (EMA weights unless asked otherwise) and its metadata."""
+
+    model: Denoiser
+    config: dict
+    mean: np.ndarray
+    std: np.ndarray
+    path: Path
+
+    @property
+    def text_encoder(self) -> str:
+        return self.config.get("text_encoder", "minilm")
+
+
+def _contiguous(sd: dict[str, torch.Tensor], dtype: torch.dtype | None = None) -> dict[str, torch.Tensor]:
+    return {k: (v.to(dtype) if dtype is not None and v.is_floating_point() else v).detach().cpu().contiguous()
+            for k, v in sd.items()}
+
+
+def save_checkpoint(path: str | Path, *, model: Denoiser, config: dict, mean: np.ndarray, std: np.ndarray,
+                    ema_state: dict[str, torch.Tensor] | None = None, training_state: dict | None = None,
+                    dtype: torch.dtype | None = None) -> Path:
+    """Write a checkpoint folder atomically (replacing ``path`` if it exists)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        save_file(_contiguous(model.state_dict(), dtype), tmp / MODEL)
+        if ema_state is not None:
+            save_file(_contiguous(ema_state, dtype), tmp / EMA)
+        (tmp / CONFIG).write_text(json.dumps(config, indent=2) + "\n")
+        np.save(tmp / "Mean.npy", np.asarray(mean, dtype=np.float32))
+        np.save(tmp / "Std.npy", np.asarray(std, dtype=np.float32))
+        if training_state is not None:
+            torch.save(training_state, tmp / STATE)
+        old = path.with_name(f".{path.name}.old")
+        if path.exists():
+            os.replace(path, old)
+        os.replace(tmp, path)
+        shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return path
+
+
+def resolve(path: str | Path) -> Path:
+    """A checkpoint folder, or a training run folder holding one in ``checkpoint/``."""
+    path = Path(path)
+    if not (path / CONFIG).is_file() and (path / CHECKPOINT_DIR / CONFIG).is_file():
+        return path / CHECKPOINT_DIR
+    return path
+
+
+def read_config(path: str | Path) -> dict:
+    path = resolve(path)
+    if not (path / CONFIG).is_file():
+        raise SMFError(f"not a checkpoint folder (no {CONFIG}): {path}")
+    try:
+        return json.loads((path / CONFIG).read_text())
+    except json.JSONDecodeError as e:
+        raise SMFError(f"{path / CONFIG}: invalid JSON ({e})") from None
+
+
+def load_checkpoint(path: str | Path, *, ema: bool = True, device: str | torch.device = "cpu") -> Checkpoint:
+    """Rebuild the denoiser of a checkpoint folder and load its (EMA) weights, in float32, eval mode."""
+    path = resolve(path)
+    config = read_config(path)
+    model = build_denoiser(ModelConfig.from_dict(config["model"]))
+    weights = path / (EMA if ema and (path / EMA).is_file() else MODEL)
+    if not weights.is_file():
+        raise SMFError(f"checkpoint has no weights file {weights}")
+    state = {k: v.float() if v.is_floating_point() else v for k, v in load_file(weights).items()}
+    missing, unexpected = model.load_state_dict(state, strict=False)
+    if missing or unexpected:
+        raise SMFError(f"{weights}: weights do not fit the config (missing {missing[:3]}, unexpected {unexpected[:3]})")
+    for f in ("Mean.npy", "Std.npy"):
+        if not (path / f).is_file():
+            raise SMFError(f"checkpoint has no {f}: {path}")
+    return Checkpoint(model.to(device).eval(), config, np.load(path / "Mean.npy"), np.load(path / "Std.npy"), path)
+
+
+def load_training_state(path: str | Path) -> dict:
+    """The optimiser/scheduler/EMA/RNG/step state saved with a training checkpoint."""
+    f = Path(path) / STATE
+    if not f.is_file():
+        raise SMFError(f"cannot resume: no {STATE} in {path}")
+    return torch.load(f, map_location="cpu", weights_only=False)

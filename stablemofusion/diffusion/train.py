@@ -1,0 +1,200 @@
+"""Diffusion training: x0 prediction with masked MSE, AdamW, step LR decay, grad clipping, EMA, CFG dropout.
+
+One obvious path: corpus -> batches (deterministic in the step number) -> frozen text tokens (disk cache)
+-> noise (DDPM schedule) -> denoiser -> loss -> optimiser. Runs through accelerate (CPU, one GPU, or
+``accelerate launch`` on many). Every random draw of step ``s`` is seeded from (seed, s), so a run resumed
+from a checkpoint reproduces the uninterrupted run exactly on CPU.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from ..data.dataset import MotionTextDataset, collate
+from ..errors import SMFError
+from ..models.base import build_denoiser
+from ..models.presets import get_preset
+from .checkpoint import CHECKPOINT_DIR, MODEL, load_training_state, read_config, save_checkpoint
+from .schedule import ScheduleConfig, make_train_scheduler
+
+
+@dataclass
+class TrainConfig:
+    """Optimisation settings (saved in every checkpoint's config.json)."""
+
+    preset: str = "small"
+    steps: int = 50_000
+    batch_size: int = 64
+    lr: float = 2e-4
+    weight_decay: float = 0.01
+    lr_decay: float = 0.9
+    lr_decay_every: int = 5_000
+    grad_clip: float = 1.0
+    ema_decay: float = 0.9999
+    cond_drop: float = 0.1
+    seed: int = 0
+    mixed_precision: str = "no"  # no | fp16 | bf16
+    text_encoder: str = "minilm"
+    checkpoint_every: int = 1_000
+    max_frames: int = 196
+    min_frames: int | None = None
+    feat_bias: float = 5.0
+    schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
+
+
+def _mix(*ints: int) -> int:
+    """A 63-bit seed from integers (stable across runs and machines)."""
+    return int(np.random.SeedSequence(list(ints)).generate_state(1, dtype=np.uint64)[0] >> 1)
+
+
+def batch_indices(step: int, batch_size: int, n: int, seed: int) -> list[tuple[int, int]]:
+    """(epoch, item) pairs of step ``step``: consecutive slices of a per-epoch permutation of ``n`` items."""
+    out = []
+    for g in range(step * batch_size, (step + 1) * batch_size):
+        epoch, k = divmod(g, n)
+        out.append((epoch, int(np.random.default_rng([seed, epoch]).permutation(n)[k])))
+    return out
+
+
+def get_batch(ds: MotionTextDataset, step: int, batch_size: int, seed: int) -> dict:
+    items = []
+    for epoch, i in batch_indices(step, batch_size, len(ds), seed):
+        ds.set_epoch(epoch)
+        items.append(ds[i])
+    return collate(items)
+
+
+def masked_mse(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean squared error over valid frames: pred/target (B, T, D), mask (B, T) bool."""
+    m = mask[..., None].to(pred.dtype)
+    return ((pred - target) ** 2 * m).sum() / (m.sum() * pred.shape[-1]).clamp_min(1.0)
+
+
+def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool = False, stop_after: int | None = None,
+          progress: bool = True, text_cache: str | Path | None = None) -> list[float]:
+    """Train a denoiser on the corpus at ``data``; checkpoints go to ``out``. Returns this run's step losses.
+
+    ``stop_after`` ends the run after that many total steps, as if killed right after a checkpoint.
+    """
+    from accelerate import Accelerator
+    from diffusers.training_utils import EMAModel
+
+    from ..text.cache import TextEmbeddingCache
+    from ..text.frozen import load_text_encoder
+
+    out = Path(out)
+    accelerator = Accelerator(mixed_precision=cfg.mixed_precision, cpu=not torch.cuda.is_available())
+    ds = MotionTextDataset(data, "train", seed=cfg.seed, max_frames=cfg.max_frames, min_frames=cfg.min_frames,
+                           feat_bias=cfg.feat_bias)
+    encoder = load_text_encoder(cfg.text_encoder).to(accelerator.device)
+    cache = TextEmbeddingCache(text_cache or (out / "text-cache"), encoder)
+    model_cfg = get_preset(cfg.preset, motion_dim=int(ds.mean.shape[0]), text_dim=encoder.dim)
+    model = build_denoiser(model_cfg)
+    optimizer = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    lr_sched = torch.optim.lr_scheduler.StepLR(optimizer, step_size=cfg.lr_decay_every, gamma=cfg.lr_decay)
+    ema = EMAModel(model.parameters(), decay=cfg.ema_decay)
+    start = 0
+    if resume:
+        state = load_training_state(out / CHECKPOINT_DIR)
+        if read_config(out / CHECKPOINT_DIR)["train"] != _json(asdict(cfg)):
+            raise SMFError(f"cannot resume {out}: its training config differs from this run's")
+        from safetensors.torch import load_file
+
+        model.load_state_dict(load_file(out / CHECKPOINT_DIR / MODEL))
+        optimizer.load_state_dict(state["optimizer"])
+        lr_sched.load_state_dict(state["lr_scheduler"])
+        ema.load_state_dict(state["ema"])
+        start = int(state["step"])
+    model, optimizer = accelerator.prepare(model, optimizer)
+    noise_sched = make_train_scheduler(cfg.schedule)
+    T = cfg.schedule.num_train_timesteps
+    config = {"model": model_cfg.to_dict(), "train": _json(asdict(cfg)), "text_encoder": encoder.name,
+              "skeleton": ds.skeleton.name if hasattr(ds, "skeleton") else "humanml3d", "fps": 20.0,
+              "max_frames": cfg.max_frames, "min_frames": ds.min_frames if hasattr(ds, "min_frames") else 40}
+    log_path = out / "log.csv"
+    out.mkdir(parents=True, exist_ok=True)
+    if not resume or not log_path.exists():
+        log_path.write_text("step,loss,lr,seconds\n")
+    end = cfg.steps if stop_after is None else min(cfg.steps, stop_after)
+    losses: list[float] = []
+    bar = tqdm(range(start, end), initial=start, total=end, desc="train", unit="step", disable=not progress or
+               not accelerator.is_main_process)
+    t0 = time.perf_counter()
+    rank, world = accelerator.process_index, accelerator.num_processes
+    with open(log_path, "a", newline="") as log_file:
+        log = csv.writer(log_file)
+        for step in bar:
+            batch = get_batch(ds, step, cfg.batch_size * world, cfg.seed)
+            sl = slice(rank * cfg.batch_size, (rank + 1) * cfg.batch_size)
+            x0 = batch["motion"][sl].to(accelerator.device)
+            mask = batch["mask"][sl].to(accelerator.device)
+            tokens, tmask = cache.get_or_compute(batch["caption"][sl], device=accelerator.device)
+            g = torch.Generator().manual_seed(_mix(cfg.seed, step, rank))
+            t = torch.randint(0, T, (x0.shape[0],), generator=g).to(accelerator.device)
+            noise = torch.randn(x0.shape, generator=g).to(accelerator.device)
+            drop = (torch.rand(x0.shape[0], generator=g) < cfg.cond_drop).to(accelerator.device)
+            torch.manual_seed(_mix(cfg.seed, step, rank, 1))  # dropout inside the model
+            x_t = noise_sched.add_noise(x0, noise, t)
+            model.train()
+            with accelerator.autocast():
+                pred = model(x_t, t, tokens, tmask, drop, mask)
+            loss = masked_mse(pred.float(), x0, mask)
+            accelerator.backward(loss)
+            if accelerator.sync_gradients:
+                accelerator.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+            optimizer.step()
+            lr_sched.step()
+            optimizer.zero_grad(set_to_none=True)
+            ema.step(accelerator.unwrap_model(model).parameters())
+            value = accelerator.gather(loss.detach()[None]).mean().item()
+            if not math.isfinite(value):
+                raise SMFError(f"training diverged at step {step}: loss is {value}")
+            losses.append(value)
+            elapsed = time.perf_counter() - t0
+            if accelerator.is_main_process:
+                log.writerow([step + 1, f"{value:.6f}", f"{lr_sched.get_last_lr()[0]:.3e}", f"{elapsed:.2f}"])
+                bar.set_postfix(loss=f"{value:.4f}", lr=f"{lr_sched.get_last_lr()[0]:.1e}")
+            if (step + 1) % cfg.checkpoint_every == 0 or step + 1 == end:
+                log_file.flush()
+                cache.flush()
+                if accelerator.is_main_process:
+                    _save(out, accelerator.unwrap_model(model), ema, optimizer, lr_sched, step + 1, config, ds)
+                accelerator.wait_for_everyone()
+    cache.close()
+    return losses
+
+
+def _json(d: dict) -> dict:
+    """Round-trip through JSON so tuples compare equal to the lists read back from config.json."""
+    import json
+
+    return json.loads(json.dumps(d))
+
+
+def _save(out: Path, model, ema, optimizer, lr_sched, step: int, config: dict, ds: MotionTextDataset) -> None:
+    ema_model_state = _ema_state(model, ema)
+    training_state = {"optimizer": optimizer.state_dict(), "lr_scheduler": lr_sched.state_dict(),
+                      "ema": ema.state_dict(), "step": step, "torch_rng": torch.get_rng_state(),
+                      "numpy_rng": np.random.get_state()}
+    save_checkpoint(out / CHECKPOINT_DIR, model=model, config={**config, "step": step}, mean=ds.mean, std=ds.std,
+                    ema_state=ema_model_state, training_state=training_state)
+
+
+def _ema_state(model, ema) -> dict[str, torch.Tensor]:
+    """The model's state dict with the EMA shadow weights in place of its parameters."""
+    state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    names = [n for n, _ in model.named_parameters()]
+    for name, shadow in zip(names, ema.shadow_params):
+        state[name] = shadow.detach().clone()
+    return state
+
+
+__all__ = ["TrainConfig", "train", "masked_mse", "batch_indices"]

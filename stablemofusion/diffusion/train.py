@@ -97,6 +97,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     encoder = load_text_encoder(cfg.text_encoder).to(accelerator.device)
     cache = TextEmbeddingCache(text_cache or (out / "text-cache"), encoder)
     model_cfg = get_preset(cfg.preset, motion_dim=int(ds.mean.shape[0]), text_dim=encoder.dim)
+    torch.manual_seed(cfg.seed)  # initial weights
     model = build_denoiser(model_cfg)
     optimizer = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     lr_sched = torch.optim.lr_scheduler.StepLR(optimizer, step_size=cfg.lr_decay_every, gamma=cfg.lr_decay)

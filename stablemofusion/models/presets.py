@@ -10,7 +10,7 @@ from .dit import DiTConfig
 from .retnet import RetNetConfig
 from .unet1d import UNetConfig
 
-_SMALL_UNET = dict(base_dim=64, dim_mults=(1, 2, 2, 2), attn_heads=4, time_dim=256)
+_SMALL_UNET = dict(base_dim=64, dim_mults=(1, 2, 2, 2), blocks_per_level=1, attn_heads=4, time_dim=128)
 _SMALL_TEXT = TextConfig(latent=256, layers=4, heads=4, ff=512)
 
 # name -> (architecture, architecture options, text options, what it is)

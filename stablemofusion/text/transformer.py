@@ -31,4 +31,5 @@ class TextTransformer(nn.Module):
             raise ValueError(f"text has {L} tokens, more than the {self.max_tokens} this model takes")
         x = self.proj(tokens) + self.pos[:, :L]
         x = self.encoder(x, src_key_padding_mask=~mask)
-        return self.norm(x) * mask[..., None].to(x.dtype)
+        # where() rather than a product: a caption with no valid token gives NaN rows, which must become 0
+        return torch.where(mask[..., None], self.norm(x), torch.zeros((), dtype=x.dtype, device=x.device))

@@ -13,7 +13,7 @@ def add_parser(sub, name: str) -> None:
     p = sub.add_parser(name, help="convert between joints .npy, features .npy and .bvh",
                        description="Convert a motion between joints .npy (T,J,3 metres), features .npy (T,263|251) "
                                    "and BVH. A .npy output holds the other kind than the input unless --to says.")
-    p.add_argument("input", type=Path)
+    p.add_argument("input", help="joints/features .npy, .bvh, or example:<name>")
     p.add_argument("output", type=Path)
     p.add_argument("--to", choices=["joints", "features"], default=None,
                    help="what a .npy output holds (default: features for a joints input, joints otherwise)")
@@ -30,7 +30,7 @@ def run(args: argparse.Namespace) -> None:
     elif args.to is not None:
         kind = args.to
     else:
-        from_joints = args.input.suffix.lower() == ".npy" and motion.features is None
+        from_joints = not str(args.input).lower().endswith(".bvh") and motion.features is None
         kind = "features" if from_joints else "joints"
     save_motion(motion, args.output, kind)
     print(f"wrote {args.output} ({kind}, {len(motion.joints)} frames)")

@@ -12,7 +12,7 @@ from ..motion.files import load_motion
 def add_parser(sub, name: str) -> None:
     p = sub.add_parser(name, help="stick-figure video or still of a joints/features .npy or .bvh",
                        description="Render a motion (joints .npy, features .npy or our .bvh) as a video or PNG still.")
-    p.add_argument("input", type=Path, help="motion file: joints (T,J,3) .npy, features (T,D) .npy, or .bvh")
+    p.add_argument("input", help="motion file: joints (T,J,3) .npy, features (T,D) .npy, .bvh, or example:<name>")
     p.add_argument("--out", type=Path, required=True, help="output .mp4, .gif, or .png (with --frame)")
     p.add_argument("--title", default=None, help="text shown above the figure")
     p.add_argument("--frame", type=int, default=None, help="render only this frame as a PNG still")
@@ -31,7 +31,7 @@ def run(args: argparse.Namespace) -> None:
     if suffix not in (".mp4", ".gif", ".png"):
         raise SMFError(f"unsupported output format '{args.out.suffix}'; use .mp4, .gif or .png")
     motion = load_motion(args.input)
-    title = args.title if args.title is not None else args.input.stem
+    title = args.title if args.title is not None else Path(args.input).stem.replace("example:", "")
     if args.frame is not None:
         render_frame(motion.joints, args.frame, args.out, skeleton=motion.skeleton, title=title, size=args.size)
     else:

@@ -30,8 +30,23 @@ class Motion:
     features: np.ndarray | None = None
 
 
+def example_path(name: str) -> Path:
+    """The packaged example motion ``name`` (see stablemofusion/assets/examples/README.md)."""
+    from importlib import resources
+
+    folder = resources.files("stablemofusion") / "assets" / "examples"
+    path = Path(str(folder / f"{name}.npy"))
+    if not path.is_file():
+        known = sorted(p.name[:-4] for p in folder.iterdir() if p.name.endswith(".npy"))
+        raise SMFError(f"no example motion named {name!r}; known: {', '.join(known)}")
+    return path
+
+
 def load_motion(path: str | Path, skeleton: str | Skeleton | None = None) -> Motion:
-    """Read a joints `.npy`, a features `.npy` or a `.bvh` written with our skeleton's joint names."""
+    """Read a joints `.npy`, a features `.npy`, a `.bvh` written with our skeleton's joint names, or a
+    packaged example given as ``example:<name>``."""
+    if isinstance(path, str) and path.startswith("example:"):
+        path = example_path(path[len("example:"):])
     path = Path(path)
     if path.suffix.lower() not in MOTION_SUFFIXES:
         raise SMFError(f"unsupported motion file extension '{path.suffix}' for {path}; use .npy or .bvh")

@@ -95,3 +95,11 @@ def test_console_script_exit_code(tmp_path):
     assert proc.returncode == 2 and proc.stderr.startswith("smf: error: no such file")
     proc = subprocess.run([sys.executable, "-m", "stablemofusion.cli.main", "render"], capture_output=True, text=True)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1
+
+
+def test_packaged_example_works_without_shared_data(tmp_path):
+    assert run("convert", "example:wave-both-hands", tmp_path / "w.bvh") == 0
+    assert run("convert", "example:wave-both-hands", tmp_path / "f.npy") == 0
+    assert np.load(tmp_path / "f.npy").shape == (117, 263)
+    assert run("render", "example:wave-both-hands", "--frame", 60, "--out", tmp_path / "w.png") == 0
+    assert (tmp_path / "w.png").stat().st_size > 10_000

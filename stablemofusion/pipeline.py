@@ -1,0 +1,198 @@
+"""MotionPipeline: text -> motion with a trained checkpoint, in a few diffusion steps.
+
+The four inference tricks of the paper: text embedded once per prompt and kept in an LRU cache across
+calls; conditional and unconditional passes in one batched forward; half precision on GPU; an efficient
+sampler (SDE DPM-Solver++ 2M with Karras sigmas, 10 steps, by default).
+"""
+
+from __future__ import annotations
+
+import inspect
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from .diffusion.checkpoint import load_checkpoint
+from .diffusion.samplers import DEFAULT_SAMPLER, make_sampler, model_output_for
+from .diffusion.schedule import ScheduleConfig
+from .errors import SMFError
+from .motion.features import joints_from_features
+from .motion.skeleton import get_skeleton
+
+
+@dataclass
+class MotionResult:
+    """One generated motion: features (T, D) in dataset units, joints (T, J, 3) in metres, at ``fps``."""
+
+    prompt: str
+    features: np.ndarray
+    joints: np.ndarray
+    fps: float
+    seed: int | None
+
+
+def default_model_path() -> Path | None:
+    """The default model shipped inside the package, if any."""
+    from importlib import resources
+
+    path = Path(str(resources.files("stablemofusion") / "assets" / "default_model"))
+    return path if (path / "config.json").is_file() else None
+
+
+class MotionPipeline:
+    """Generate motions from text with a denoiser checkpoint. Build with :meth:`from_pretrained`."""
+
+    def __init__(self, model, mean: np.ndarray, std: np.ndarray, config: dict, *, device: str | torch.device = "cpu",
+                 dtype: torch.dtype = torch.float32, text_cache_size: int = 1024):
+        from .text.cache import LRUTextCache
+        from .text.frozen import load_text_encoder
+
+        self.device = torch.device(device)
+        self.dtype = dtype
+        self.model = model.to(self.device, dtype).eval()
+        self.config = config
+        self.skeleton = get_skeleton(config.get("skeleton", "humanml3d"))
+        self.fps = float(config.get("fps", self.skeleton.fps))
+        self.max_frames = int(config.get("max_frames", 196))
+        self.min_frames = int(config.get("min_frames") or 40)
+        self.mean = torch.as_tensor(mean, dtype=torch.float32)
+        self.std = torch.as_tensor(std, dtype=torch.float32)
+        self.schedule = ScheduleConfig(**config.get("train", {}).get("schedule", {}))
+        self.text_encoder_name = config.get("text_encoder", "minilm")
+        self._load_encoder = lambda: load_text_encoder(self.text_encoder_name).to(self.device)
+        self.text_cache = LRUTextCache(_LazyEncoder(self._load_encoder), maxsize=text_cache_size)
+
+    @classmethod
+    def from_pretrained(cls, path: str | Path | None = None, *, device: str | torch.device | None = None,
+                        dtype: torch.dtype | None = None, **kwargs) -> "MotionPipeline":
+        """Load a checkpoint folder (or a training run folder); ``None`` = the shipped default model.
+        On CUDA the model runs in float16 unless ``dtype`` says otherwise; on CPU in float32."""
+        if path is None:
+            path = default_model_path()
+            if path is None:
+                raise SMFError("no default model is shipped in this version; pass a checkpoint folder")
+        device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+        if dtype is None:
+            dtype = torch.float16 if device.type == "cuda" else torch.float32
+        ck = load_checkpoint(path)
+        return cls(ck.model, ck.mean, ck.std, ck.config, device=device, dtype=dtype, **kwargs)
+
+    def encode_text(self, prompts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Frozen token embeddings for ``prompts`` through the LRU cache: (B, L, C), (B, L)."""
+        return self.text_cache.get_or_compute(list(prompts), device=self.device)
+
+    def frames_for(self, seconds: float | None, frames: int | None) -> int:
+        """Clamp a requested duration to what the model was trained on (multiple of 4), warning if changed."""
+        if frames is None:
+            if seconds is None:
+                seconds = 4.0
+            if not np.isfinite(seconds) or seconds <= 0:
+                raise SMFError(f"seconds must be a positive number, got {seconds}")
+            frames = int(round(seconds * self.fps))
+        if frames <= 0:
+            raise SMFError(f"frames must be positive, got {frames}")
+        n = min(max(frames, self.min_frames), self.max_frames) // 4 * 4
+        if n != frames:
+            warnings.warn(f"length {frames} frames ({frames / self.fps:.2f} s) clamped to {n} frames "
+                          f"({n / self.fps:.2f} s), the range this model was trained on", stacklevel=3)
+        return n
+
+    @torch.no_grad()
+    def __call__(self, prompts: str | list[str], *, seconds: float | list[float] | None = None,
+                 frames: int | list[int] | None = None, guidance_scale: float = 2.5, steps: int = 10,
+                 sampler: str = DEFAULT_SAMPLER, seed: int | None = None, batch_size: int = 32,
+                 progress: bool = False) -> list[MotionResult]:
+        """Generate one motion per prompt. ``seconds``/``frames`` may be one value or one per prompt.
+        The same seed gives the same motions."""
+        prompts = [prompts] if isinstance(prompts, str) else list(prompts)
+        if not prompts or any(not isinstance(p, str) or not p.strip() for p in prompts):
+            raise SMFError("every prompt must be a non-empty text")
+        if steps < 1:
+            raise SMFError(f"steps must be at least 1, got {steps}")
+        if batch_size < 1:
+            raise SMFError(f"batch_size must be at least 1, got {batch_size}")
+        n = len(prompts)
+        secs = seconds if isinstance(seconds, (list, tuple)) else [seconds] * n
+        frs = frames if isinstance(frames, (list, tuple)) else [frames] * n
+        if len(secs) != n or len(frs) != n:
+            raise SMFError("give one length for all prompts or one per prompt")
+        lengths = [self.frames_for(s, f) for s, f in zip(secs, frs)]
+        make_sampler(sampler, self.schedule)  # fail early on an unknown name
+        results: list[MotionResult] = []
+        starts = range(0, n, batch_size)
+        for k, start in enumerate(tqdm(starts, desc="generate", unit="batch", disable=not progress)):
+            idx = list(range(start, min(n, start + batch_size)))
+            batch_seed = None if seed is None else seed + k
+            feats = self.sample([prompts[i] for i in idx], [lengths[i] for i in idx], guidance_scale=guidance_scale,
+                                steps=steps, sampler=sampler, seed=batch_seed)
+            for j, i in enumerate(idx):
+                f = feats[j, :lengths[i]].numpy().astype(np.float64)
+                results.append(MotionResult(prompts[i], f, joints_from_features(f, self.skeleton), self.fps, batch_seed))
+        return results
+
+    def sample(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = 2.5, steps: int = 10,
+               sampler: str = DEFAULT_SAMPLER, seed: int | None = None, batched_cfg: bool = True) -> torch.Tensor:
+        """Denoise a batch: returns features (B, max(lengths), D) in dataset units (CPU, float32)."""
+        B, T, D = len(prompts), max(lengths), int(self.mean.shape[0])
+        sched = make_sampler(sampler, self.schedule)
+        sched.set_timesteps(steps, device=self.device)
+        gen = torch.Generator().manual_seed(seed if seed is not None else int(torch.seed() % 2**63))
+        x = (torch.randn(B, T, D, generator=gen) * sched.init_noise_sigma).to(self.device, self.dtype)
+        mask = (torch.arange(T)[None] < torch.tensor(lengths)[:, None]).to(self.device)
+        tokens, tmask = self.encode_text(prompts)
+        tokens = tokens.to(self.dtype)
+        use_cfg = guidance_scale != 1.0
+        stochastic = "generator" in inspect.signature(sched.step).parameters
+        for t in sched.timesteps:
+            x_in = sched.scale_model_input(x, t)
+            tt = torch.full((B,), int(t), device=self.device, dtype=torch.long)
+            if use_cfg:
+                x0 = self._guided(x_in, tt, tokens, tmask, mask, guidance_scale, batched_cfg)
+            else:
+                x0 = self.model(x_in, tt, tokens, tmask, None, mask)
+            out = model_output_for(sched, x0, x, int(t))
+            if stochastic:  # per-step noise from the call's seed, drawn on the model's device
+                step_seed = int(torch.randint(0, 2**62, (1,), generator=gen))
+                x = sched.step(out, t, x, generator=torch.Generator(device=self.device).manual_seed(step_seed)).prev_sample
+            else:
+                x = sched.step(out, t, x).prev_sample
+        x = x.float().cpu()
+        return x * self.std + self.mean
+
+    def _guided(self, x, t, tokens, tmask, mask, scale: float, batched: bool) -> torch.Tensor:
+        """Classifier-free guidance in x0 space: u + scale * (c - u), both passes in one forward if ``batched``."""
+        B = x.shape[0]
+        if batched:
+            drop = torch.cat([torch.zeros(B, dtype=torch.bool), torch.ones(B, dtype=torch.bool)]).to(x.device)
+            out = self.model(torch.cat([x, x]), torch.cat([t, t]), torch.cat([tokens, tokens]), torch.cat([tmask, tmask]),
+                             drop, torch.cat([mask, mask]))
+            cond, uncond = out[:B], out[B:]
+        else:
+            cond = self.model(x, t, tokens, tmask, torch.zeros(B, dtype=torch.bool, device=x.device), mask)
+            uncond = self.model(x, t, tokens, tmask, torch.ones(B, dtype=torch.bool, device=x.device), mask)
+        return uncond + scale * (cond - uncond)
+
+
+class _LazyEncoder:
+    """Loads the frozen text encoder on first use (a fully cached pipeline never loads it)."""
+
+    def __init__(self, load):
+        self._load = load
+        self._enc = None
+        self.calls = 0
+
+    def _get(self):
+        if self._enc is None:
+            self._enc = self._load()
+        return self._enc
+
+    def encode(self, texts: list[str]):
+        self.calls += 1
+        return self._get().encode(texts)
+
+    def __getattr__(self, name):
+        return getattr(self._get(), name)

@@ -24,6 +24,10 @@ from .motion.features import joints_from_features
 from .motion.skeleton import get_skeleton
 
 
+class LengthClampedWarning(UserWarning):
+    """A requested length was outside what the model was trained on and was clamped."""
+
+
 @dataclass
 class MotionResult:
     """One generated motion: features (T, D) in dataset units, joints (T, J, 3) in metres, at ``fps``."""
@@ -98,7 +102,8 @@ class MotionPipeline:
         n = min(max(frames, self.min_frames), self.max_frames) // 4 * 4
         if n != frames:
             warnings.warn(f"length {frames} frames ({frames / self.fps:.2f} s) clamped to {n} frames "
-                          f"({n / self.fps:.2f} s), the range this model was trained on", stacklevel=3)
+                          f"({n / self.fps:.2f} s), the range this model was trained on", LengthClampedWarning,
+                          stacklevel=3)
         return n
 
     @torch.no_grad()
@@ -146,12 +151,18 @@ class MotionPipeline:
         tokens, tmask = self.encode_text(prompts)
         tokens = tokens.to(self.dtype)
         use_cfg = guidance_scale != 1.0
+        if use_cfg and batched_cfg:  # built once, so the denoiser encodes the text once per call
+            drop = torch.cat([torch.zeros(B, dtype=torch.bool), torch.ones(B, dtype=torch.bool)]).to(self.device)
+            tokens2, tmask2, mask2 = torch.cat([tokens, tokens]), torch.cat([tmask, tmask]), torch.cat([mask, mask])
         stochastic = "generator" in inspect.signature(sched.step).parameters
         for t in sched.timesteps:
             x_in = sched.scale_model_input(x, t)
             tt = torch.full((B,), int(t), device=self.device, dtype=torch.long)
-            if use_cfg:
-                x0 = self._guided(x_in, tt, tokens, tmask, mask, guidance_scale, batched_cfg)
+            if use_cfg and batched_cfg:
+                out = self.model(torch.cat([x_in, x_in]), torch.cat([tt, tt]), tokens2, tmask2, drop, mask2)
+                x0 = out[B:] + guidance_scale * (out[:B] - out[B:])
+            elif use_cfg:
+                x0 = self._guided(x_in, tt, tokens, tmask, mask, guidance_scale)
             else:
                 x0 = self.model(x_in, tt, tokens, tmask, None, mask)
             out = model_output_for(sched, x0, x, int(t))
@@ -163,17 +174,11 @@ class MotionPipeline:
         x = x.float().cpu()
         return x * self.std + self.mean
 
-    def _guided(self, x, t, tokens, tmask, mask, scale: float, batched: bool) -> torch.Tensor:
-        """Classifier-free guidance in x0 space: u + scale * (c - u), both passes in one forward if ``batched``."""
+    def _guided(self, x, t, tokens, tmask, mask, scale: float) -> torch.Tensor:
+        """Classifier-free guidance in x0 space, u + scale * (c - u), as two separate forward passes."""
         B = x.shape[0]
-        if batched:
-            drop = torch.cat([torch.zeros(B, dtype=torch.bool), torch.ones(B, dtype=torch.bool)]).to(x.device)
-            out = self.model(torch.cat([x, x]), torch.cat([t, t]), torch.cat([tokens, tokens]), torch.cat([tmask, tmask]),
-                             drop, torch.cat([mask, mask]))
-            cond, uncond = out[:B], out[B:]
-        else:
-            cond = self.model(x, t, tokens, tmask, torch.zeros(B, dtype=torch.bool, device=x.device), mask)
-            uncond = self.model(x, t, tokens, tmask, torch.ones(B, dtype=torch.bool, device=x.device), mask)
+        cond = self.model(x, t, tokens, tmask, torch.zeros(B, dtype=torch.bool, device=x.device), mask)
+        uncond = self.model(x, t, tokens, tmask, torch.ones(B, dtype=torch.bool, device=x.device), mask)
         return uncond + scale * (cond - uncond)
 
 

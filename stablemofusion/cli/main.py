@@ -16,6 +16,8 @@ COMMANDS = {
     "prepare": "prepare",
     "train": "train",
     "info": "info",
+    "generate": "generate",
+    "bench": "bench",
 }
 
 

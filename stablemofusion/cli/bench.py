@@ -1,0 +1,92 @@
+"""`smf bench`: average inference time per sentence (AITS) for samplers and step counts; JSON output."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+
+def add_parser(sub, name: str) -> None:
+    from ..diffusion.samplers import DEFAULT_SAMPLER
+
+    p = sub.add_parser(name, help="average inference time per sentence (batch 1 and 32)")
+    p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
+    p.add_argument("--preset", default=None, help="time an untrained preset instead of a checkpoint")
+    p.add_argument("--sampler", action="append", default=None, help=f"repeatable (default {DEFAULT_SAMPLER})")
+    p.add_argument("--steps", type=int, action="append", default=None, help="repeatable (default 10)")
+    p.add_argument("--frames", type=int, default=196)
+    p.add_argument("--batch-sizes", default="1,32")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--guidance", type=float, default=2.5)
+    p.add_argument("--device", default=None)
+    p.add_argument("--out", type=Path, default=None, help="write the JSON here too")
+    p.set_defaults(func=run)
+
+
+def _pipeline(args):
+    import torch
+
+    from ..pipeline import MotionPipeline
+
+    if args.preset is None:
+        return MotionPipeline.from_pretrained(args.checkpoint, device=args.device)
+    from ..models.base import build_denoiser
+    from ..models.presets import get_preset
+
+    import numpy as np
+
+    device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    cfg = get_preset(args.preset)
+    model = build_denoiser(cfg)
+    config = {"model": cfg.to_dict(), "text_encoder": "minilm", "max_frames": 196, "min_frames": 40}
+    dtype = torch.float16 if device.type == "cuda" else torch.float32
+    return MotionPipeline(model, np.zeros(263), np.ones(263), config, device=device, dtype=dtype)
+
+
+def run(args: argparse.Namespace) -> None:
+    import torch
+
+    from ..diffusion.samplers import DEFAULT_SAMPLER
+    from ..errors import SMFError
+    from ..io import write_text
+
+    pipe = _pipeline(args)
+    samplers = args.sampler or [DEFAULT_SAMPLER]
+    steps_list = args.steps or [10]
+    try:
+        batches = [int(b) for b in args.batch_sizes.split(",")]
+    except ValueError:
+        raise SMFError(f"--batch-sizes must be a comma list of integers, not {args.batch_sizes!r}") from None
+    prompt = "a person walks forward and waves with the right hand"
+    rows = []
+    for sampler in samplers:
+        for steps in steps_list:
+            for b in batches:
+                prompts = [f"{prompt} {i}" for i in range(b)]
+                pipe.sample(prompts, [args.frames] * b, guidance_scale=args.guidance, steps=steps, sampler=sampler,
+                            seed=0)  # warm-up; fills the text cache, so timing excludes the language model
+                times = []
+                for r in range(args.repeats):
+                    if pipe.device.type == "cuda":
+                        torch.cuda.synchronize()
+                    t0 = time.perf_counter()
+                    pipe.sample(prompts, [args.frames] * b, guidance_scale=args.guidance, steps=steps,
+                                sampler=sampler, seed=r)
+                    if pipe.device.type == "cuda":
+                        torch.cuda.synchronize()
+                    times.append(time.perf_counter() - t0)
+                mean = sum(times) / len(times)
+                rows.append({"sampler": sampler, "steps": steps, "batch_size": b, "frames": args.frames,
+                             "seconds_per_batch": mean, "aits": mean / b})
+                print(f"{sampler:<24} steps {steps:>4}  batch {b:>3}  AITS {mean / b * 1000:9.2f} ms", flush=True)
+    report = {"device": str(pipe.device), "dtype": str(pipe.dtype).replace("torch.", ""),
+              "device_name": torch.cuda.get_device_name() if pipe.device.type == "cuda" else platform.processor()
+              or platform.machine(), "threads": torch.get_num_threads(),
+              "parameters": pipe.model.num_parameters(), "guidance": args.guidance, "results": rows}
+    text = json.dumps(report, indent=2)
+    print(text)
+    if args.out is not None:
+        write_text(args.out, text + "\n")

@@ -1,0 +1,88 @@
+"""`smf generate "TEXT" --seconds 4 --out DIR [--format npy,mp4,gif,bvh,json] ...`: text to motion files."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import warnings
+from pathlib import Path
+
+FORMATS = ("npy", "mp4", "gif", "bvh", "json")
+
+
+def add_parser(sub, name: str) -> None:
+    from ..diffusion.samplers import DEFAULT_SAMPLER
+
+    p = sub.add_parser(name, help="generate motions from text",
+                       description="Generate one motion per prompt and write joints/features .npy, video and BVH.")
+    p.add_argument("text", nargs="?", default=None, help="the prompt (or use --prompts FILE)")
+    p.add_argument("--prompts", type=Path, default=None, help="file with one prompt per line")
+    p.add_argument("--seconds", type=float, default=4.0, help="length of each motion (default 4)")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--format", default="npy,mp4,bvh", help=f"comma list of {','.join(FORMATS)} (default npy,mp4,bvh)")
+    p.add_argument("--guidance", type=float, default=2.5, help="classifier-free guidance scale (default 2.5)")
+    p.add_argument("--steps", type=int, default=10, help="sampling steps (default 10)")
+    p.add_argument("--sampler", default=DEFAULT_SAMPLER, help=f"sampler name (default {DEFAULT_SAMPLER})")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--batch-size", type=int, default=32)
+    p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
+    p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
+    p.set_defaults(func=run)
+
+
+def _slug(text: str, i: int) -> str:
+    words = re.sub(r"[^a-z0-9]+", "_", text.lower()).strip("_")[:48].rstrip("_")
+    return f"{i:03d}_{words or 'motion'}"
+
+
+def run(args: argparse.Namespace) -> None:
+    from ..errors import SMFError
+
+    formats = [f.strip().lower() for f in args.format.split(",") if f.strip()]
+    bad = [f for f in formats if f not in FORMATS]
+    if bad or not formats:
+        raise SMFError(f"unknown format(s) {bad or args.format!r}; choose from {', '.join(FORMATS)}")
+    if (args.text is None) == (args.prompts is None):
+        raise SMFError("give either a prompt text or --prompts FILE")
+    if args.prompts is not None:
+        if not args.prompts.is_file():
+            raise SMFError(f"no such file: {args.prompts}")
+        prompts = [ln.strip() for ln in args.prompts.read_text(encoding="utf-8").splitlines() if ln.strip()]
+        if not prompts:
+            raise SMFError(f"{args.prompts} holds no prompts")
+    else:
+        prompts = [args.text]
+    if any(not p.strip() for p in prompts):
+        raise SMFError("the prompt is empty")
+    if not args.seconds > 0:
+        raise SMFError(f"--seconds must be positive, got {args.seconds}")
+
+    from ..io import save_npy, write_text
+    from ..motion.files import save_bvh
+    from ..pipeline import LengthClampedWarning, MotionPipeline
+
+    pipe = MotionPipeline.from_pretrained(args.checkpoint, device=args.device)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        results = pipe(prompts, seconds=args.seconds, guidance_scale=args.guidance, steps=args.steps,
+                       sampler=args.sampler, seed=args.seed, batch_size=args.batch_size, progress=len(prompts) > 1)
+    for w in {str(c.message) for c in caught if issubclass(c.category, LengthClampedWarning)}:
+        print(f"smf: warning: {w}")
+    if any(f in formats for f in ("mp4", "gif")):
+        from ..render import render_video
+    for i, r in enumerate(results):
+        stem = args.out / _slug(r.prompt, i)
+        if "npy" in formats:
+            save_npy(stem.with_name(stem.name + "_joints.npy"), r.joints.astype("float32"))
+            save_npy(stem.with_name(stem.name + "_features.npy"), r.features.astype("float32"))
+        if "bvh" in formats:
+            save_bvh(r.joints, stem.with_suffix(".bvh"), pipe.skeleton, r.fps)
+        for fmt in ("mp4", "gif"):
+            if fmt in formats:
+                render_video(r.joints, stem.with_suffix("." + fmt), skeleton=pipe.skeleton, fps=r.fps, title=r.prompt)
+        if "json" in formats:
+            write_text(stem.with_suffix(".json"), json.dumps({
+                "prompt": r.prompt, "fps": r.fps, "frames": len(r.joints), "seed": r.seed, "sampler": args.sampler,
+                "steps": args.steps, "guidance": args.guidance, "joints": r.joints.round(5).tolist()}) + "\n")
+        print(f"wrote {stem}.* ({len(r.joints)} frames)")

@@ -1,0 +1,133 @@
+"""MotionPipeline, samplers, `smf generate` and `smf bench` on a small random-weight checkpoint."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from stablemofusion.cli.main import main
+from stablemofusion.diffusion.checkpoint import save_checkpoint
+from stablemofusion.diffusion.samplers import make_sampler, sampler_names
+from stablemofusion.errors import SMFError
+from stablemofusion.models.base import build_denoiser
+from stablemofusion.models.presets import get_preset
+from stablemofusion.pipeline import LengthClampedWarning, MotionPipeline
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    """A 'tiny' denoiser with random (non-zero) weights everywhere, saved like a trained checkpoint."""
+    torch.manual_seed(0)
+    cfg = get_preset("tiny")
+    cfg.options.update(base_dim=32, groups=4)  # 8 channels per norm group: well-conditioned numerics
+    model = build_denoiser(cfg)
+    with torch.no_grad():
+        for p in model.parameters():
+            if p.abs().sum() == 0:
+                p.normal_(0, 0.02)
+    path = tmp_path_factory.mktemp("ckpt") / "checkpoint"
+    mean, std = np.zeros(263), np.full(263, 0.1)
+    save_checkpoint(path, model=model, mean=mean, std=std, ema_state=model.state_dict(),
+                    config={"model": cfg.to_dict(), "text_encoder": "minilm", "skeleton": "humanml3d", "fps": 20.0,
+                            "max_frames": 196, "min_frames": 40, "train": {}})
+    return path
+
+
+@pytest.fixture(scope="module")
+def pipe(checkpoint):
+    torch.set_num_threads(1)
+    return MotionPipeline.from_pretrained(checkpoint, device="cpu")
+
+
+@pytest.mark.parametrize("sampler", sampler_names())
+def test_every_sampler_runs_and_is_reproducible(pipe, sampler):
+    a = pipe(["a person walks forward"], frames=40, sampler=sampler, steps=4, seed=3)[0]
+    b = pipe(["a person walks forward"], frames=40, sampler=sampler, steps=4, seed=3)[0]
+    assert a.features.shape == (40, 263) and a.joints.shape == (40, 22, 3)
+    assert np.isfinite(a.features).all()
+    assert np.array_equal(a.features, b.features)
+    c = pipe(["a person walks forward"], frames=40, sampler=sampler, steps=4, seed=4)[0]
+    assert not np.array_equal(a.features, c.features)
+
+
+def test_batched_cfg_equals_separate_passes(pipe):
+    prompts, lengths = ["a person waves", "someone runs in a circle"], [40, 64]
+    a = pipe.sample(prompts, lengths, guidance_scale=2.5, steps=5, sampler="ddim", seed=1, batched_cfg=True)
+    b = pipe.sample(prompts, lengths, guidance_scale=2.5, steps=5, sampler="ddim", seed=1, batched_cfg=False)
+    assert torch.allclose(a, b, atol=1e-5)
+
+
+def test_text_cache_avoids_the_language_model(pipe):
+    pipe("a brand new caption for the cache test", frames=40, steps=2, seed=0)
+    calls = pipe.text_cache.encoder.calls
+    pipe(["a brand new caption for the cache test"] * 3, frames=40, steps=2, seed=0)
+    assert pipe.text_cache.encoder.calls == calls  # every prompt was a cache hit
+    pipe("another new caption", frames=40, steps=2, seed=0)
+    assert pipe.text_cache.encoder.calls == calls + 1
+
+
+def test_mixed_lengths_and_clamping(pipe):
+    res = pipe(["a", "b"], frames=[40, 100], steps=2, seed=0)
+    assert [len(r.joints) for r in res] == [40, 100]
+    with pytest.warns(LengthClampedWarning, match="clamped to 196"):
+        assert len(pipe("c", seconds=20, steps=2, seed=0)[0].joints) == 196
+
+
+@pytest.mark.parametrize("kwargs, msg", [
+    (dict(prompts=""), "non-empty"),
+    (dict(prompts="x", seconds=-1.0), "positive"),
+    (dict(prompts="x", seconds=0.0), "positive"),
+    (dict(prompts="x", sampler="euler"), "unknown sampler"),
+    (dict(prompts="x", sampler="ddim-karras"), "no Karras"),
+    (dict(prompts="x", steps=0), "steps"),
+])
+def test_bad_requests(pipe, kwargs, msg):
+    with pytest.raises(SMFError, match=msg):
+        pipe(**kwargs)
+
+
+def test_karras_sigmas_are_used():
+    plain, karras = make_sampler("dpmsolver++"), make_sampler("dpmsolver++-karras")
+    plain.set_timesteps(10)
+    karras.set_timesteps(10)
+    assert not torch.equal(plain.timesteps, karras.timesteps)
+
+
+def test_generate_writes_files(checkpoint, tmp_path, capsys):
+    code = main(["generate", "a person waves both hands, tired", "--seconds", "2", "--out", str(tmp_path),
+                 "--checkpoint", str(checkpoint), "--format", "npy,bvh,json,gif", "--steps", "3"])
+    assert code == 0
+    names = sorted(p.name for p in tmp_path.iterdir())
+    stem = "000_a_person_waves_both_hands_tired"
+    assert names == sorted([f"{stem}.bvh", f"{stem}.gif", f"{stem}.json", f"{stem}_features.npy", f"{stem}_joints.npy"])
+    assert np.load(tmp_path / f"{stem}_joints.npy").shape == (40, 22, 3)
+    assert json.loads((tmp_path / f"{stem}.json").read_text())["frames"] == 40
+    assert main(["convert", str(tmp_path / f"{stem}.bvh"), str(tmp_path / "back.npy"), "--to", "joints"]) == 0
+
+
+@pytest.mark.parametrize("argv, msg", [
+    (["generate", "", "--out", "{d}"], "empty"),
+    (["generate", "x", "--seconds", "0", "--out", "{d}"], "positive"),
+    (["generate", "x", "--format", "avi", "--out", "{d}"], "unknown format"),
+    (["generate", "--prompts", "{d}/none.txt", "--out", "{d}"], "no such file"),
+    (["generate", "x", "--out", "{d}", "--checkpoint", "{d}/nope"], "not a checkpoint"),
+])
+def test_generate_bad_input(argv, msg, tmp_path, capsys):
+    code = main([a.format(d=tmp_path) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2 and msg in err and err.count("\n") == 1
+
+
+def test_no_default_model_yet():
+    with pytest.raises(SMFError, match="no default model"):
+        MotionPipeline.from_pretrained(None)
+
+
+def test_bench_prints_json(checkpoint, tmp_path, capsys):
+    out = tmp_path / "bench.json"
+    assert main(["bench", "--checkpoint", str(checkpoint), "--steps", "2", "--batch-sizes", "1,2", "--repeats", "1",
+                 "--frames", "40", "--sampler", "ddim", "--out", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert [r["batch_size"] for r in report["results"]] == [1, 2]
+    assert all(r["aits"] > 0 for r in report["results"])

@@ -139,6 +139,7 @@ class MotionPipeline:
                 results.append(MotionResult(prompts[i], f, joints_from_features(f, self.skeleton), self.fps, batch_seed))
         return results
 
+    @torch.no_grad()
     def sample(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = 2.5, steps: int = 10,
                sampler: str = DEFAULT_SAMPLER, seed: int | None = None, batched_cfg: bool = True) -> torch.Tensor:
         """Denoise a batch: returns features (B, max(lengths), D) in dataset units (CPU, float32)."""

@@ -12,6 +12,7 @@ import csv
 import io
 import json
 import math
+import multiprocessing
 import random
 import tarfile
 import zlib
@@ -183,8 +184,12 @@ def build_corpus(source: Path, out: Path, *, cache: Path | None = None, workers:
             records[c.name] = json.loads(done.read_text())
         else:
             todo.append((c, fid, out, n_captions))
-    if todo:
-        with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
+    if todo and workers <= 1:
+        for rec in tqdm(map(_work, todo), total=len(todo), desc="clips", unit="clip"):
+            records[rec["clip"]] = rec
+    elif todo:
+        # spawn, not fork: forking a process whose torch/OpenMP threads are running can deadlock the child
+        with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
             for rec in tqdm(pool.map(_work, todo, chunksize=4), total=len(todo), desc="clips", unit="clip"):
                 records[rec["clip"]] = rec
     ordered = [records[c.name] for c in clips]

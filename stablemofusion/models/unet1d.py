@@ -83,18 +83,6 @@ class UNetConfig:
         return max(16, 2 ** len(self.dim_mults))
 
 
-def paper_config() -> UNetConfig:
-    """StableMoFusion's denoiser: 293.7M parameters in the UNet, 297.0M with the default text transformer
-    (the paper reports ~294M)."""
-    return UNetConfig(base_dim=512, dim_mults=(2, 2, 2, 2))
-
-
-def small_config() -> UNetConfig:
-    """A CPU-sized variant (6.5M parameters with the default text transformer): one block per level and
-    channels 64-128; a 196-frame, batch-2 forward takes ~14 ms on 2 CPU threads."""
-    return UNetConfig(base_dim=64, dim_mults=(1, 2, 2, 2), blocks_per_level=1, time_dim=128, attn_heads=4)
-
-
 class FrameGroupNorm(nn.Module):
     """GroupNorm whose statistics are taken per frame: (B, C, T) -> (B, G, C/G, T), normalised over C/G.
 

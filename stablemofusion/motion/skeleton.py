@@ -67,9 +67,6 @@ class Skeleton:
             perm[a], perm[b] = b, a
         return perm
 
-    def num_features(self) -> int:
-        return self.feature_dim
-
 
 HUMANML3D = Skeleton(
     name="humanml3d",

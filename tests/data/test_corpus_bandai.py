@@ -65,7 +65,6 @@ def test_corpus_layout_texts_mirrors_and_splits(corpus):
         assert f.shape[1] == 263 and 2 <= len(f) <= 196
         assert layout.load_joints(i).shape == (len(f), 22, 3)
     # mirrored words: a wave-left-hand clip's mirror talks about the right hand
-    wave = [r for r in json.loads((out / "stats.json").read_text()) and []]  # noqa: F841 (stats parsed below)
     rows = [line.split(",") for line in (out / "clips.csv").read_text().splitlines()[1:]]
     wave_id = next(r[0] for r in rows if r[3] == "wave-left-hand")
     orig = read_texts(out / "texts" / f"{wave_id}.txt")

@@ -13,7 +13,9 @@ import torch
 
 from stablemofusion.models.base import ModelConfig, TextConfig, build_denoiser
 from stablemofusion.models.attention import CrossAttention
-from stablemofusion.models.unet1d import CondUNet1D, FrameGroupNorm, UNetConfig, paper_config, small_config
+from stablemofusion.models.base import build_denoiser
+from stablemofusion.models.presets import get_preset
+from stablemofusion.models.unet1d import CondUNet1D, FrameGroupNorm, UNetConfig
 
 D = 11  # motion features
 TEXT = TextConfig(in_dim=12, latent=16, layers=1, heads=2, ff=32, dropout=0.1, max_tokens=20)
@@ -219,11 +221,11 @@ def test_build_denoiser(monkeypatch):
 
 def test_paper_and_small_parameter_counts():
     with torch.device("meta"):
-        paper = CondUNet1D(paper_config(), 263, TextConfig())
-        small = CondUNet1D(small_config(), 263, TextConfig())
+        paper = build_denoiser(get_preset("paper"))
+        small = build_denoiser(get_preset("small"))
     assert 290e6 < paper.num_parameters() < 300e6  # StableMoFusion reports ~294M
     assert small.num_parameters() < 10e6
     x, t, tok, tm = inputs(2, 196)
-    model = CondUNet1D(small_config(), D, TEXT).eval()
+    model = CondUNet1D(UNetConfig(**get_preset("small").options), D, TEXT).eval()
     with torch.no_grad():
         assert model(x, t, tok, tm, torch.tensor([False, True])).shape == x.shape

@@ -16,6 +16,7 @@ _FLAGS = {  # TrainConfig field -> help
     "mixed_precision": "no | fp16 | bf16 (GPU)", "text_encoder": "minilm or clip:<folder>",
     "checkpoint_every": "steps between checkpoints", "max_frames": "longest training crop (frames)",
     "min_frames": "shortest motion used (frames; default 40 at 20 fps)", "feat_bias": "root/contact std divisor",
+    "bucket": "group similar lengths: sort runs of BUCKET batches by length (0 = off)",
 }
 
 

@@ -47,6 +47,7 @@ class TrainConfig:
     max_frames: int = 196
     min_frames: int | None = None
     feat_bias: float = 5.0
+    bucket: int = 0  # >0: sort each run of bucket*batch_size items by length (less padding, faster)
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
 
 
@@ -55,21 +56,56 @@ def _mix(*ints: int) -> int:
     return int(np.random.SeedSequence(list(ints)).generate_state(1, dtype=np.uint64)[0] >> 1)
 
 
-def batch_indices(step: int, batch_size: int, n: int, seed: int) -> list[tuple[int, int]]:
-    """(epoch, item) pairs of step ``step``: consecutive slices of a per-epoch permutation of ``n`` items."""
+def _epoch_order(seed: int, epoch: int, n: int, chunk: int, lengths: tuple[int, ...] | None) -> np.ndarray:
+    """Item order of one epoch: a seeded permutation; with ``lengths``, each run of ``chunk`` items is
+    sorted by length and its batches are shuffled again, so batches hold similar lengths."""
+    order = np.random.default_rng([seed, epoch]).permutation(n)
+    if lengths is None:
+        return order
+    lens = np.asarray(lengths)
+    out = []
+    for a in range(0, n, chunk):
+        part = order[a:a + chunk]
+        out.append(part[np.argsort(lens[part], kind="stable")])
+    return np.concatenate(out)
+
+
+def batch_indices(step: int, batch_size: int, n: int, seed: int, *, lengths: tuple[int, ...] | None = None,
+                  bucket: int = 0) -> list[tuple[int, int]]:
+    """(epoch, item) pairs of step ``step``: consecutive slices of a per-epoch order of ``n`` items.
+
+    With ``bucket > 0`` and the items' ``lengths``, the order groups similar lengths (see ``_epoch_order``)."""
+    lens = tuple(lengths) if bucket > 0 and lengths is not None else None
     out = []
     for g in range(step * batch_size, (step + 1) * batch_size):
         epoch, k = divmod(g, n)
-        out.append((epoch, int(np.random.default_rng([seed, epoch]).permutation(n)[k])))
+        out.append((epoch, int(_cached_order(seed, epoch, n, batch_size * max(bucket, 1), lens)[k])))
     return out
 
 
-def get_batch(ds: MotionTextDataset, step: int, batch_size: int, seed: int) -> dict:
+_ORDERS: dict = {}
+
+
+def _cached_order(seed, epoch, n, chunk, lens):
+    key = (seed, epoch, n, chunk, None if lens is None else hash(lens))
+    if key not in _ORDERS:
+        if len(_ORDERS) > 4:
+            _ORDERS.clear()
+        _ORDERS[key] = _epoch_order(seed, epoch, n, chunk, lens)
+    return _ORDERS[key]
+
+
+def get_batch(ds: MotionTextDataset, step: int, batch_size: int, seed: int, bucket: int = 0) -> dict:
+    """Batch of step ``step``, trimmed to its longest item (padding beyond it is never needed)."""
+    lengths = tuple(e.end - e.start for e in ds.entries) if bucket > 0 else None
     items = []
-    for epoch, i in batch_indices(step, batch_size, len(ds), seed):
+    for epoch, i in batch_indices(step, batch_size, len(ds), seed, lengths=lengths, bucket=bucket):
         ds.set_epoch(epoch)
         items.append(ds[i])
-    return collate(items)
+    batch = collate(items)
+    T = int(batch["length"].max())
+    batch["motion"], batch["mask"] = batch["motion"][:, :T], batch["mask"][:, :T]
+    return batch
 
 
 def masked_mse(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -133,7 +169,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     with open(log_path, "a", newline="") as log_file:
         log = csv.writer(log_file)
         for step in bar:
-            batch = get_batch(ds, step, cfg.batch_size * world, cfg.seed)
+            batch = get_batch(ds, step, cfg.batch_size * world, cfg.seed, cfg.bucket)
             sl = slice(rank * cfg.batch_size, (rank + 1) * cfg.batch_size)
             x0 = batch["motion"][sl].to(accelerator.device)
             mask = batch["mask"][sl].to(accelerator.device)

@@ -18,6 +18,8 @@ COMMANDS = {
     "info": "info",
     "generate": "generate",
     "bench": "bench",
+    "footskate": "footskate",
+    "train-evaluator": "train_evaluator",
 }
 
 

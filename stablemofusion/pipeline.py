@@ -110,9 +110,11 @@ class MotionPipeline:
     def __call__(self, prompts: str | list[str], *, seconds: float | list[float] | None = None,
                  frames: int | list[int] | None = None, guidance_scale: float = 2.5, steps: int = 10,
                  sampler: str = DEFAULT_SAMPLER, seed: int | None = None, batch_size: int = 32,
-                 progress: bool = False) -> list[MotionResult]:
+                 progress: bool = False, footskate: str = "off", footskate_options=None) -> list[MotionResult]:
         """Generate one motion per prompt. ``seconds``/``frames`` may be one value or one per prompt.
-        The same seed gives the same motions."""
+        The same seed gives the same motions. ``footskate``: 'off', 'post' (clean up each result) or 'loop'
+        (clean up the predicted x0 in the last denoising steps, StableMoFusion*); ``footskate_options`` a
+        :class:`stablemofusion.footskate.FootskateOptions`."""
         prompts = [prompts] if isinstance(prompts, str) else list(prompts)
         if not prompts or any(not isinstance(p, str) or not p.strip() for p in prompts):
             raise SMFError("every prompt must be a non-empty text")
@@ -127,13 +129,15 @@ class MotionPipeline:
             raise SMFError("give one length for all prompts or one per prompt")
         lengths = [self.frames_for(s, f) for s, f in zip(secs, frs)]
         make_sampler(sampler, self.schedule)  # fail early on an unknown name
+        _check_footskate(footskate)
         results: list[MotionResult] = []
         starts = range(0, n, batch_size)
         for k, start in enumerate(tqdm(starts, desc="generate", unit="batch", disable=not progress)):
             idx = list(range(start, min(n, start + batch_size)))
             batch_seed = None if seed is None else seed + k
             feats = self.sample([prompts[i] for i in idx], [lengths[i] for i in idx], guidance_scale=guidance_scale,
-                                steps=steps, sampler=sampler, seed=batch_seed)
+                                steps=steps, sampler=sampler, seed=batch_seed, footskate=footskate,
+                                footskate_options=footskate_options)
             for j, i in enumerate(idx):
                 f = feats[j, :lengths[i]].numpy().astype(np.float64)
                 results.append(MotionResult(prompts[i], f, joints_from_features(f, self.skeleton), self.fps, batch_seed))
@@ -141,8 +145,15 @@ class MotionPipeline:
 
     @torch.no_grad()
     def sample(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = 2.5, steps: int = 10,
-               sampler: str = DEFAULT_SAMPLER, seed: int | None = None, batched_cfg: bool = True) -> torch.Tensor:
-        """Denoise a batch: returns features (B, max(lengths), D) in dataset units (CPU, float32)."""
+               sampler: str = DEFAULT_SAMPLER, seed: int | None = None, batched_cfg: bool = True,
+               footskate: str = "off", footskate_options=None) -> torch.Tensor:
+        """Denoise a batch: returns features (B, max(lengths), D) in dataset units (CPU, float32).
+        ``footskate`` 'off' | 'post' | 'loop' (see :meth:`__call__`)."""
+        _check_footskate(footskate)
+        if footskate != "off":
+            from .footskate import FootskateOptions
+
+            footskate_options = footskate_options or FootskateOptions()
         B, T, D = len(prompts), max(lengths), int(self.mean.shape[0])
         sched = make_sampler(sampler, self.schedule)
         sched.set_timesteps(steps, device=self.device)
@@ -156,7 +167,8 @@ class MotionPipeline:
             drop = torch.cat([torch.zeros(B, dtype=torch.bool), torch.ones(B, dtype=torch.bool)]).to(self.device)
             tokens2, tmask2, mask2 = torch.cat([tokens, tokens]), torch.cat([tmask, tmask]), torch.cat([mask, mask])
         stochastic = "generator" in inspect.signature(sched.step).parameters
-        for t in sched.timesteps:
+        n_steps = len(sched.timesteps)
+        for k, t in enumerate(sched.timesteps):
             x_in = sched.scale_model_input(x, t)
             tt = torch.full((B,), int(t), device=self.device, dtype=torch.long)
             if use_cfg and batched_cfg:
@@ -166,6 +178,8 @@ class MotionPipeline:
                 x0 = self._guided(x_in, tt, tokens, tmask, mask, guidance_scale)
             else:
                 x0 = self.model(x_in, tt, tokens, tmask, None, mask)
+            if footskate == "loop" and footskate_options.in_loop(k, n_steps):
+                x0 = self._clean_normalised(x0, lengths, footskate_options)
             out = model_output_for(sched, x0, x, int(t))
             if stochastic:  # per-step noise from the call's seed, drawn on the model's device
                 step_seed = int(torch.randint(0, 2**62, (1,), generator=gen))
@@ -173,7 +187,27 @@ class MotionPipeline:
             else:
                 x = sched.step(out, t, x).prev_sample
         x = x.float().cpu()
-        return x * self.std + self.mean
+        x = x * self.std + self.mean
+        if footskate == "post":
+            x = self._clean(x, lengths, footskate_options)
+        return x
+
+    def _clean(self, feats: torch.Tensor, lengths: list[int], options) -> torch.Tensor:
+        """Footskate cleanup of each item's first ``lengths[i]`` frames, features in dataset units (CPU)."""
+        from .footskate.cleanup import cleanup_features
+
+        out = feats.clone()
+        for i, n in enumerate(lengths):
+            f = feats[i, :n].double().numpy()
+            out[i, :n] = torch.from_numpy(cleanup_features(f, options.config, vgrf_model=options.vgrf_model,
+                                                           fps=self.fps)).to(out.dtype)
+        return out
+
+    def _clean_normalised(self, x0: torch.Tensor, lengths: list[int], options) -> torch.Tensor:
+        """Cleanup of a normalised prediction on the model's device and dtype."""
+        feats = x0.float().cpu() * self.std + self.mean
+        clean = (self._clean(feats, lengths, options) - self.mean) / self.std
+        return clean.to(x0.device, x0.dtype)
 
     def _guided(self, x, t, tokens, tmask, mask, scale: float) -> torch.Tensor:
         """Classifier-free guidance in x0 space, u + scale * (c - u), as two separate forward passes."""
@@ -181,6 +215,14 @@ class MotionPipeline:
         cond = self.model(x, t, tokens, tmask, torch.zeros(B, dtype=torch.bool, device=x.device), mask)
         uncond = self.model(x, t, tokens, tmask, torch.ones(B, dtype=torch.bool, device=x.device), mask)
         return uncond + scale * (cond - uncond)
+
+
+FOOTSKATE_MODES = ("off", "post", "loop")
+
+
+def _check_footskate(mode: str) -> None:
+    if mode not in FOOTSKATE_MODES:
+        raise SMFError(f"footskate must be one of {', '.join(FOOTSKATE_MODES)}, got {mode!r}")
 
 
 class _LazyEncoder:

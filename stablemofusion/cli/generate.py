@@ -28,7 +28,31 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--batch-size", type=int, default=32)
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
+    add_footskate_arguments(p)
     p.set_defaults(func=run)
+
+
+def add_footskate_arguments(p) -> None:
+    """--footskate off|post|loop, --contacts, --vgrf-model, --underpressure (shared with other commands)."""
+    p.add_argument("--footskate", default="off", choices=("off", "post", "loop"),
+                   help="footskate cleanup: off, post (after sampling) or loop (inside the last denoising steps)")
+    p.add_argument("--contacts", default="kinematic", choices=("kinematic", "vgrf"),
+                   help="contact route for the cleanup (vgrf needs --vgrf-model or --underpressure)")
+    p.add_argument("--vgrf-model", type=Path, default=None,
+                   help="distilled 22-joint vGRF model (.safetensors): adds the vGRF loss (non-commercial)")
+    p.add_argument("--underpressure", type=Path, default=None,
+                   help="UnderPressure pretrained.tar used directly as vGRF model (non-commercial, slower)")
+
+
+def footskate_options_from_args(args):
+    """FootskateOptions for the pipeline from the arguments of :func:`add_footskate_arguments`."""
+    from ..footskate import CleanupConfig, FootskateOptions
+    from .footskate import vgrf_model_from_args
+
+    model = None
+    if args.vgrf_model is not None or args.underpressure is not None or args.contacts == "vgrf":
+        model = vgrf_model_from_args(args.vgrf_model, args.underpressure, required=True)
+    return FootskateOptions(config=CleanupConfig(contacts=args.contacts), vgrf_model=model)
 
 
 def _slug(text: str, i: int) -> str:
@@ -62,11 +86,13 @@ def run(args: argparse.Namespace) -> None:
     from ..motion.files import save_bvh
     from ..pipeline import LengthClampedWarning, MotionPipeline
 
+    options = footskate_options_from_args(args) if args.footskate != "off" else None
     pipe = MotionPipeline.from_pretrained(args.checkpoint, device=args.device)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         results = pipe(prompts, seconds=args.seconds, guidance_scale=args.guidance, steps=args.steps,
-                       sampler=args.sampler, seed=args.seed, batch_size=args.batch_size, progress=len(prompts) > 1)
+                       sampler=args.sampler, seed=args.seed, batch_size=args.batch_size, progress=len(prompts) > 1,
+                       footskate=args.footskate, footskate_options=options)
     for w in {str(c.message) for c in caught if issubclass(c.category, LengthClampedWarning)}:
         print(f"smf: warning: {w}")
     if any(f in formats for f in ("mp4", "gif")):

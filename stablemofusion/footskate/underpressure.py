@@ -282,3 +282,22 @@ def load_s1(path: str | Path) -> dict[str, np.ndarray]:
         if k in d:
             out[k] = d[k].numpy()
     return out
+
+
+class TeacherOn22(nn.Module):
+    """UnderPressure on our joints: (B, T, 22, 3) at ``fps`` -> (B, T, 2, 16) at ``fps``, differentiable
+    (retarget, resample to 100 fps, network, resample back). Non-commercial licence."""
+
+    def __init__(self, net: UnderPressureNet, fps: float = 20.0):
+        super().__init__()
+        self.net = net.eval()
+        self.fps = fps
+
+    def forward(self, joints22: torch.Tensor) -> torch.Tensor:
+        T = joints22.shape[1]
+        up = resample_time(retarget_22_to_23(joints22), self.fps, UP_FPS)
+        f = self.net(up)
+        back = resample_time(f, UP_FPS, self.fps)
+        if back.shape[1] < T:
+            back = torch.cat([back, back[:, -1:].expand(-1, T - back.shape[1], -1, -1)], 1)
+        return back[:, :T]

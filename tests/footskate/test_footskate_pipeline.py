@@ -1,0 +1,87 @@
+"""footskate='off'|'post'|'loop' in the pipeline and `smf generate`; the `smf footskate` commands."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from stablemofusion.cli.main import main
+from stablemofusion.diffusion.checkpoint import save_checkpoint
+from stablemofusion.errors import SMFError
+from stablemofusion.footskate import FootskateOptions
+from stablemofusion.models.base import build_denoiser
+from stablemofusion.models.presets import get_preset
+from stablemofusion.pipeline import MotionPipeline
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    torch.manual_seed(0)
+    cfg = get_preset("tiny")
+    cfg.options.update(base_dim=32, groups=4)
+    model = build_denoiser(cfg)
+    with torch.no_grad():
+        for p in model.parameters():
+            if p.abs().sum() == 0:
+                p.normal_(0, 0.02)
+    path = tmp_path_factory.mktemp("fs-ckpt") / "checkpoint"
+    mean, std = np.zeros(263), np.full(263, 0.1)
+    mean[3] = 0.9  # root height: stand above the floor
+    save_checkpoint(path, model=model, mean=mean, std=std, ema_state=model.state_dict(),
+                    config={"model": cfg.to_dict(), "text_encoder": "minilm", "skeleton": "humanml3d", "fps": 20.0,
+                            "max_frames": 196, "min_frames": 40, "train": {}})
+    return path
+
+
+@pytest.fixture(scope="module")
+def pipe(checkpoint):
+    torch.set_num_threads(1)
+    return MotionPipeline.from_pretrained(checkpoint, device="cpu")
+
+
+def test_off_is_the_default(pipe):
+    a = pipe(["a person walks"], frames=40, steps=3, seed=1)[0]
+    b = pipe(["a person walks"], frames=40, steps=3, seed=1, footskate="off")[0]
+    assert np.array_equal(a.features, b.features)
+
+
+@pytest.mark.parametrize("mode", ["post", "loop"])
+def test_post_and_loop_run(pipe, mode):
+    off = pipe(["a person walks", "a man jumps"], frames=[40, 48], steps=4, seed=1)
+    res = pipe(["a person walks", "a man jumps"], frames=[40, 48], steps=4, seed=1, footskate=mode)
+    for r, o in zip(res, off):
+        assert r.features.shape == o.features.shape and np.isfinite(r.features).all()
+        assert not np.array_equal(r.features, o.features)
+
+
+def test_loop_steps():
+    opt = FootskateOptions(loop_steps=3, loop_skip_last=1)
+    assert [k for k in range(10) if opt.in_loop(k, 10)] == [6, 7, 8]
+    assert [k for k in range(2) if opt.in_loop(k, 2)] == [0]
+
+
+def test_bad_mode(pipe):
+    with pytest.raises(SMFError, match="footskate must be one of"):
+        pipe("x", frames=40, steps=2, footskate="on")
+
+
+def test_generate_cli_footskate(checkpoint, tmp_path, capsys):
+    argv = ["generate", "a person walks", "--seconds", "2", "--out", str(tmp_path), "--checkpoint", str(checkpoint),
+            "--format", "npy", "--steps", "3", "--footskate", "post"]
+    assert main(argv) == 0
+    assert np.load(tmp_path / "000_a_person_walks_features.npy").shape == (40, 263)
+    with pytest.raises(SystemExit) as e:  # argparse rejects it
+        main(argv[:-1] + ["sideways"])
+    assert e.value.code == 2
+    assert main(argv + ["--contacts", "vgrf", "--vgrf-model", str(tmp_path / "none.safetensors")]) == 2
+    assert "vGRF model not found" in capsys.readouterr().err
+
+
+def test_footskate_clean_and_contacts_cli(tmp_path, capsys):
+    assert main(["footskate", "contacts", "example:wave-both-hands"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["frames"] == 118 and out["skate_ratio"] == 0.0
+    assert main(["footskate", "clean", "example:wave-both-hands", "--out", str(tmp_path / "w")]) == 0
+    assert np.load(tmp_path / "w_features.npy").shape == (118, 263)
+    assert main(["footskate", "contacts", "example:nope"]) == 2

@@ -20,6 +20,8 @@ COMMANDS = {
     "bench": "bench",
     "footskate": "footskate",
     "train-evaluator": "train_evaluator",
+    "evaluate": "evaluate",
+    "ablate": "ablate",
 }
 
 

@@ -1,0 +1,152 @@
+"""`smf evaluate --checkpoint DIR --data DIR --evaluator DIR [--quick] ...`: the T2M protocol -> markdown + JSON."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def add_eval_args(p: argparse.ArgumentParser) -> None:
+    """Arguments shared by `smf evaluate` and `smf ablate`."""
+    from ..diffusion.samplers import DEFAULT_SAMPLER
+
+    p.add_argument("--data", type=Path, required=True, help="corpus folder (HumanML3D layout) with a test split")
+    p.add_argument("--evaluator", type=Path, default=None, help="evaluator folder from `smf train-evaluator`")
+    p.add_argument("--t2m-evaluator", type=Path, default=None,
+                   help="root of the original T2M evaluator files (instead of --evaluator); needs --glove")
+    p.add_argument("--glove", type=Path, default=None, help="GloVe folder of the original T2M evaluator")
+    p.add_argument("--sampler", default=DEFAULT_SAMPLER, help=f"sampler (default {DEFAULT_SAMPLER})")
+    p.add_argument("--steps", type=int, default=10, help="sampling steps (default 10)")
+    p.add_argument("--guidance", type=float, default=2.5, help="classifier-free guidance scale (default 2.5)")
+    p.add_argument("--replications", type=int, default=None, help="repetitions of the protocol (default 20, --quick 3)")
+    p.add_argument("--quick", action="store_true", help="3 replications, 12 samples per multimodality caption")
+    p.add_argument("--max-items", type=int, default=None, help="test items per replication (default all)")
+    p.add_argument("--mm-captions", type=int, default=None, help="captions for multimodality (default 100; 0 = skip)")
+    p.add_argument("--rprecision-batch", type=int, default=32, help="R-precision batch (protocol: 32)")
+    p.add_argument("--diversity-times", type=int, default=300, help="diversity pairs (protocol: 300)")
+    p.add_argument("--footskate", default="off", choices=("off", "post", "loop"), help="footskate cleanup mode")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
+    p.add_argument("--no-progress", action="store_true")
+
+
+def add_parser(sub, name: str) -> None:
+    p = sub.add_parser(name, help="evaluate a checkpoint with the T2M protocol",
+                       description="FID, R-precision top-1/2/3, matching distance, diversity, multimodality over "
+                                   "N replications (mean ± 95% interval), average inference time per sentence.")
+    p.add_argument("--checkpoint", type=Path, default=None,
+                   help="checkpoint or run folder (default: the shipped model; 'none' = real motion only)")
+    add_eval_args(p)
+    p.add_argument("--out", type=Path, default=None, help="JSON results file (a .md table is written beside it)")
+    p.set_defaults(func=run)
+
+
+def eval_config(args: argparse.Namespace, **kw):
+    from ..errors import SMFError
+    from ..eval.protocol import EvalConfig
+
+    base = EvalConfig.quick() if args.quick else EvalConfig()
+    over = {"sampler": args.sampler, "steps": args.steps, "guidance_scale": args.guidance,
+            "footskate": args.footskate, "seed": args.seed, "max_items": args.max_items,
+            "batch_size": args.rprecision_batch, "diversity_times": args.diversity_times}
+    if args.replications is not None:
+        over["replications"] = args.replications
+    if args.mm_captions is not None:
+        over["mm_captions"] = args.mm_captions
+    over.update(kw)
+    cfg = EvalConfig(**{**base.__dict__, **over})
+    if cfg.replications < 1:
+        raise SMFError(f"--replications must be >= 1, got {cfg.replications}")
+    if cfg.batch_size < 2 or cfg.diversity_times < 1:
+        raise SMFError("--rprecision-batch must be >= 2 and --diversity-times >= 1")
+    if cfg.steps < 1:
+        raise SMFError(f"--steps must be >= 1, got {cfg.steps}")
+    if cfg.max_items is not None and cfg.max_items < cfg.batch_size:
+        raise SMFError(f"--max-items must be at least one batch ({cfg.batch_size})")
+    return cfg
+
+
+def load_embedder(args: argparse.Namespace, text_cache=None):
+    """Our evaluator (with a text cache) or the original T2M one, from the CLI arguments."""
+    from ..errors import SMFError
+    from ..eval.protocol import EmbeddingModel, T2MEmbedding
+
+    if args.t2m_evaluator is not None:
+        if args.glove is None:
+            raise SMFError("--t2m-evaluator needs --glove DIR (the GloVe files our_vab_*.npy/pkl)")
+        from ..eval.t2m_original import T2MOriginalEvaluator
+
+        return T2MEmbedding(T2MOriginalEvaluator.from_files(args.t2m_evaluator, args.glove), None)
+    if args.evaluator is None:
+        raise SMFError("give --evaluator DIR (from `smf train-evaluator`) or --t2m-evaluator DIR --glove DIR")
+    from ..eval.evaluator import load_evaluator
+    from ..text.cache import LRUTextCache
+    from ..text.frozen import load_text_encoder
+
+    model, config = load_evaluator(args.evaluator)
+    name = config.get("text_encoder", "minilm")
+    if text_cache is None or getattr(text_cache, "encoder", None) is None or name != _encoder_name(text_cache):
+        text_cache = LRUTextCache(load_text_encoder(name), maxsize=100_000)
+    return EmbeddingModel(model, text_cache)
+
+
+def _encoder_name(cache) -> str | None:
+    try:
+        return cache.encoder.name
+    except Exception:  # noqa: BLE001 - a lazy encoder that cannot load is simply not shared
+        return None
+
+
+def skate_fn(fps: float, skeleton):
+    """Raw feature list -> mean footskate metrics (None if the footskate module is unavailable)."""
+    try:
+        from ..footskate.metrics import footskate_metrics
+    except ImportError:
+        return None
+    import numpy as np
+
+    from ..motion.features import joints_from_features
+
+    def fn(feats):
+        rows = [footskate_metrics(joints_from_features(f.astype(np.float64), skeleton), fps) for f in feats]
+        return {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
+
+    return fn
+
+
+def write_results(result: dict, out: Path | None, title: str) -> str:
+    from ..eval.protocol import markdown_table
+    from ..io import write_text
+
+    table = markdown_table(result)
+    extra = [f"items per replication: {result['items_per_replication']}, replications: "
+             f"{result['config']['replications']}"]
+    if "aits_seconds" in result:
+        extra.append(f"AITS: {result['aits_seconds'] * 1000:.1f} ms per sentence")
+    text = f"## {title}\n\n{table}\n\n" + "; ".join(extra) + "\n"
+    if out is not None:
+        write_text(out, json.dumps(result, indent=2, default=float) + "\n")
+        write_text(out.with_suffix(".md"), text)
+    return text
+
+
+def run(args: argparse.Namespace) -> None:
+    from ..errors import SMFError
+    from ..eval.protocol import evaluate
+    from ..pipeline import MotionPipeline
+
+    if not args.data.is_dir():
+        raise SMFError(f"no such corpus folder: {args.data}")
+    cfg = eval_config(args)
+    pipe = None
+    if str(args.checkpoint).lower() != "none":
+        pipe = MotionPipeline.from_pretrained(args.checkpoint, device=args.device)
+    embedder = load_embedder(args, pipe.text_cache if pipe else None)
+    from ..motion.skeleton import get_skeleton
+
+    sk = pipe.skeleton if pipe else get_skeleton("humanml3d")
+    result = evaluate(pipe, embedder, args.data, cfg, progress=not args.no_progress,
+                      skate_metrics=skate_fn(pipe.fps if pipe else sk.fps, sk))
+    result["checkpoint"] = str(args.checkpoint)
+    print(write_results(result, args.out, f"Evaluation of {args.checkpoint or 'the default model'}"))

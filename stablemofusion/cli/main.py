@@ -21,6 +21,7 @@ COMMANDS = {
     "footskate": "footskate",
     "train-evaluator": "train_evaluator",
     "evaluate": "evaluate",
+    "export": "export",
     "ablate": "ablate",
 }
 

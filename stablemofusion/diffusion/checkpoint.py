@@ -50,8 +50,8 @@ def _contiguous(sd: dict[str, torch.Tensor], dtype: torch.dtype | None = None) -
 
 def save_checkpoint(path: str | Path, *, model: Denoiser, config: dict, mean: np.ndarray, std: np.ndarray,
                     ema_state: dict[str, torch.Tensor] | None = None, training_state: dict | None = None,
-                    dtype: torch.dtype | None = None) -> Path:
-    """Write a checkpoint folder atomically (replacing ``path`` if it exists)."""
+                    dtype: torch.dtype | None = None, extra_files: dict[str, str] | None = None) -> Path:
+    """Write a checkpoint folder atomically (replacing ``path`` if it exists); ``extra_files``: name -> text."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
@@ -64,6 +64,8 @@ def save_checkpoint(path: str | Path, *, model: Denoiser, config: dict, mean: np
         np.save(tmp / "Std.npy", np.asarray(std, dtype=np.float32))
         if training_state is not None:
             torch.save(training_state, tmp / STATE)
+        for name, text in (extra_files or {}).items():
+            (tmp / name).write_text(text, encoding="utf-8")
         old = path.with_name(f".{path.name}.old")
         if path.exists():
             os.replace(path, old)
@@ -116,3 +118,14 @@ def load_training_state(path: str | Path) -> dict:
     if not f.is_file():
         raise SMFError(f"cannot resume: no {STATE} in {path}")
     return torch.load(f, map_location="cpu", weights_only=False)
+
+
+def export_checkpoint(src: str | Path, dst: str | Path, *, dtype: torch.dtype = torch.float16,
+                      extra_files: dict[str, str] | None = None) -> Path:
+    """Write a release folder from a checkpoint: the EMA weights only (as ``model.safetensors`` in ``dtype``),
+    config.json, Mean/Std and ``extra_files`` (name -> text, e.g. a model card). No optimiser state."""
+    ck = load_checkpoint(src, ema=True)
+    config = dict(ck.config)
+    config["export"] = {"from_step": config.get("step"), "dtype": str(dtype).replace("torch.", "")}
+    return save_checkpoint(dst, model=ck.model, config=config, mean=ck.mean, std=ck.std, dtype=dtype,
+                           extra_files=extra_files)

@@ -301,3 +301,29 @@ class TeacherOn22(nn.Module):
         if back.shape[1] < T:
             back = torch.cat([back, back[:, -1:].expand(-1, T - back.shape[1], -1, -1)], 1)
         return back[:, :T]
+
+
+# Our spine joints (spine1, spine2, spine3) at their rest arc-length fractions of pelvis -> neck (HumanML3D's
+# target bone lengths 0.1316, 0.1432, 0.0574 out of 0.5516 m).
+_OUR_SPINE_FRACTIONS = (0.2385, 0.4981, 0.6022)
+_FROM_UP = {0: 0, 1: 19, 2: 15, 4: 20, 5: 16, 7: 21, 8: 17, 10: 22, 11: 18, 12: 5, 13: 11, 14: 7, 15: 6,
+            16: 12, 17: 8, 18: 13, 19: 9, 20: 14, 21: 10}
+
+
+def retarget_23_to_22(joints23: np.ndarray, fps: float = UP_FPS, dst_fps: float = 20.0) -> np.ndarray:
+    """UnderPressure joints (T, 23, 3) (m, Z up) at ``fps`` -> our joints (T', 22, 3) (m, Y up) at
+    ``dst_fps``: one-to-one joints, our three spine joints on their spine polyline; heights kept."""
+    x = from_underpressure_frame(np.asarray(joints23, dtype=np.float64))
+    chain = x[:, [0, 1, 2, 3, 4, 5]]
+    seg = np.linalg.norm(np.diff(chain, axis=1), axis=-1)
+    cum = np.concatenate([np.zeros((len(x), 1)), np.cumsum(seg, -1)], -1)
+    out = np.zeros((len(x), 22, 3))
+    for ours, theirs in _FROM_UP.items():
+        out[:, ours] = x[:, theirs]
+    for ours, f in zip((3, 6, 9), _OUR_SPINE_FRACTIONS):
+        target = cum[:, -1] * f
+        s = np.clip((cum[:, 1:] < target[:, None]).sum(-1), 0, 4)
+        r = np.arange(len(x))
+        w = ((target - cum[r, s]) / np.maximum(seg[r, s], 1e-8))[:, None]
+        out[:, ours] = chain[r, s] + w * (chain[r, s + 1] - chain[r, s])
+    return resample(out, fps, dst_fps)

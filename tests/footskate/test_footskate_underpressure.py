@@ -91,3 +91,15 @@ def test_vgrf_of_a_standing_motion_is_about_body_weight(net, wave):
 def test_network_shapes_without_weights():
     out = UnderPressureNet().eval()(torch.zeros(2, 30, 23, 3))
     assert out.shape == (2, 30, 2, 16) and (out >= 0).all()
+
+
+def test_retarget_23_to_22_and_back_keeps_the_port_close(net, s1):
+    from stablemofusion.footskate.underpressure import retarget_23_to_22
+    from stablemofusion.motion.files import resample
+
+    j22 = retarget_23_to_22(s1["joints"][:1000])  # 100 -> 20 fps
+    assert j22.shape == (200, 22, 3)
+    assert (j22[:, 15, 1] > j22[:, 0, 1]).all()  # Y up
+    pred = vgrf_from_joints22(net, j22).sum(-1)
+    true = resample(s1["forces"][:1000].astype(float), 100.0, 20.0).sum(-1)
+    assert np.sqrt(((pred - true) ** 2).mean()) < 0.12

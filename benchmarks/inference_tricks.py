@@ -1,0 +1,82 @@
+"""AITS after each efficient-inference trick, cumulatively (the paper's Table 5 at our scale).
+
+    python benchmarks/inference_tricks.py --checkpoint RUN [--frames 196] [--batch-size 1] [--repeats 3]
+
+Rows: baseline (DDPM 1000 steps, text encoded by the language model on every call, conditional and
+unconditional passes separately) -> + 10-step SDE DPM-Solver++ Karras -> + text embedding cache ->
++ batched CFG -> + float16 (only on CUDA). Prints a markdown table and JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+
+import torch
+
+from stablemofusion.pipeline import MotionPipeline
+
+
+def aits(pipe: MotionPipeline, prompts, frames: int, *, sampler: str, steps: int, batched_cfg: bool, cached: bool,
+         repeats: int) -> float:
+    """Seconds per sentence, mean over ``repeats`` calls after one warm-up."""
+    def once(seed):
+        if not cached:
+            pipe.text_cache.clear()
+        pipe.sample(prompts, [frames] * len(prompts), sampler=sampler, steps=steps, batched_cfg=batched_cfg, seed=seed)
+
+    once(0)
+    times = []
+    for r in range(repeats):
+        if pipe.device.type == "cuda":
+            torch.cuda.synchronize()
+        t0 = time.perf_counter()
+        once(r + 1)
+        if pipe.device.type == "cuda":
+            torch.cuda.synchronize()
+        times.append(time.perf_counter() - t0)
+    return sum(times) / len(times) / len(prompts)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--checkpoint", default=None, help="checkpoint or run folder (default: shipped model)")
+    ap.add_argument("--frames", type=int, default=196)
+    ap.add_argument("--batch-size", type=int, default=1)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--baseline-steps", type=int, default=1000)
+    args = ap.parse_args()
+    device = "cuda" if torch.cuda.is_available() else "cpu"
+    pipe = MotionPipeline.from_pretrained(args.checkpoint, device=device, dtype=torch.float32)
+    prompts = [f"a person walks forward and waves with the right hand {i}" for i in range(args.batch_size)]
+    rows = []
+    steps = [("Baseline: DDPM, language model every call, separate CFG passes", "ddpm", args.baseline_steps, False, False),
+             ("+ SDE DPM-Solver++ 2M Karras, 10 steps", "sde-dpmsolver++-karras", 10, False, False),
+             ("+ text embedding cache", "sde-dpmsolver++-karras", 10, False, True),
+             ("+ batched CFG (one pass)", "sde-dpmsolver++-karras", 10, True, True)]
+    for label, sampler, n, batched, cached in steps:
+        s = aits(pipe, prompts, args.frames, sampler=sampler, steps=n, batched_cfg=batched, cached=cached,
+                 repeats=1 if n > 100 else args.repeats)
+        rows.append({"trick": label, "sampler": sampler, "steps": n, "aits_ms": s * 1000})
+        print(f"{label:70s} {s * 1000:10.1f} ms", flush=True)
+    if device == "cuda":
+        half = MotionPipeline.from_pretrained(args.checkpoint, device=device, dtype=torch.float16)
+        s = aits(half, prompts, args.frames, sampler="sde-dpmsolver++-karras", steps=10, batched_cfg=True, cached=True,
+                 repeats=args.repeats)
+        rows.append({"trick": "+ float16", "sampler": "sde-dpmsolver++-karras", "steps": 10, "aits_ms": s * 1000})
+    else:
+        rows.append({"trick": "+ float16", "sampler": "sde-dpmsolver++-karras", "steps": 10, "aits_ms": None,
+                     "note": "GPU only; not measured on CPU"})
+    print("\n| Trick (cumulative) | Sampler | Steps | AITS (ms) |\n|---|---|---:|---:|")
+    for r in rows:
+        print(f"| {r['trick']} | {r['sampler']} | {r['steps']} | "
+              f"{'n/a (GPU only)' if r['aits_ms'] is None else f'{r['aits_ms']:.1f}'} |")
+    print(json.dumps({"device": device, "cpu": platform.processor() or platform.machine(),
+                      "threads": torch.get_num_threads(), "frames": args.frames, "batch_size": args.batch_size,
+                      "rows": rows}, indent=2))
+
+
+if __name__ == "__main__":
+    main()

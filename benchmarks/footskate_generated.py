@@ -43,6 +43,8 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=16)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--modes", default="off,post,loop")
+    ap.add_argument("--loop-steps", type=int, default=3)
+    ap.add_argument("--loop-skip-last", type=int, default=0)
     ap.add_argument("--evaluator", type=Path, default=None, help="evaluator folder for FID (smf train-evaluator)")
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -56,7 +58,7 @@ def main() -> None:
                for i in ids]
     cleanup_features(np.load(args.data / "new_joint_vecs" / f"{ids[0]}.npy")[:40])  # pay torch.optim's import
     pipe.encode_text(captions)  # text embeddings cached: timings are the denoising and cleanup only
-    options = FootskateOptions()
+    options = FootskateOptions(loop_steps=args.loop_steps, loop_skip_last=args.loop_skip_last)
     feats: dict[str, list[np.ndarray]] = {}
     seconds: dict[str, float] = {}
     for mode in args.modes.split(","):
@@ -78,6 +80,7 @@ def main() -> None:
     cleanup_s = (time.perf_counter() - t) / max(1, min(16, len(feats.get("off", []))))
     report = {
         "checkpoint": str(args.checkpoint), "motions": len(ids), "steps": args.steps,
+        "loop_steps": args.loop_steps, "loop_skip_last": args.loop_skip_last,
         "mean_frames": float(np.mean(lengths)),
         "metrics": {m: mean_metrics(j) for m, j in joints.items()},
         "real_same_captions": mean_metrics(real), "real_test_split": mean_metrics(real_all),

@@ -22,14 +22,15 @@ __all__ = [
 
 @dataclass
 class FootskateOptions:
-    """How the pipeline cleans motions. ``loop_steps``: cleanup is applied to the predicted x0 of that many
-    denoising steps, ending ``loop_skip_last`` steps before the end so the model repairs what the
-    optimisation distorts. ``vgrf_model``: optional (B, T, 22, 3) -> (B, T, 2, 16) callable, e.g. a
+    """How the pipeline cleans motions. ``loop_steps``: in 'loop' mode cleanup is applied to the predicted
+    x0 of that many final denoising steps (the model repairs, in the next step, what the optimisation
+    distorted), ending ``loop_skip_last`` steps before the end (0: the last x0, which the sampler returns
+    as the result, is cleaned too). ``vgrf_model``: optional (B, T, 22, 3) -> (B, T, 2, 16) callable, e.g. a
     distilled model from :func:`stablemofusion.footskate.distil.load_vgrf_model` (non-commercial)."""
 
     config: CleanupConfig = field(default_factory=CleanupConfig)
     loop_steps: int = 3
-    loop_skip_last: int = 1
+    loop_skip_last: int = 0
     vgrf_model: object | None = None
 
     def in_loop(self, k: int, n_steps: int) -> bool:

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from ..errors import SMFError
-from ..motion.features import features_from_joints, joints_from_features
+from ..motion.features import feature_slices, features_from_joints, joints_from_features
 from ..motion.skeleton import get_skeleton
 from .contacts import HML_FOOT_JOINTS, KinematicContactConfig, contacts_from_vgrf, kinematic_contacts, runs
 
@@ -142,10 +142,17 @@ def cleanup_joints(joints: np.ndarray, fps: float = 20.0, config: CleanupConfig 
 
 def features_from_cleaned(joints: np.ndarray) -> np.ndarray:
     """Joints (T, 22, 3) -> features (T, 263): appends one extrapolated frame, since
-    :func:`features_from_joints` returns one frame fewer; bone lengths are kept as they are."""
+    :func:`features_from_joints` returns one frame fewer; bone lengths and heights are kept as they are."""
     j = np.asarray(joints, dtype=np.float64)
     ext = np.concatenate([j, 2 * j[-1:] - j[-2:-1]], 0)
-    return features_from_joints(ext, uniform=False)
+    feats = features_from_joints(ext, uniform=False)
+    # features_from_joints puts the lowest joint of the motion at y = 0; keep the optimised heights instead
+    # (the floor loss already lifted what was below the floor, frame by frame)
+    lift = ext[..., 1].min()
+    sl = feature_slices("humanml3d")
+    feats[:, sl.root_height] += lift
+    feats[:, sl.positions.start + 1:sl.positions.stop:3] += lift
+    return feats
 
 
 def cleanup_features(features: np.ndarray, config: CleanupConfig = CleanupConfig(), *,

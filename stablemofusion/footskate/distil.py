@@ -62,11 +62,11 @@ class VgrfStudent(nn.Module):
 
 def save_vgrf_model(model: VgrfStudent, path: str | Path, info: dict | None = None) -> None:
     """Write ``path`` (.safetensors) and the JSON config beside it (same stem)."""
-    from safetensors.torch import save_file
+    from safetensors.torch import save
 
     path = Path(path).with_suffix(".safetensors")
     with atomic_path(path) as tmp:
-        save_file({k: v.detach().float().contiguous() for k, v in model.state_dict().items()}, str(tmp))
+        tmp.write_bytes(save({k: v.detach().float().contiguous() for k, v in model.state_dict().items()}))
     meta = {"kind": "stablemofusion-vgrf-student", "config": asdict(model.config), "licence": LICENCE_NOTE,
             "output": "vGRF (T, 2 feet [left, right], 16 insole cells), fraction of body weight",
             **(info or {})}

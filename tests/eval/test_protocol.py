@@ -100,3 +100,12 @@ def test_cli_evaluate_writes_json_and_markdown(tiny_checkpoint, evaluator_dir, e
     md = out.with_suffix(".md").read_text()
     assert "AITS" in md and "| Generated |" in md
     assert "| Generated |" in capsys.readouterr().out
+
+
+def test_cli_original_t2m_evaluator_errors_name_the_problem(tiny_checkpoint, eval_corpus, tmp_path, capsys):
+    base = ["evaluate", "--checkpoint", str(tiny_checkpoint), "--data", str(eval_corpus)]
+    assert main([*base, "--t2m-evaluator", str(tmp_path)]) == 2
+    assert "--glove" in capsys.readouterr().err
+    assert main([*base, "--t2m-evaluator", str(tmp_path), "--glove", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "finest.tar" in err and err.count("\n") == 1

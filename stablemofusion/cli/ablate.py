@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import asdict
 from pathlib import Path
 
 from .evaluate import add_eval_args
@@ -77,7 +78,7 @@ def run_samplers(args: argparse.Namespace) -> None:
     embedder = load_embedder(args, pipe.text_cache)
     full = {s: sorted(set(grid + (extra if s == "ddpm" else []))) for s in samplers}
     result = ablate_samplers(pipe, embedder, args.data, cfg, full, progress=not args.no_progress)
-    result["config"] = cfg.__dict__
+    result["config"] = asdict(cfg)
     md = sampler_markdown(result)
     _write(args.out, result, md)
     print(md)
@@ -104,5 +105,5 @@ def run_arch(args: argparse.Namespace) -> None:
     table = ablate_arch(args.data, args.runs, embedder, cfg, presets, tcfg, progress=not args.no_progress,
                         text_cache=args.text_cache)
     md = arch_markdown(table)
-    _write(args.out, {"config": cfg.__dict__, "train": tcfg.__dict__, "table": table}, md)
+    _write(args.out, {"config": asdict(cfg), "train": asdict(tcfg), "table": table}, md)
     print(md)

@@ -109,3 +109,22 @@ def test_cli_original_t2m_evaluator_errors_name_the_problem(tiny_checkpoint, eva
     assert main([*base, "--t2m-evaluator", str(tmp_path), "--glove", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "finest.tar" in err and err.count("\n") == 1
+
+
+def test_cli_ablate_arch_and_samplers_write_tables(evaluator_dir, tiny_checkpoint, eval_corpus, eval_text_cache,
+                                                   tmp_path, capsys):
+    small = ["--data", str(eval_corpus), "--evaluator", str(evaluator_dir), "--replications", "1", "--no-progress",
+             "--rprecision-batch", "4", "--diversity-times", "5", "--steps", "2"]
+    out = tmp_path / "arch.json"
+    assert main(["ablate", "arch", *small, "--presets", "tiny", "--train-steps", "2", "--batch-size", "4",
+                 "--runs", str(tmp_path / "runs"), "--text-cache", str(eval_text_cache), "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["table"]["tiny"]["steps"] == 2 and res["train"]["steps"] == 2
+    assert "| tiny |" in out.with_suffix(".md").read_text()
+    out = tmp_path / "samplers.json"
+    assert main(["ablate", "samplers", "--checkpoint", str(tiny_checkpoint), *small, "--samplers", "ddim,ddpm",
+                 "--grid", "1,2", "--ddpm-steps", "3", "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert sorted(res["runs"]["ddpm"]) == ["1", "2", "3"] and sorted(res["runs"]["ddim"]) == ["1", "2"]
+    assert res["table"]["ddim"]["steps"] in (1, 2)
+    assert "| ddpm |" in out.with_suffix(".md").read_text()

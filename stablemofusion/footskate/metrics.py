@@ -63,6 +63,15 @@ def joint_change(before: np.ndarray, after: np.ndarray) -> float:
     return float(np.linalg.norm(a - b, axis=-1).mean())
 
 
+def pose_change(before: np.ndarray, after: np.ndarray) -> float:
+    """Mean distance (m) between corresponding joints once each frame's root is moved to the origin: the
+    part of :func:`joint_change` that is not a change of the global path."""
+    a, b = np.asarray(before, np.float64), np.asarray(after, np.float64)
+    if a.shape != b.shape:
+        raise SMFError(f"joint arrays differ in shape: {a.shape} vs {b.shape}")
+    return float(np.linalg.norm((a - a[:, :1]) - (b - b[:, :1]), axis=-1).mean())
+
+
 def footskate_metrics(joints: np.ndarray, fps: float = METRIC_FPS) -> dict[str, float]:
     """All metrics of one motion (T, 22, 3) at ``fps``: skate_ratio, slide_speed (m/s), penetration (m)."""
     j = _check(joints)

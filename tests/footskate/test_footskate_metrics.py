@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from stablemofusion.errors import SMFError
-from stablemofusion.footskate.metrics import footskate_metrics, joint_change, penetration, skate_ratio
+from stablemofusion.footskate.metrics import footskate_metrics, joint_change, penetration, pose_change, skate_ratio
 
 
 def _motion(T=21, slide=0.0, toe_h=0.0, low=0.0):
@@ -40,6 +40,7 @@ def test_penetration_and_joint_change():
     k = j.copy()
     k[..., 1] += 0.01
     assert joint_change(j, k) == pytest.approx(0.01)
+    assert pose_change(j, k) == pytest.approx(0.0)  # a shift of the whole body is no pose change
     with pytest.raises(SMFError):
         joint_change(j, k[:-1])
     with pytest.raises(SMFError):

@@ -12,7 +12,7 @@ Reported as mean +- 1.96 std / sqrt(N) over the replications, with a "Real motio
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -132,6 +132,22 @@ def generate(pipe, captions: list[str], lengths: list[int], cfg: EvalConfig, see
     return out  # type: ignore[return-value]
 
 
+def cleanup_change(before: list[np.ndarray], after: list[np.ndarray], skeleton) -> dict[str, float]:
+    """Mean joint change and pose change (root-relative) in metres between two lists of raw features of the
+    same motions, after aligning each cleaned motion's heading and start to the original."""
+    from ..footskate.cleanup import align_yaw_xz
+    from ..footskate.metrics import joint_change, pose_change
+    from ..motion.features import joints_from_features
+
+    jc, pc = [], []
+    for a, b in zip(before, after):
+        ja = joints_from_features(a.astype(np.float64), skeleton)
+        jb = align_yaw_xz(joints_from_features(b.astype(np.float64), skeleton), ja)
+        jc.append(joint_change(ja, jb))
+        pc.append(pose_change(ja, jb))
+    return {"joint_change": float(np.mean(jc)), "pose_change": float(np.mean(pc))}
+
+
 def row_metrics(emb_text: np.ndarray, emb_motion: np.ndarray, ref: tuple[np.ndarray, np.ndarray],
                 cfg: EvalConfig, rng: np.random.Generator) -> dict[str, float]:
     """FID (vs reference stats), R-precision top-1/2/3, matching distance and diversity of one set."""
@@ -176,6 +192,10 @@ def evaluate(pipe, embedder: EmbeddingModel, data: str | Path, cfg: EvalConfig, 
         row = row_metrics(text, embedder.motions(gen), ref, cfg, rng)
         if skate_metrics:
             row.update(skate_metrics(gen))
+        if cfg.footskate != "off":  # the same seeds without cleanup: how much did cleanup move the joints?
+            base = generate(pipe, items.captions, items.lengths, replace(cfg, footskate="off"),
+                            seed=cfg.seed * 1000 + r)
+            row.update(cleanup_change(base, gen, pipe.skeleton))
         if mm_n:
             caps = items.captions[:mm_n]
             lens = items.lengths[:mm_n]

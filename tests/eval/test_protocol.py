@@ -128,3 +128,17 @@ def test_cli_ablate_arch_and_samplers_write_tables(evaluator_dir, tiny_checkpoin
     assert sorted(res["runs"]["ddpm"]) == ["1", "2", "3"] and sorted(res["runs"]["ddim"]) == ["1", "2"]
     assert res["table"]["ddim"]["steps"] in (1, 2)
     assert "| ddpm |" in out.with_suffix(".md").read_text()
+
+
+def test_evaluate_with_footskate_cleanup_reports_skating_and_joint_change(setup, eval_corpus):
+    from stablemofusion.cli.evaluate import skate_fn
+    from stablemofusion.motion.skeleton import get_skeleton
+
+    pipe, emb = setup
+    cfg = EvalConfig(**{**CFG, "replications": 1, "mm_captions": 0, "footskate": "post"})
+    res = evaluate(pipe, emb, eval_corpus, cfg, progress=False, skate_metrics=skate_fn(20.0, get_skeleton("humanml3d")))
+    gen, real = res["rows"]["Generated"], res["rows"]["Real motion"]
+    for key in ("skate_ratio", "slide_speed", "penetration"):
+        assert key in gen and key in real
+    assert gen["joint_change"][0] > 0 and gen["pose_change"][0] <= gen["joint_change"][0] + 1e-9
+    assert real["skate_ratio"][0] < 0.3  # real motion capture barely skates

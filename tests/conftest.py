@@ -53,3 +53,32 @@ def bandai_mini_source(tmp_path_factory) -> Path:
             if member.isfile() and (name in wanted or "/cfg/" in member.name):
                 tar.extract(member, out, filter="data")
     return out
+
+
+@pytest.fixture(scope="session")
+def save_tiny_checkpoint():
+    """The function below, for tests in any folder."""
+    return _save_tiny_checkpoint
+
+
+def _save_tiny_checkpoint(path: Path, mean: np.ndarray, std: np.ndarray) -> Path:
+    """A 'tiny' denoiser (8 channels per norm group) with random non-zero weights everywhere, saved like a
+    trained checkpoint at ``path``."""
+    import torch
+
+    from stablemofusion.diffusion.checkpoint import save_checkpoint
+    from stablemofusion.models.base import build_denoiser
+    from stablemofusion.models.presets import get_preset
+
+    torch.manual_seed(0)
+    cfg = get_preset("tiny")
+    cfg.options.update(base_dim=32, groups=4)  # well-conditioned numerics
+    model = build_denoiser(cfg)
+    with torch.no_grad():
+        for p in model.parameters():
+            if p.abs().sum() == 0:
+                p.normal_(0, 0.02)
+    save_checkpoint(path, model=model, mean=mean, std=std, ema_state=model.state_dict(),
+                    config={"model": cfg.to_dict(), "text_encoder": "minilm", "skeleton": "humanml3d", "fps": 20.0,
+                            "max_frames": 196, "min_frames": 40, "train": {}})
+    return path

@@ -7,31 +7,15 @@ import pytest
 import torch
 
 from stablemofusion.cli.main import main
-from stablemofusion.diffusion.checkpoint import save_checkpoint
 from stablemofusion.diffusion.samplers import make_sampler, sampler_names
 from stablemofusion.errors import SMFError
-from stablemofusion.models.base import build_denoiser
-from stablemofusion.models.presets import get_preset
 from stablemofusion.pipeline import LengthClampedWarning, MotionPipeline
 
 
 @pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory):
+def checkpoint(tmp_path_factory, save_tiny_checkpoint):
     """A 'tiny' denoiser with random (non-zero) weights everywhere, saved like a trained checkpoint."""
-    torch.manual_seed(0)
-    cfg = get_preset("tiny")
-    cfg.options.update(base_dim=32, groups=4)  # 8 channels per norm group: well-conditioned numerics
-    model = build_denoiser(cfg)
-    with torch.no_grad():
-        for p in model.parameters():
-            if p.abs().sum() == 0:
-                p.normal_(0, 0.02)
-    path = tmp_path_factory.mktemp("ckpt") / "checkpoint"
-    mean, std = np.zeros(263), np.full(263, 0.1)
-    save_checkpoint(path, model=model, mean=mean, std=std, ema_state=model.state_dict(),
-                    config={"model": cfg.to_dict(), "text_encoder": "minilm", "skeleton": "humanml3d", "fps": 20.0,
-                            "max_frames": 196, "min_frames": 40, "train": {}})
-    return path
+    return save_tiny_checkpoint(tmp_path_factory.mktemp("ckpt") / "checkpoint", np.zeros(263), np.full(263, 0.1))
 
 
 @pytest.fixture(scope="module")
@@ -117,11 +101,6 @@ def test_generate_bad_input(argv, msg, tmp_path, capsys):
     code = main([a.format(d=tmp_path) for a in argv])
     err = capsys.readouterr().err
     assert code == 2 and msg in err and err.count("\n") == 1
-
-
-def test_no_default_model_yet():
-    with pytest.raises(SMFError, match="no default model"):
-        MotionPipeline.from_pretrained(None)
 
 
 def test_bench_prints_json(checkpoint, tmp_path, capsys):

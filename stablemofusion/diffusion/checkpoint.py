@@ -8,9 +8,6 @@ Folders are written to a temporary sibling and renamed into place, so a crash ne
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,10 +49,9 @@ def save_checkpoint(path: str | Path, *, model: Denoiser, config: dict, mean: np
                     ema_state: dict[str, torch.Tensor] | None = None, training_state: dict | None = None,
                     dtype: torch.dtype | None = None, extra_files: dict[str, str] | None = None) -> Path:
     """Write a checkpoint folder atomically (replacing ``path`` if it exists); ``extra_files``: name -> text."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
-    try:
+    from ..io import atomic_dir
+
+    with atomic_dir(path) as tmp:
         save_file(_contiguous(model.state_dict(), dtype), tmp / MODEL)
         if ema_state is not None:
             save_file(_contiguous(ema_state, dtype), tmp / EMA)
@@ -66,14 +62,7 @@ def save_checkpoint(path: str | Path, *, model: Denoiser, config: dict, mean: np
             torch.save(training_state, tmp / STATE)
         for name, text in (extra_files or {}).items():
             (tmp / name).write_text(text, encoding="utf-8")
-        old = path.with_name(f".{path.name}.old")
-        if path.exists():
-            os.replace(path, old)
-        os.replace(tmp, path)
-        shutil.rmtree(old, ignore_errors=True)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return path
+    return Path(path)
 
 
 def resolve(path: str | Path) -> Path:

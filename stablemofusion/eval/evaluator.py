@@ -12,9 +12,6 @@ Saved as a folder: ``evaluator.safetensors``, ``config.json``, ``Mean.npy``, ``S
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -127,23 +124,15 @@ def save_evaluator(path: str | Path, model: Evaluator, meta: dict) -> Path:
     """Write an evaluator folder atomically: weights, config.json (sizes + ``meta``), Mean.npy, Std.npy."""
     from safetensors.torch import save_file
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
-    try:
+    from ..io import atomic_dir
+
+    with atomic_dir(path) as tmp:
         state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
         save_file(state, tmp / WEIGHTS)
         (tmp / CONFIG).write_text(json.dumps({"evaluator": asdict(model.config), **meta}, indent=2) + "\n")
         np.save(tmp / "Mean.npy", model.mean.cpu().numpy())
         np.save(tmp / "Std.npy", model.std.cpu().numpy())
-        old = path.with_name(f".{path.name}.old")
-        if path.exists():
-            os.replace(path, old)
-        os.replace(tmp, path)
-        shutil.rmtree(old, ignore_errors=True)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return path
+    return Path(path)
 
 
 def load_evaluator(path: str | Path, device: str | torch.device = "cpu") -> tuple[Evaluator, dict]:

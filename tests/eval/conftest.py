@@ -2,12 +2,8 @@
 
 import numpy as np
 import pytest
-import torch
 
 from stablemofusion.data.corpus_bandai import build_corpus
-from stablemofusion.diffusion.checkpoint import save_checkpoint
-from stablemofusion.models.base import build_denoiser
-from stablemofusion.models.presets import get_preset
 
 
 @pytest.fixture(scope="session")
@@ -26,19 +22,7 @@ def eval_text_cache(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
-def tiny_checkpoint(eval_corpus, tmp_path_factory):
-    """A 'tiny' random-weight denoiser with the corpus's Mean/Std, saved like a trained checkpoint."""
-    torch.manual_seed(0)
-    cfg = get_preset("tiny")
-    cfg.options.update(base_dim=32, groups=4)
-    model = build_denoiser(cfg)
-    with torch.no_grad():
-        for p in model.parameters():
-            if p.abs().sum() == 0:
-                p.normal_(0, 0.02)
-    path = tmp_path_factory.mktemp("eval-ckpt") / "checkpoint"
+def tiny_checkpoint(eval_corpus, tmp_path_factory, save_tiny_checkpoint):
+    """A 'tiny' random-weight denoiser with the corpus's Mean/Std."""
     mean, std = np.load(eval_corpus / "Mean.npy"), np.load(eval_corpus / "Std.npy")
-    save_checkpoint(path, model=model, mean=mean, std=std + 1e-2, ema_state=model.state_dict(),
-                    config={"model": cfg.to_dict(), "text_encoder": "minilm", "skeleton": "humanml3d", "fps": 20.0,
-                            "max_frames": 196, "min_frames": 40, "train": {}})
-    return path
+    return save_tiny_checkpoint(tmp_path_factory.mktemp("eval-ckpt") / "checkpoint", mean, std + 1e-2)

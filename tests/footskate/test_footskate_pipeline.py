@@ -7,31 +7,16 @@ import pytest
 import torch
 
 from stablemofusion.cli.main import main
-from stablemofusion.diffusion.checkpoint import save_checkpoint
 from stablemofusion.errors import SMFError
 from stablemofusion.footskate import FootskateOptions
-from stablemofusion.models.base import build_denoiser
-from stablemofusion.models.presets import get_preset
 from stablemofusion.pipeline import MotionPipeline
 
 
 @pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory):
-    torch.manual_seed(0)
-    cfg = get_preset("tiny")
-    cfg.options.update(base_dim=32, groups=4)
-    model = build_denoiser(cfg)
-    with torch.no_grad():
-        for p in model.parameters():
-            if p.abs().sum() == 0:
-                p.normal_(0, 0.02)
-    path = tmp_path_factory.mktemp("fs-ckpt") / "checkpoint"
+def checkpoint(tmp_path_factory, save_tiny_checkpoint):
     mean, std = np.zeros(263), np.full(263, 0.1)
     mean[3] = 0.9  # root height: stand above the floor
-    save_checkpoint(path, model=model, mean=mean, std=std, ema_state=model.state_dict(),
-                    config={"model": cfg.to_dict(), "text_encoder": "minilm", "skeleton": "humanml3d", "fps": 20.0,
-                            "max_frames": 196, "min_frames": 40, "train": {}})
-    return path
+    return save_tiny_checkpoint(tmp_path_factory.mktemp("fs-ckpt") / "checkpoint", mean, std)
 
 
 @pytest.fixture(scope="module")

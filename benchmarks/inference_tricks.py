@@ -71,8 +71,8 @@ def main() -> None:
                      "note": "GPU only; not measured on CPU"})
     print("\n| Trick (cumulative) | Sampler | Steps | AITS (ms) |\n|---|---|---:|---:|")
     for r in rows:
-        print(f"| {r['trick']} | {r['sampler']} | {r['steps']} | "
-              f"{'n/a (GPU only)' if r['aits_ms'] is None else f'{r['aits_ms']:.1f}'} |")
+        ms = "n/a (GPU only)" if r["aits_ms"] is None else f"{r['aits_ms']:.1f}"
+        print(f"| {r['trick']} | {r['sampler']} | {r['steps']} | {ms} |")
     print(json.dumps({"device": device, "cpu": platform.processor() or platform.machine(),
                       "threads": torch.get_num_threads(), "frames": args.frames, "batch_size": args.batch_size,
                       "rows": rows}, indent=2))

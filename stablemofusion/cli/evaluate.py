@@ -139,14 +139,14 @@ def run(args: argparse.Namespace) -> None:
     if not args.data.is_dir():
         raise SMFError(f"no such corpus folder: {args.data}")
     cfg = eval_config(args)
-    pipe = None
-    if str(args.checkpoint).lower() != "none":
-        pipe = MotionPipeline.from_pretrained(args.checkpoint, device=args.device)
+    real_only = args.checkpoint is not None and str(args.checkpoint).lower() == "none"
+    pipe = None if real_only else MotionPipeline.from_pretrained(args.checkpoint, device=args.device)
     embedder = load_embedder(args, pipe.text_cache if pipe else None)
     from ..motion.skeleton import get_skeleton
 
     sk = pipe.skeleton if pipe else get_skeleton("humanml3d")
     result = evaluate(pipe, embedder, args.data, cfg, progress=not args.no_progress,
                       skate_metrics=skate_fn(pipe.fps if pipe else sk.fps, sk))
-    result["checkpoint"] = str(args.checkpoint)
-    print(write_results(result, args.out, f"Evaluation of {args.checkpoint or 'the default model'}"))
+    name = "real motion only" if real_only else str(args.checkpoint or "the shipped default model")
+    result["checkpoint"] = name
+    print(write_results(result, args.out, f"Evaluation of {name}"))

@@ -34,6 +34,15 @@ def _captions(data: Path, ids: list[str]) -> list[str]:
             for i in ids]
 
 
+def pick_test_items(pipe: MotionPipeline, data: Path, n: int) -> tuple[list[str], list[str], list[int]]:
+    """``n`` test motions of >= 40 frames, evenly spaced over test.txt: ids, first captions, lengths (frames)."""
+    test_ids = [s for s in (data / "test.txt").read_text().split() if s]
+    usable = [i for i in test_ids if len(np.load(data / "new_joint_vecs" / f"{i}.npy", mmap_mode="r")) >= 40]
+    ids = [usable[k] for k in np.linspace(0, len(usable) - 1, min(n, len(usable))).round().astype(int)]
+    lengths = [pipe.frames_for(None, len(np.load(data / "new_joint_vecs" / f"{i}.npy", mmap_mode="r"))) for i in ids]
+    return ids, _captions(data, ids), lengths
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--checkpoint", type=Path, required=True)
@@ -50,12 +59,8 @@ def main() -> None:
     torch.set_num_threads(1)
     warnings.simplefilter("ignore")
     pipe = MotionPipeline.from_pretrained(args.checkpoint, device="cpu")
+    ids, captions, lengths = pick_test_items(pipe, args.data, args.n)
     test_ids = [s for s in (args.data / "test.txt").read_text().split() if s]
-    usable = [i for i in test_ids if len(np.load(args.data / "new_joint_vecs" / f"{i}.npy", mmap_mode="r")) >= 40]
-    ids = [usable[k] for k in np.linspace(0, len(usable) - 1, min(args.n, len(usable))).round().astype(int)]
-    captions = _captions(args.data, ids)
-    lengths = [pipe.frames_for(None, len(np.load(args.data / "new_joint_vecs" / f"{i}.npy", mmap_mode="r")))
-               for i in ids]
     cleanup_features(np.load(args.data / "new_joint_vecs" / f"{ids[0]}.npy")[:40])  # pay torch.optim's import
     pipe.encode_text(captions)  # text embeddings cached: timings are the denoising and cleanup only
     pipe.sample(captions[:2], lengths[:2], steps=2, seed=0)  # warm-up: first forwards allocate

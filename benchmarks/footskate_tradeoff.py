@@ -23,6 +23,8 @@ from stablemofusion.footskate.metrics import joint_change, mean_metrics, pose_ch
 from stablemofusion.motion.features import joints_from_features
 from stablemofusion.pipeline import MotionPipeline
 
+from footskate_generated import pick_test_items  # noqa: E402  (run from the repo root: benchmarks/ is on sys.path)
+
 SETTINGS = {
     "default": CleanupConfig(),
     "root x10": CleanupConfig(w_root=10.0),
@@ -44,12 +46,8 @@ def main() -> None:
     torch.set_num_threads(1)
     warnings.simplefilter("ignore")
     pipe = MotionPipeline.from_pretrained(args.checkpoint, device="cpu")
+    ids, captions, lengths = pick_test_items(pipe, args.data, args.n)
     test_ids = [s for s in (args.data / "test.txt").read_text().split() if s]
-    usable = [i for i in test_ids if len(np.load(args.data / "new_joint_vecs" / f"{i}.npy", mmap_mode="r")) >= 40]
-    ids = [usable[k] for k in np.linspace(0, len(usable) - 1, min(args.n, len(usable))).round().astype(int)]
-    captions = [(args.data / "texts" / f"{i}.txt").read_text().splitlines()[0].split("#")[0].strip() for i in ids]
-    lengths = [pipe.frames_for(None, len(np.load(args.data / "new_joint_vecs" / f"{i}.npy", mmap_mode="r")))
-               for i in ids]
     feats = []
     for a in range(0, len(ids), 16):
         x = pipe.sample(captions[a:a + 16], lengths[a:a + 16], steps=args.steps, seed=a)

@@ -142,3 +142,16 @@ def test_evaluate_with_footskate_cleanup_reports_skating_and_joint_change(setup,
         assert key in gen and key in real
     assert gen["joint_change"][0] > 0 and gen["pose_change"][0] <= gen["joint_change"][0] + 1e-9
     assert real["skate_ratio"][0] < 0.3  # real motion capture barely skates
+
+
+def test_cli_evaluate_defaults_to_the_shipped_model_and_none_means_real_only(evaluator_dir, eval_corpus, tmp_path):
+    small = ["--data", str(eval_corpus), "--evaluator", str(evaluator_dir), "--replications", "1", "--no-progress",
+             "--rprecision-batch", "4", "--diversity-times", "5", "--steps", "2", "--mm-captions", "0"]
+    out = tmp_path / "default.json"
+    assert main(["evaluate", *small, "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["checkpoint"] == "the shipped default model" and "Generated" in res["rows"]
+    out = tmp_path / "real.json"
+    assert main(["evaluate", "--checkpoint", "none", *small, "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert list(res["rows"]) == ["Real motion"] and "aits_seconds" not in res

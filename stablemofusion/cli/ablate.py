@@ -75,7 +75,7 @@ def run_samplers(args: argparse.Namespace) -> None:
     for s in samplers:
         make_sampler(s, pipe.schedule)  # unknown names fail before any work
     cfg = eval_config(args, mm_captions=0 if args.mm_captions is None else args.mm_captions)
-    embedder = load_embedder(args, pipe.text_cache)
+    embedder = load_embedder(args, pipe)
     full = {s: sorted(set(grid + (extra if s == "ddpm" else []))) for s in samplers}
     result = ablate_samplers(pipe, embedder, args.data, cfg, full, progress=not args.no_progress)
     result["config"] = asdict(cfg)

@@ -6,6 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
+
 
 def add_eval_args(p: argparse.ArgumentParser) -> None:
     """Arguments shared by `smf evaluate` and `smf ablate`."""
@@ -67,8 +69,9 @@ def eval_config(args: argparse.Namespace, **kw):
     return cfg
 
 
-def load_embedder(args: argparse.Namespace, text_cache=None):
-    """Our evaluator (with a text cache) or the original T2M one, from the CLI arguments."""
+def load_embedder(args: argparse.Namespace, pipe=None):
+    """Our evaluator (sharing the pipeline's text cache when both use the same language model) or the
+    original T2M one, from the CLI arguments."""
     from ..errors import SMFError
     from ..eval.protocol import EmbeddingModel, T2MEmbedding
 
@@ -86,33 +89,18 @@ def load_embedder(args: argparse.Namespace, text_cache=None):
 
     model, config = load_evaluator(args.evaluator)
     name = config.get("text_encoder", "minilm")
-    if text_cache is None or getattr(text_cache, "encoder", None) is None or name != _encoder_name(text_cache):
-        text_cache = LRUTextCache(load_text_encoder(name), maxsize=100_000)
-    return EmbeddingModel(model, text_cache)
+    if pipe is not None and pipe.text_encoder_name == name:
+        return EmbeddingModel(model, pipe.text_cache)
+    return EmbeddingModel(model, LRUTextCache(load_text_encoder(name), maxsize=100_000))
 
 
-def _encoder_name(cache) -> str | None:
-    try:
-        return cache.encoder.name
-    except Exception:  # noqa: BLE001 - a lazy encoder that cannot load is simply not shared
-        return None
-
-
-def skate_fn(fps: float, skeleton):
-    """Raw feature list -> mean footskate metrics (None if the footskate module is unavailable)."""
-    try:
-        from ..footskate.metrics import footskate_metrics
-    except ImportError:
-        return None
-    import numpy as np
-
+def skate_fn(skeleton):
+    """Raw feature list -> mean footskate metrics at the skeleton's frame rate."""
+    from ..footskate.metrics import mean_metrics
     from ..motion.features import joints_from_features
 
-    def fn(feats):
-        rows = [footskate_metrics(joints_from_features(f.astype(np.float64), skeleton), fps) for f in feats]
-        return {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
-
-    return fn
+    return lambda feats: mean_metrics([joints_from_features(f.astype(np.float64), skeleton) for f in feats],
+                                      skeleton.fps)
 
 
 def write_results(result: dict, out: Path | None, title: str) -> str:
@@ -141,12 +129,11 @@ def run(args: argparse.Namespace) -> None:
     cfg = eval_config(args)
     real_only = args.checkpoint is not None and str(args.checkpoint).lower() == "none"
     pipe = None if real_only else MotionPipeline.from_pretrained(args.checkpoint, device=args.device)
-    embedder = load_embedder(args, pipe.text_cache if pipe else None)
+    embedder = load_embedder(args, pipe)
     from ..motion.skeleton import get_skeleton
 
     sk = pipe.skeleton if pipe else get_skeleton("humanml3d")
-    result = evaluate(pipe, embedder, args.data, cfg, progress=not args.no_progress,
-                      skate_metrics=skate_fn(pipe.fps if pipe else sk.fps, sk))
+    result = evaluate(pipe, embedder, args.data, cfg, progress=not args.no_progress, skate_metrics=skate_fn(sk))
     name = "real motion only" if real_only else str(args.checkpoint or "the shipped default model")
     result["checkpoint"] = name
     print(write_results(result, args.out, f"Evaluation of {name}"))

@@ -9,6 +9,7 @@ from a checkpoint reproduces the uninterrupted run exactly on CPU.
 from __future__ import annotations
 
 import csv
+import functools
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -56,18 +57,16 @@ def _mix(*ints: int) -> int:
     return int(np.random.SeedSequence(list(ints)).generate_state(1, dtype=np.uint64)[0] >> 1)
 
 
+@functools.lru_cache(maxsize=4)
 def _epoch_order(seed: int, epoch: int, n: int, chunk: int, lengths: tuple[int, ...] | None) -> np.ndarray:
     """Item order of one epoch: a seeded permutation; with ``lengths``, each run of ``chunk`` items is
-    sorted by length and its batches are shuffled again, so batches hold similar lengths."""
+    sorted by length, so batches hold similar lengths. Cached: every step of an epoch reads it."""
     order = np.random.default_rng([seed, epoch]).permutation(n)
     if lengths is None:
         return order
     lens = np.asarray(lengths)
-    out = []
-    for a in range(0, n, chunk):
-        part = order[a:a + chunk]
-        out.append(part[np.argsort(lens[part], kind="stable")])
-    return np.concatenate(out)
+    return np.concatenate([part[np.argsort(lens[part], kind="stable")]
+                           for part in (order[a:a + chunk] for a in range(0, n, chunk))])
 
 
 def batch_indices(step: int, batch_size: int, n: int, seed: int, *, lengths: tuple[int, ...] | None = None,
@@ -76,23 +75,12 @@ def batch_indices(step: int, batch_size: int, n: int, seed: int, *, lengths: tup
 
     With ``bucket > 0`` and the items' ``lengths``, the order groups similar lengths (see ``_epoch_order``)."""
     lens = tuple(lengths) if bucket > 0 and lengths is not None else None
+    chunk = batch_size * max(bucket, 1)
     out = []
     for g in range(step * batch_size, (step + 1) * batch_size):
         epoch, k = divmod(g, n)
-        out.append((epoch, int(_cached_order(seed, epoch, n, batch_size * max(bucket, 1), lens)[k])))
+        out.append((epoch, int(_epoch_order(seed, epoch, n, chunk, lens)[k])))
     return out
-
-
-_ORDERS: dict = {}
-
-
-def _cached_order(seed, epoch, n, chunk, lens):
-    key = (seed, epoch, n, chunk, None if lens is None else hash(lens))
-    if key not in _ORDERS:
-        if len(_ORDERS) > 4:
-            _ORDERS.clear()
-        _ORDERS[key] = _epoch_order(seed, epoch, n, chunk, lens)
-    return _ORDERS[key]
 
 
 def get_batch(ds: MotionTextDataset, step: int, batch_size: int, seed: int, bucket: int = 0) -> dict:

@@ -64,12 +64,16 @@ class Items:
     tokens: list[list[str]]
 
 
+def items_per_draw(n: int, batch_size: int, max_items: int | None) -> int:
+    """Items one replication uses: all (or ``max_items``) cut to whole batches."""
+    return (n if max_items is None else min(n, int(max_items))) // batch_size * batch_size
+
+
 def draw_items(ds: MotionTextDataset, epoch: int, seed: int, batch_size: int, max_items: int | None) -> Items:
     """Test items of one replication, shuffled and cut to whole batches (the T2M loader drops the last)."""
     ds.set_epoch(epoch)
     order = np.random.default_rng([seed, epoch]).permutation(len(ds))
-    n = len(ds) if max_items is None else min(len(ds), int(max_items))
-    n = n // batch_size * batch_size
+    n = items_per_draw(len(ds), batch_size, max_items)
     if n == 0:
         raise SMFError(f"the {ds.split} split has {len(ds)} usable items: fewer than one batch of {batch_size}")
     caps, lens, real, toks = [], [], [], []
@@ -171,7 +175,7 @@ def evaluate(pipe, embedder: EmbeddingModel, data: str | Path, cfg: EvalConfig, 
     ref = activation_stats(embedder.motions(ref_items.real))
     runs: dict[str, list[dict]] = {"Real motion": [], "Generated": []}
     gen_seconds, gen_count = 0.0, 0
-    n_items = len(draw_items(ds, 0, cfg.seed, cfg.batch_size, cfg.max_items).captions)
+    n_items = items_per_draw(len(ds), cfg.batch_size, cfg.max_items)
     mm_n = min(cfg.mm_captions, n_items) if pipe is not None and cfg.mm_captions > 0 else 0
     total = cfg.replications * (n_items + mm_n * cfg.mm_repeats) if pipe is not None else 0
     bar = tqdm(total=total, desc="evaluate", unit="motion", disable=not progress or total == 0)

@@ -136,7 +136,7 @@ def test_evaluate_with_footskate_cleanup_reports_skating_and_joint_change(setup,
 
     pipe, emb = setup
     cfg = EvalConfig(**{**CFG, "replications": 1, "mm_captions": 0, "footskate": "post"})
-    res = evaluate(pipe, emb, eval_corpus, cfg, progress=False, skate_metrics=skate_fn(20.0, get_skeleton("humanml3d")))
+    res = evaluate(pipe, emb, eval_corpus, cfg, progress=False, skate_metrics=skate_fn(get_skeleton("humanml3d")))
     gen, real = res["rows"]["Generated"], res["rows"]["Real motion"]
     for key in ("skate_ratio", "slide_speed", "penetration"):
         assert key in gen and key in real

@@ -67,6 +67,24 @@ def test_batches_are_a_function_of_the_step():
     assert sorted(seen) == list(range(10))  # one epoch visits every item once
 
 
+def test_bucketed_batches_group_lengths_and_still_cover_the_epoch():
+    lengths = tuple(int(x) for x in np.random.default_rng(0).integers(40, 196, 64))
+    plain = [[lengths[i] for _, i in batch_indices(s, 8, 64, 0)] for s in range(8)]
+    bucketed = [[lengths[i] for _, i in batch_indices(s, 8, 64, 0, lengths=lengths, bucket=8)] for s in range(8)]
+    assert sorted(sum(bucketed, [])) == sorted(lengths)  # every item once per epoch
+    spread = lambda batches: np.mean([max(b) - min(b) for b in batches])  # noqa: E731
+    assert spread(bucketed) < 0.5 * spread(plain)
+
+
+def test_get_batch_is_trimmed_to_its_longest_item(corpus):
+    from stablemofusion.data.dataset import MotionTextDataset
+    from stablemofusion.diffusion.train import get_batch
+
+    ds = MotionTextDataset(corpus, "train", seed=0, min_frames=16)
+    batch = get_batch(ds, 0, 4, 0, bucket=1)
+    assert batch["motion"].shape[1] == int(batch["length"].max()) == batch["mask"].shape[1]
+
+
 def test_masked_mse_ignores_padding():
     pred, target = torch.zeros(1, 4, 3), torch.ones(1, 4, 3)
     target[0, 2:] = 100.0

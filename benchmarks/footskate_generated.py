@@ -34,9 +34,10 @@ def _captions(data: Path, ids: list[str]) -> list[str]:
             for i in ids]
 
 
-def pick_test_items(pipe: MotionPipeline, data: Path, n: int) -> tuple[list[str], list[str], list[int]]:
-    """``n`` test motions of >= 40 frames, evenly spaced over test.txt: ids, first captions, lengths (frames)."""
-    test_ids = [s for s in (data / "test.txt").read_text().split() if s]
+def pick_test_items(pipe: MotionPipeline, data: Path, n: int,
+                    split: str = "test") -> tuple[list[str], list[str], list[int]]:
+    """``n`` motions of >= 40 frames, evenly spaced over SPLIT.txt: ids, first captions, lengths (frames)."""
+    test_ids = [s for s in (data / f"{split}.txt").read_text().split() if s]
     usable = [i for i in test_ids if len(np.load(data / "new_joint_vecs" / f"{i}.npy", mmap_mode="r")) >= 40]
     ids = [usable[k] for k in np.linspace(0, len(usable) - 1, min(n, len(usable))).round().astype(int)]
     lengths = [pipe.frames_for(None, len(np.load(data / "new_joint_vecs" / f"{i}.npy", mmap_mode="r"))) for i in ids]
@@ -52,7 +53,7 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=16)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--modes", default="off,post,loop")
-    ap.add_argument("--loop-steps", type=int, default=3)
+    ap.add_argument("--loop-steps", type=int, default=2)
     ap.add_argument("--loop-skip-last", type=int, default=0)
     ap.add_argument("--evaluator", type=Path, default=None, help="evaluator folder for FID (smf train-evaluator)")
     args = ap.parse_args()

@@ -1,10 +1,12 @@
-"""Post-cleanup trade-off: skate ratio vs joint change vs FID for several weightings of the cleanup.
+"""Post-cleanup trade-off: skate ratio vs joint change vs FID for the default cleanup and for settings that
+each undo one of its design choices.
 
-Generates one motion per test caption once (footskate off), then cleans the same motions with each
-setting, so only the cleanup differs. Prints JSON rows.
+Generates one motion per caption of a split once (footskate off), then cleans the same motions with each
+setting, so only the cleanup differs. FID is against the whole test split. Prints JSON rows. Tune on
+``--split val``; report on test.
 
-    python benchmarks/footskate_tradeoff.py --checkpoint DIR --data /work/cache/bandai-corpus --n 48 \
-        --evaluator DIR
+    python benchmarks/footskate_tradeoff.py --checkpoint DIR --data /work/cache/bandai-corpus --n 256 \
+        --split val --evaluator DIR
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from stablemofusion.footskate.cleanup import CleanupConfig, align_yaw_xz, cleanup_features
+from stablemofusion.footskate.cleanup import (CleanupConfig, align_yaw_xz, cleanup_features, cleanup_joints,
+                                              features_from_cleaned)
 from stablemofusion.footskate.contacts import KinematicContactConfig
 from stablemofusion.footskate.metrics import joint_change, mean_metrics, pose_change
 from stablemofusion.motion.features import joints_from_features
@@ -25,13 +28,23 @@ from stablemofusion.pipeline import MotionPipeline
 
 from footskate_generated import pick_test_items  # noqa: E402  (run from the repo root: benchmarks/ is on sys.path)
 
+def _recomputed(f: np.ndarray, cfg: CleanupConfig = CleanupConfig()) -> np.ndarray:
+    """The default cleanup, but every feature recomputed from the cleaned joints (rotations by IK)."""
+    return features_from_cleaned(cleanup_joints(joints_from_features(f), config=cfg).joints)
+
+
 SETTINGS = {
-    "default": CleanupConfig(),
-    "root x10": CleanupConfig(w_root=10.0),
-    "root x100": CleanupConfig(w_root=100.0),
-    "anchor /10": CleanupConfig(w_anchor=1.0),
-    "strict contacts (0.5/0.8 m/s)": CleanupConfig(kinematic=KinematicContactConfig()),
-    "strict contacts + root x10": CleanupConfig(w_root=10.0, kinematic=KinematicContactConfig()),
+    "default": lambda f: cleanup_features(f),
+    "features recomputed from joints (no edit)": _recomputed,
+    "root path free (w_root_offset 0)": lambda f: cleanup_features(f, CleanupConfig(w_root_offset=0.0)),
+    "root path free + recomputed (session 2's cleanup, new anchors)":
+        lambda f: _recomputed(f, CleanupConfig(w_root_offset=0.0)),
+    "toes at their mean height (anchor_floor False)": lambda f: cleanup_features(f, CleanupConfig(anchor_floor=False)),
+    "anchor weight 10, 12 iterations": lambda f: cleanup_features(f, CleanupConfig(w_anchor=10.0, iterations=12)),
+    "contact speeds 1.0/1.5 m/s": lambda f: cleanup_features(
+        f, CleanupConfig(kinematic=KinematicContactConfig(speed_on=1.0, speed_off=1.5))),
+    "detector's contact speeds 0.5/0.8 m/s": lambda f: cleanup_features(
+        f, CleanupConfig(kinematic=KinematicContactConfig())),
 }
 
 
@@ -41,17 +54,18 @@ def main() -> None:
     ap.add_argument("--data", type=Path, required=True)
     ap.add_argument("--n", type=int, default=48)
     ap.add_argument("--steps", type=int, default=10)
+    ap.add_argument("--split", default="test", help="split whose captions are generated (tune on val)")
     ap.add_argument("--evaluator", type=Path, default=None)
     args = ap.parse_args()
     torch.set_num_threads(1)
     warnings.simplefilter("ignore")
     pipe = MotionPipeline.from_pretrained(args.checkpoint, device="cpu")
-    ids, captions, lengths = pick_test_items(pipe, args.data, args.n)
+    ids, captions, lengths = pick_test_items(pipe, args.data, args.n, args.split)
     test_ids = [s for s in (args.data / "test.txt").read_text().split() if s]
     feats = []
-    for a in range(0, len(ids), 16):
-        x = pipe.sample(captions[a:a + 16], lengths[a:a + 16], steps=args.steps, seed=a)
-        feats += [x[j, :n].double().numpy() for j, n in enumerate(lengths[a:a + 16])]
+    for a in range(0, len(ids), 32):
+        x = pipe.sample(captions[a:a + 32], lengths[a:a + 32], steps=args.steps, seed=a)
+        feats += [x[j, :n].double().numpy() for j, n in enumerate(lengths[a:a + 32])]
     emb = ref = None
     if args.evaluator is not None:
         from stablemofusion.eval.evaluator import load_evaluator
@@ -62,14 +76,16 @@ def main() -> None:
         ref = emb.motions([np.load(args.data / "new_joint_vecs" / f"{i}.npy") for i in test_ids])
     off = [joints_from_features(f) for f in feats]
     rows = [{"setting": "off", **mean_metrics(off), **({"fid": fid(ref, emb.motions(feats))} if emb else {})}]
-    for name, cfg in SETTINGS.items():
-        clean = [cleanup_features(f, cfg) for f in feats]
+    for name, clean_fn in SETTINGS.items():
+        clean = [clean_fn(f) for f in feats]
         joints = [joints_from_features(f) for f in clean]
         rows.append({"setting": name, **mean_metrics(joints),
                      "joint_change": float(np.mean([joint_change(o, align_yaw_xz(c, o)) for o, c in zip(off, joints)])),
                      "pose_change": float(np.mean([pose_change(o, c) for o, c in zip(off, joints)])),
                      **({"fid": fid(ref, emb.motions(clean))} if emb else {})})
-    print(json.dumps({"checkpoint": str(args.checkpoint), "motions": len(ids), "rows": rows}, indent=1))
+    real = mean_metrics([np.load(args.data / "new_joints" / f"{i}.npy") for i in ids])
+    print(json.dumps({"checkpoint": str(args.checkpoint), "split": args.split, "motions": len(ids),
+                      "real_same_items": real, "rows": rows}, indent=1))
 
 
 if __name__ == "__main__":

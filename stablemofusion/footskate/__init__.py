@@ -29,7 +29,7 @@ class FootskateOptions:
     distilled model from :func:`stablemofusion.footskate.distil.load_vgrf_model` (non-commercial)."""
 
     config: CleanupConfig = field(default_factory=CleanupConfig)
-    loop_steps: int = 3
+    loop_steps: int = 2
     loop_skip_last: int = 0
     vgrf_model: object | None = None
 

@@ -34,7 +34,9 @@ from .contacts import HML_FOOT_JOINTS, KinematicContactConfig, contacts_from_vgr
 VgrfModel = Callable[[torch.Tensor], torch.Tensor]  # (B, T, 22, 3) metres, Y up, 20 fps -> (B, T, 2, 16)
 LEG_JOINTS = (1, 2, 4, 5, 7, 8, 10, 11)
 CONTACT_ROUTES = ("kinematic", "vgrf")
-SPEED_ON, SPEED_OFF = 2.0, 2.5  # m/s: kinematic contact speeds of the cleanup (the detector's are 0.5/0.8)
+# looser than the detector's defaults (0.5/0.8 m/s, 5/8 cm): a sliding foot is still a planted foot that must
+# be pinned, and a generated motion's floor level is noisy (chosen on the validation split, docs/footskate.md)
+CLEANUP_CONTACTS = dict(speed_on=2.0, speed_off=2.5, height_on=0.06, height_off=0.08)
 
 
 @dataclass(frozen=True)
@@ -53,9 +55,7 @@ class CleanupConfig:
     w_smooth: float = 1.0
     w_floor: float = 10.0
     anchor_floor: bool = True  # planted toes at y = 0; False: at their mean height over the contact
-    # looser than the detector's defaults: a sliding foot is still a planted foot that must be pinned
-    kinematic: KinematicContactConfig = field(
-        default_factory=lambda: KinematicContactConfig(speed_on=SPEED_ON, speed_off=SPEED_OFF))
+    kinematic: KinematicContactConfig = field(default_factory=lambda: KinematicContactConfig(**CLEANUP_CONTACTS))
 
 
 @dataclass

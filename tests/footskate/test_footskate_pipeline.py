@@ -44,7 +44,7 @@ def test_loop_steps():
     opt = FootskateOptions(loop_steps=3, loop_skip_last=1)
     assert [k for k in range(10) if opt.in_loop(k, 10)] == [6, 7, 8]
     assert [k for k in range(2) if opt.in_loop(k, 2)] == [0]
-    assert [k for k in range(10) if FootskateOptions().in_loop(k, 10)] == [7, 8, 9]
+    assert [k for k in range(10) if FootskateOptions().in_loop(k, 10)] == [8, 9]
 
 
 def test_bad_mode(pipe):

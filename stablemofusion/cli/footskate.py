@@ -98,7 +98,7 @@ def run_contacts(args: argparse.Namespace) -> None:
 
 
 def run_clean(args: argparse.Namespace) -> None:
-    from ..footskate.cleanup import CleanupConfig, cleanup_joints, features_from_cleaned
+    from ..footskate.cleanup import CleanupConfig, cleanup_joints, edit_features, features_from_cleaned
     from ..footskate.metrics import footskate_metrics, joint_change
     from ..io import save_npy
     from ..motion.features import joints_from_features
@@ -106,7 +106,8 @@ def run_clean(args: argparse.Namespace) -> None:
     m = _load(args.motion)
     model = vgrf_model_from_args(args.vgrf_model, required=args.route == "vgrf")
     res = cleanup_joints(m.joints, m.fps, CleanupConfig(contacts=args.route), vgrf_model=model)
-    feats = features_from_cleaned(res.joints)
+    # a features file keeps every dimension the cleanup does not change (e.g. a model's rotations)
+    feats = features_from_cleaned(res.joints) if m.features is None else edit_features(m.features, m.joints, res.joints)
     save_npy(args.out.with_name(args.out.name + "_features.npy"), feats.astype("float32"))
     save_npy(args.out.with_name(args.out.name + "_joints.npy"), joints_from_features(feats).astype("float32"))
     before, after = footskate_metrics(m.joints, m.fps), footskate_metrics(res.joints, m.fps)

@@ -71,3 +71,18 @@ def test_footskate_clean_and_contacts_cli(tmp_path, capsys):
     assert main(["footskate", "clean", "example:wave-both-hands", "--out", str(tmp_path / "w")]) == 0
     assert np.load(tmp_path / "w_features.npy").shape == (118, 263)
     assert main(["footskate", "contacts", "example:nope"]) == 2
+
+
+def test_footskate_clean_cli_keeps_a_features_file_untouched_dims(tmp_path, wave):
+    """A features input keeps the dimensions the cleanup does not change (here: noisy head rotations that
+    inverse kinematics of the positions would replace)."""
+    from stablemofusion.motion.features import features_from_joints
+
+    feats = features_from_joints(np.concatenate([wave, wave[-1:]])).astype(np.float32)
+    head = slice(67 + 14 * 6, 67 + 15 * 6)  # rotation of joint 15 (head)
+    feats[:, head] += np.random.default_rng(0).normal(0, 0.1, feats[:, head].shape).astype(np.float32)
+    np.save(tmp_path / "in.npy", feats)
+    assert main(["footskate", "clean", str(tmp_path / "in.npy"), "--out", str(tmp_path / "w")]) == 0
+    out = np.load(tmp_path / "w_features.npy")
+    assert out.shape == feats.shape
+    assert np.abs(out[:, head] - feats[:, head]).max() < 1e-3  # recomputing them would differ by ~0.1

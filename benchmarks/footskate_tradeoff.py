@@ -6,7 +6,7 @@ setting, so only the cleanup differs. FID is against the whole test split. Print
 ``--split val``; report on test.
 
     python benchmarks/footskate_tradeoff.py --checkpoint DIR --data /work/cache/bandai-corpus --n 256 \
-        --split val --evaluator DIR
+        --split val --evaluator DIR [--vgrf-model vgrf22.safetensors]
 """
 
 from __future__ import annotations
@@ -56,6 +56,8 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=10)
     ap.add_argument("--split", default="test", help="split whose captions are generated (tune on val)")
     ap.add_argument("--evaluator", type=Path, default=None)
+    ap.add_argument("--vgrf-model", type=Path, default=None,
+                    help="distilled vGRF model (smf footskate distil): adds the vGRF routes as rows")
     args = ap.parse_args()
     torch.set_num_threads(1)
     warnings.simplefilter("ignore")
@@ -76,7 +78,15 @@ def main() -> None:
         ref = emb.motions([np.load(args.data / "new_joint_vecs" / f"{i}.npy") for i in test_ids])
     off = [joints_from_features(f) for f in feats]
     rows = [{"setting": "off", **mean_metrics(off), **({"fid": fid(ref, emb.motions(feats))} if emb else {})}]
-    for name, clean_fn in SETTINGS.items():
+    settings = dict(SETTINGS)
+    if args.vgrf_model is not None:
+        from stablemofusion.footskate.distil import load_vgrf_model
+
+        vgrf = load_vgrf_model(args.vgrf_model).eval()
+        settings["+ vGRF loss (distilled model)"] = lambda f: cleanup_features(f, vgrf_model=vgrf)
+        settings["vGRF contacts + vGRF loss (distilled model)"] = lambda f: cleanup_features(
+            f, CleanupConfig(contacts="vgrf"), vgrf_model=vgrf)
+    for name, clean_fn in settings.items():
         clean = [clean_fn(f) for f in feats]
         joints = [joints_from_features(f) for f in clean]
         rows.append({"setting": name, **mean_metrics(joints),

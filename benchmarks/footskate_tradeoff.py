@@ -28,6 +28,15 @@ from stablemofusion.pipeline import MotionPipeline
 
 from footskate_generated import pick_test_items  # noqa: E402  (run from the repo root: benchmarks/ is on sys.path)
 
+def _leg_bone_change(before: np.ndarray, after: np.ndarray) -> dict[str, float]:
+    """Mean |change| (m) of the shin (knee-ankle) and foot (ankle-toe) lengths, frame by frame."""
+    def length(j, a, b):
+        return np.linalg.norm(j[:, a] - j[:, b], axis=-1)
+    shin = [np.abs(length(after, c, p) - length(before, c, p)).mean() for c, p in ((7, 4), (8, 5))]
+    foot = [np.abs(length(after, c, p) - length(before, c, p)).mean() for c, p in ((10, 7), (11, 8))]
+    return {"shin_change": float(np.mean(shin)), "foot_change": float(np.mean(foot))}
+
+
 def _recomputed(f: np.ndarray, cfg: CleanupConfig = CleanupConfig()) -> np.ndarray:
     """The default cleanup, but every feature recomputed from the cleaned joints (rotations by IK)."""
     return features_from_cleaned(cleanup_joints(joints_from_features(f), config=cfg).joints)
@@ -40,6 +49,7 @@ SETTINGS = {
     "root path free + recomputed (session 2's cleanup, new anchors)":
         lambda f: _recomputed(f, CleanupConfig(w_root_offset=0.0)),
     "toes at their mean height (anchor_floor False)": lambda f: cleanup_features(f, CleanupConfig(anchor_floor=False)),
+    "bone lengths kept harder (w_bone 100)": lambda f: cleanup_features(f, CleanupConfig(w_bone=100.0)),
     "anchor weight 10, 12 iterations": lambda f: cleanup_features(f, CleanupConfig(w_anchor=10.0, iterations=12)),
     "contact speeds 1.0/1.5 m/s": lambda f: cleanup_features(
         f, CleanupConfig(kinematic=KinematicContactConfig(speed_on=1.0, speed_off=1.5))),
@@ -92,6 +102,8 @@ def main() -> None:
         rows.append({"setting": name, **mean_metrics(joints),
                      "joint_change": float(np.mean([joint_change(o, align_yaw_xz(c, o)) for o, c in zip(off, joints)])),
                      "pose_change": float(np.mean([pose_change(o, c) for o, c in zip(off, joints)])),
+                     **{k: float(np.mean([_leg_bone_change(o, c)[k] for o, c in zip(off, joints)]))
+                        for k in ("shin_change", "foot_change")},
                      **({"fid": fid(ref, emb.motions(clean))} if emb else {})})
     real = mean_metrics([np.load(args.data / "new_joints" / f"{i}.npy") for i in ids])
     print(json.dumps({"checkpoint": str(args.checkpoint), "split": args.split, "motions": len(ids),

@@ -42,7 +42,8 @@ def test_default_model_generates_plausible_motion(pipe):
 
 
 def test_main_command_writes_video_joints_and_bvh(tmp_path, capsys):
-    assert main(["generate", "a person waves both hands happily", "--out", str(tmp_path), "--seconds", "3"]) == 0
+    assert main(["generate", "a person waves both hands happily", "--out", str(tmp_path), "--seconds", "3",
+                 "--footskate", "post"]) == 0
     stem = "000_a_person_waves_both_hands_happily"
     joints = np.load(tmp_path / f"{stem}_joints.npy")
     assert joints.shape == (60, 22, 3)

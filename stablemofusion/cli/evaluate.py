@@ -28,6 +28,7 @@ def add_eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rprecision-batch", type=int, default=32, help="R-precision batch (protocol: 32)")
     p.add_argument("--diversity-times", type=int, default=300, help="diversity pairs (protocol: 300)")
     p.add_argument("--footskate", default="off", choices=("off", "post", "loop"), help="footskate cleanup mode")
+    p.add_argument("--split", default="test", help="split to evaluate on (default test; tune settings on val)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     p.add_argument("--no-progress", action="store_true")
@@ -51,7 +52,7 @@ def eval_config(args: argparse.Namespace, **kw):
     base = EvalConfig.quick() if args.quick else EvalConfig()
     over = {"sampler": args.sampler, "steps": args.steps, "guidance_scale": args.guidance,
             "footskate": args.footskate, "seed": args.seed, "max_items": args.max_items,
-            "batch_size": args.rprecision_batch, "diversity_times": args.diversity_times}
+            "batch_size": args.rprecision_batch, "diversity_times": args.diversity_times, "split": args.split}
     if args.replications is not None:
         over["replications"] = args.replications
     if args.mm_captions is not None:

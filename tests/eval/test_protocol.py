@@ -155,3 +155,14 @@ def test_cli_evaluate_defaults_to_the_shipped_model_and_none_means_real_only(eva
     assert main(["evaluate", "--checkpoint", "none", *small, "--out", str(out)]) == 0
     res = json.loads(out.read_text())
     assert list(res["rows"]) == ["Real motion"] and "aits_seconds" not in res
+
+
+def test_cli_evaluate_on_another_split(evaluator_dir, eval_corpus, tmp_path, capsys):
+    small = ["--checkpoint", "none", "--data", str(eval_corpus), "--evaluator", str(evaluator_dir), "--replications",
+             "1", "--no-progress", "--rprecision-batch", "4", "--diversity-times", "5", "--mm-captions", "0"]
+    out = tmp_path / "val.json"
+    assert main(["evaluate", *small, "--split", "val", "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["config"]["split"] == "val"
+    assert main(["evaluate", *small, "--split", "nope", "--out", str(tmp_path / "x.json")]) == 2
+    err = capsys.readouterr().err
+    assert "nope" in err and "Traceback" not in err and not (tmp_path / "x.json").exists()

@@ -28,6 +28,7 @@ from stablemofusion.pipeline import MotionPipeline
 
 from footskate_generated import pick_test_items  # noqa: E402  (run from the repo root: benchmarks/ is on sys.path)
 
+
 def _leg_bone_change(before: np.ndarray, after: np.ndarray) -> dict[str, float]:
     """Mean |change| (m) of the shin (knee-ankle) and foot (ankle-toe) lengths, frame by frame."""
     def length(j, a, b):
@@ -99,11 +100,11 @@ def main() -> None:
     for name, clean_fn in settings.items():
         clean = [clean_fn(f) for f in feats]
         joints = [joints_from_features(f) for f in clean]
+        bones = [_leg_bone_change(o, c) for o, c in zip(off, joints)]
         rows.append({"setting": name, **mean_metrics(joints),
                      "joint_change": float(np.mean([joint_change(o, align_yaw_xz(c, o)) for o, c in zip(off, joints)])),
                      "pose_change": float(np.mean([pose_change(o, c) for o, c in zip(off, joints)])),
-                     **{k: float(np.mean([_leg_bone_change(o, c)[k] for o, c in zip(off, joints)]))
-                        for k in ("shin_change", "foot_change")},
+                     **{k: float(np.mean([b[k] for b in bones])) for k in ("shin_change", "foot_change")},
                      **({"fid": fid(ref, emb.motions(clean))} if emb else {})})
     real = mean_metrics([np.load(args.data / "new_joints" / f"{i}.npy") for i in ids])
     print(json.dumps({"checkpoint": str(args.checkpoint), "split": args.split, "motions": len(ids),

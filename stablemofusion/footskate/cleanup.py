@@ -20,7 +20,7 @@ kinematics of its positions, which on our shipped model costs far more FID (docs
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -36,7 +36,7 @@ LEG_JOINTS = (1, 2, 4, 5, 7, 8, 10, 11)
 CONTACT_ROUTES = ("kinematic", "vgrf")
 # looser than the detector's defaults (0.5/0.8 m/s, 5/8 cm): a sliding foot is still a planted foot that must
 # be pinned, and a generated motion's floor level is noisy (chosen on the validation split, docs/footskate.md)
-CLEANUP_CONTACTS = dict(speed_on=2.0, speed_off=2.5, height_on=0.06, height_off=0.08)
+CLEANUP_CONTACTS = KinematicContactConfig(speed_on=2.0, speed_off=2.5, height_on=0.06, height_off=0.08)
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,7 @@ class CleanupConfig:
     w_smooth: float = 1.0
     w_floor: float = 10.0
     anchor_floor: bool = True  # planted toes at y = 0; False: at their mean height over the contact
-    kinematic: KinematicContactConfig = field(default_factory=lambda: KinematicContactConfig(**CLEANUP_CONTACTS))
+    kinematic: KinematicContactConfig = CLEANUP_CONTACTS  # frozen, so one shared default is safe
 
 
 @dataclass

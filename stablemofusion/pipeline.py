@@ -21,6 +21,7 @@ from .diffusion.samplers import DEFAULT_SAMPLER, make_sampler, model_output_for
 from .diffusion.schedule import ScheduleConfig
 from .errors import SMFError
 from .motion.features import joints_from_features
+from .motion.rigid import DEFAULT_FIT, RigidFitConfig, RigidMotion, rigid_from_features, rigid_to_features
 from .motion.skeleton import get_skeleton
 
 
@@ -30,13 +31,16 @@ class LengthClampedWarning(UserWarning):
 
 @dataclass
 class MotionResult:
-    """One generated motion: features (T, D) in dataset units, joints (T, J, 3) in metres, at ``fps``."""
+    """One generated motion: features (T, D) in dataset units, joints (T, J, 3) in metres, at ``fps``; ``motion``
+    the rigid body (skeleton, rotations, root path) the joints and features come from (None with the rigid
+    stage off)."""
 
     prompt: str
     features: np.ndarray
     joints: np.ndarray
     fps: float
     seed: int | None
+    motion: RigidMotion | None = None
 
 
 def default_model_path() -> Path | None:
@@ -51,7 +55,8 @@ class MotionPipeline:
     """Generate motions from text with a denoiser checkpoint. Build with :meth:`from_pretrained`."""
 
     def __init__(self, model, mean: np.ndarray, std: np.ndarray, config: dict, *, device: str | torch.device = "cpu",
-                 dtype: torch.dtype = torch.float32, text_cache_size: int = 1024):
+                 dtype: torch.dtype = torch.float32, text_cache_size: int = 1024,
+                 rigid: RigidFitConfig | None = DEFAULT_FIT):
         from .text.cache import LRUTextCache
         from .text.frozen import load_text_encoder
 
@@ -69,6 +74,8 @@ class MotionPipeline:
         self.text_encoder_name = config.get("text_encoder", "minilm")
         self._load_encoder = lambda: load_text_encoder(self.text_encoder_name).to(self.device)
         self.text_cache = LRUTextCache(_LazyEncoder(self._load_encoder), maxsize=text_cache_size)
+        # the rigid final stage (docs/rigid.md); None only to measure what it changes
+        self.rigid = rigid
 
     @classmethod
     def from_pretrained(cls, path: str | Path | None = None, *, device: str | torch.device | None = None,
@@ -135,21 +142,59 @@ class MotionPipeline:
         for k, start in enumerate(tqdm(starts, desc="generate", unit="batch", disable=not progress)):
             idx = list(range(start, min(n, start + batch_size)))
             batch_seed = None if seed is None else seed + k
-            feats = self.sample([prompts[i] for i in idx], [lengths[i] for i in idx], guidance_scale=guidance_scale,
-                                steps=steps, sampler=sampler, seed=batch_seed, footskate=footskate,
-                                footskate_options=footskate_options)
+            raw = self.denoise([prompts[i] for i in idx], [lengths[i] for i in idx], guidance_scale=guidance_scale,
+                               steps=steps, sampler=sampler, seed=batch_seed, footskate=footskate,
+                               footskate_options=footskate_options)
             for j, i in enumerate(idx):
-                f = feats[j, :lengths[i]].numpy().astype(np.float64)
-                results.append(MotionResult(prompts[i], f, joints_from_features(f, self.skeleton), self.fps, batch_seed))
+                f, motion = self.finish(raw[j, :lengths[i]].numpy(), footskate, footskate_options)
+                joints = joints_from_features(f, self.skeleton) if motion is None else motion.joints()
+                results.append(MotionResult(prompts[i], f, joints, self.fps, batch_seed, motion))
         return results
 
-    @torch.no_grad()
+    def finish(self, features: np.ndarray, footskate: str = "off",
+               footskate_options=None) -> tuple[np.ndarray, RigidMotion | None]:
+        """The final stage of one motion's raw features (T, D): the rigid fit, the footskate cleanup in 'post'
+        mode (on the rigid body), and the body written back as features that decode to it exactly.
+        Returns (features (T, D) float64, rigid motion); with the rigid stage off (``self.rigid`` None, for
+        measuring what it changes) the raw features and None."""
+        _check_footskate(footskate)
+        f = np.asarray(features, dtype=np.float64)
+        if self.rigid is None:
+            return f, None
+        if footskate == "post":
+            from .footskate import FootskateOptions
+            from .footskate.cleanup import cleanup_features
+
+            options = footskate_options or FootskateOptions()
+            f, motion = cleanup_features(f, options.config, vgrf_model=options.vgrf_model, fps=self.fps,
+                                         rigid=self.rigid)
+            return f, motion
+        motion = rigid_from_features(f, self.skeleton, self.rigid)
+        motion, f = rigid_to_features(motion, f, self.rigid)
+        return f, motion
+
     def sample(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = 2.5, steps: int = 10,
                sampler: str = DEFAULT_SAMPLER, seed: int | None = None, batched_cfg: bool = True,
                footskate: str = "off", footskate_options=None) -> torch.Tensor:
-        """Denoise a batch: returns features (B, max(lengths), D) in dataset units (CPU, float32).
+        """Generate a batch: features (B, max(lengths), D) in dataset units (CPU, float32) of the final motions
+        (:meth:`denoise`, then :meth:`finish` on each; frames past an item's length are zero).
         ``footskate`` 'off' | 'post' | 'loop' (see :meth:`__call__`)."""
+        raw = self.denoise(prompts, lengths, guidance_scale=guidance_scale, steps=steps, sampler=sampler, seed=seed,
+                           batched_cfg=batched_cfg, footskate=footskate, footskate_options=footskate_options)
+        out = torch.zeros_like(raw)
+        for i, n in enumerate(lengths):
+            out[i, :n] = torch.from_numpy(self.finish(raw[i, :n].numpy(), footskate, footskate_options)[0])
+        return out
+
+    @torch.no_grad()
+    def denoise(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = 2.5, steps: int = 10,
+                sampler: str = DEFAULT_SAMPLER, seed: int | None = None, batched_cfg: bool = True,
+                footskate: str = "off", footskate_options=None) -> torch.Tensor:
+        """Denoise a batch: the model's raw features (B, max(lengths), D) in dataset units (CPU, float32), before
+        the final stage; in 'loop' mode the last predicted x0 are cleaned (rigid body) inside the loop."""
         _check_footskate(footskate)
+        if footskate != "off" and self.rigid is None:
+            raise SMFError("the footskate cleanup works on the rigid body: it needs the rigid stage")
         if footskate != "off":
             from .footskate import FootskateOptions
 
@@ -187,27 +232,20 @@ class MotionPipeline:
             else:
                 x = sched.step(out, t, x).prev_sample
         x = x.float().cpu()
-        x = x * self.std + self.mean
-        if footskate == "post":
-            x = self._clean(x, lengths, footskate_options)
-        return x
-
-    def _clean(self, feats: torch.Tensor, lengths: list[int], options) -> torch.Tensor:
-        """Footskate cleanup of each item's first ``lengths[i]`` frames, features in dataset units (CPU)."""
-        from .footskate.cleanup import cleanup_features
-
-        out = feats.clone()
-        for i, n in enumerate(lengths):
-            f = feats[i, :n].double().numpy()
-            out[i, :n] = torch.from_numpy(cleanup_features(f, options.config, vgrf_model=options.vgrf_model,
-                                                           fps=self.fps)).to(out.dtype)
-        return out
+        return x * self.std + self.mean
 
     def _clean_normalised(self, x0: torch.Tensor, lengths: list[int], options) -> torch.Tensor:
-        """Cleanup of a normalised prediction on the model's device and dtype."""
+        """Footskate cleanup (on the rigid body) of each item's first ``lengths[i]`` frames of a normalised
+        prediction, on the model's device and dtype."""
+        from .footskate.cleanup import cleanup_features
+
         feats = x0.float().cpu() * self.std + self.mean
-        clean = (self._clean(feats, lengths, options) - self.mean) / self.std
-        return clean.to(x0.device, x0.dtype)
+        clean = feats.clone()
+        for i, n in enumerate(lengths):
+            f, _ = cleanup_features(feats[i, :n].double().numpy(), options.config, vgrf_model=options.vgrf_model,
+                                    fps=self.fps, rigid=self.rigid)
+            clean[i, :n] = torch.from_numpy(f).float()
+        return ((clean - self.mean) / self.std).to(x0.device, x0.dtype)
 
     def _guided(self, x, t, tokens, tmask, mask, scale: float) -> torch.Tensor:
         """Classifier-free guidance in x0 space, u + scale * (c - u), as two separate forward passes."""

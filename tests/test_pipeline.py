@@ -37,8 +37,8 @@ def test_every_sampler_runs_and_is_reproducible(pipe, sampler):
 
 def test_batched_cfg_equals_separate_passes(pipe):
     prompts, lengths = ["a person waves", "someone runs in a circle"], [40, 64]
-    a = pipe.sample(prompts, lengths, guidance_scale=2.5, steps=5, sampler="ddim", seed=1, batched_cfg=True)
-    b = pipe.sample(prompts, lengths, guidance_scale=2.5, steps=5, sampler="ddim", seed=1, batched_cfg=False)
+    a = pipe.denoise(prompts, lengths, guidance_scale=2.5, steps=5, sampler="ddim", seed=1, batched_cfg=True)
+    b = pipe.denoise(prompts, lengths, guidance_scale=2.5, steps=5, sampler="ddim", seed=1, batched_cfg=False)
     assert torch.allclose(a, b, atol=1e-5)
 
 

@@ -62,7 +62,7 @@ def run_samplers(args: argparse.Namespace) -> None:
     from ..errors import SMFError
     from ..eval.ablation import ablate_samplers, sampler_markdown
     from ..pipeline import MotionPipeline
-    from .evaluate import eval_config, load_embedder
+    from .evaluate import eval_config, load_embedder, rigid_config
 
     if not args.data.is_dir():
         raise SMFError(f"no such corpus folder: {args.data}")
@@ -71,7 +71,7 @@ def run_samplers(args: argparse.Namespace) -> None:
         raise SMFError("--samplers is empty")
     grid = _ints(args.grid, "--grid")
     extra = _ints(args.ddpm_steps, "--ddpm-steps") if args.ddpm_steps else []
-    pipe = MotionPipeline.from_pretrained(args.checkpoint, device=args.device)
+    pipe = MotionPipeline.from_pretrained(args.checkpoint, device=args.device, rigid=rigid_config(args))
     for s in samplers:
         make_sampler(s, pipe.schedule)  # unknown names fail before any work
     cfg = eval_config(args, mm_captions=0 if args.mm_captions is None else args.mm_captions)
@@ -89,7 +89,7 @@ def run_arch(args: argparse.Namespace) -> None:
     from ..errors import SMFError
     from ..eval.ablation import ARCH_PRESETS, ablate_arch, arch_markdown
     from ..models.presets import get_preset
-    from .evaluate import eval_config, load_embedder
+    from .evaluate import eval_config, load_embedder, rigid_config
 
     if not args.data.is_dir():
         raise SMFError(f"no such corpus folder: {args.data}")
@@ -103,7 +103,7 @@ def run_arch(args: argparse.Namespace) -> None:
     tcfg = TrainConfig(steps=args.train_steps, batch_size=args.batch_size, bucket=args.bucket,
                        checkpoint_every=max(args.train_steps // 4, 1), seed=args.seed)
     table = ablate_arch(args.data, args.runs, embedder, cfg, presets, tcfg, progress=not args.no_progress,
-                        text_cache=args.text_cache)
+                        text_cache=args.text_cache, rigid=rigid_config(args))
     md = arch_markdown(table)
     _write(args.out, {"config": asdict(cfg), "train": asdict(tcfg), "table": table}, md)
     print(md)

@@ -6,9 +6,6 @@ import argparse
 import json
 from pathlib import Path
 
-import numpy as np
-
-
 def add_eval_args(p: argparse.ArgumentParser) -> None:
     """Arguments shared by `smf evaluate` and `smf ablate`."""
     from ..diffusion.samplers import DEFAULT_SAMPLER
@@ -28,6 +25,12 @@ def add_eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rprecision-batch", type=int, default=32, help="R-precision batch (protocol: 32)")
     p.add_argument("--diversity-times", type=int, default=300, help="diversity pairs (protocol: 300)")
     p.add_argument("--footskate", default="off", choices=("off", "post", "loop"), help="footskate cleanup mode")
+    p.add_argument("--rigid", default="dataset", choices=("dataset", "median", "off"),
+                   help="rigid final stage: bone lengths of the dataset skeleton (default) or the motion's median; "
+                        "off = the model's raw motion (to measure what the stage changes)")
+    p.add_argument("--rigid-rotations", default="ik", choices=("ik", "keep"),
+                   help="rotation channels of the final features: inverse kinematics of the rigid body (default) "
+                        "or the model's own")
     p.add_argument("--split", default="test", help="split to evaluate on (default test; tune settings on val)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
@@ -96,12 +99,17 @@ def load_embedder(args: argparse.Namespace, pipe=None):
 
 
 def skate_fn(skeleton):
-    """Raw feature list -> mean footskate metrics at the skeleton's frame rate."""
+    """List of joints (n, J, 3) -> mean footskate metrics at the skeleton's frame rate."""
     from ..footskate.metrics import mean_metrics
-    from ..motion.features import joints_from_features
 
-    return lambda feats: mean_metrics([joints_from_features(f.astype(np.float64), skeleton) for f in feats],
-                                      skeleton.fps)
+    return lambda joints: mean_metrics(joints, skeleton.fps)
+
+
+def rigid_config(args: argparse.Namespace):
+    """The pipeline's rigid stage from --rigid/--rigid-rotations (None for 'off')."""
+    from ..motion.rigid import RigidFitConfig
+
+    return None if args.rigid == "off" else RigidFitConfig(bone_lengths=args.rigid, rotations=args.rigid_rotations)
 
 
 def write_results(result: dict, out: Path | None, title: str) -> str:
@@ -129,12 +137,14 @@ def run(args: argparse.Namespace) -> None:
         raise SMFError(f"no such corpus folder: {args.data}")
     cfg = eval_config(args)
     real_only = args.checkpoint is not None and str(args.checkpoint).lower() == "none"
-    pipe = None if real_only else MotionPipeline.from_pretrained(args.checkpoint, device=args.device)
+    pipe = None if real_only else MotionPipeline.from_pretrained(args.checkpoint, device=args.device,
+                                                                 rigid=rigid_config(args))
     embedder = load_embedder(args, pipe)
     from ..motion.skeleton import get_skeleton
 
     sk = pipe.skeleton if pipe else get_skeleton("humanml3d")
-    result = evaluate(pipe, embedder, args.data, cfg, progress=not args.no_progress, skate_metrics=skate_fn(sk))
+    result = evaluate(pipe, embedder, args.data, cfg, progress=not args.no_progress, skate_metrics=skate_fn(sk),
+                      body=True)
     name = "real motion only" if real_only else str(args.checkpoint or "the shipped default model")
     result["checkpoint"] = name
     print(write_results(result, args.out, f"Evaluation of {name}"))

@@ -98,17 +98,20 @@ def run_contacts(args: argparse.Namespace) -> None:
 
 
 def run_clean(args: argparse.Namespace) -> None:
-    from ..footskate.cleanup import CleanupConfig, cleanup_joints, edit_features, features_from_cleaned
+    from ..footskate.cleanup import CleanupConfig, cleanup_features, cleanup_joints, features_from_cleaned
     from ..footskate.metrics import footskate_metrics, joint_change
     from ..io import save_npy
-    from ..motion.features import joints_from_features
 
     m = _load(args.motion)
     model = vgrf_model_from_args(args.vgrf_model, required=args.route == "vgrf")
-    res = cleanup_joints(m.joints, m.fps, CleanupConfig(contacts=args.route), vgrf_model=model)
-    # a features file keeps every dimension the cleanup does not change (e.g. a model's rotations)
-    feats = features_from_cleaned(res.joints) if m.features is None else edit_features(m.features, m.joints, res.joints)
+    config = CleanupConfig(contacts=args.route)
+    if m.features is None:  # a joints file keeps its own skeleton (median bone lengths)
+        joints = cleanup_joints(m.joints, m.fps, config, vgrf_model=model).joints
+        feats = features_from_cleaned(joints)
+    else:  # a features file gets the pipeline's final stage: rigid fit, cleanup, written in its own frames
+        feats, motion = cleanup_features(m.features, config, vgrf_model=model, fps=m.fps)
+        joints = motion.joints()
     save_npy(args.out.with_name(args.out.name + "_features.npy"), feats.astype("float32"))
-    save_npy(args.out.with_name(args.out.name + "_joints.npy"), joints_from_features(feats).astype("float32"))
-    before, after = footskate_metrics(m.joints, m.fps), footskate_metrics(res.joints, m.fps)
-    print(json.dumps({"before": before, "after": after, "joint_change_m": joint_change(m.joints, res.joints)}))
+    save_npy(args.out.with_name(args.out.name + "_joints.npy"), joints.astype("float32"))
+    before, after = footskate_metrics(m.joints, m.fps), footskate_metrics(joints, m.fps)
+    print(json.dumps({"before": before, "after": after, "joint_change_m": joint_change(m.joints, joints)}))

@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> None:
         raise SMFError(f"--seconds must be positive, got {args.seconds}")
 
     from ..io import save_npy, write_text
-    from ..motion.files import save_bvh
+    from ..motion.files import save_bvh, save_rigid_bvh
     from ..pipeline import LengthClampedWarning, MotionPipeline
 
     options = footskate_options_from_args(args) if args.footskate != "off" else None
@@ -103,7 +103,10 @@ def run(args: argparse.Namespace) -> None:
             save_npy(stem.with_name(stem.name + "_joints.npy"), r.joints.astype("float32"))
             save_npy(stem.with_name(stem.name + "_features.npy"), r.features.astype("float32"))
         if "bvh" in formats:
-            save_bvh(r.joints, stem.with_suffix(".bvh"), pipe.skeleton, r.fps)
+            if r.motion is not None:  # the rigid body the joints come from, so the BVH is the same motion
+                save_rigid_bvh(r.motion, stem.with_suffix(".bvh"), r.fps)
+            else:
+                save_bvh(r.joints, stem.with_suffix(".bvh"), pipe.skeleton, r.fps)
         for fmt in ("mp4", "gif"):
             if fmt in formats:
                 render_video(r.joints, stem.with_suffix("." + fmt), skeleton=pipe.skeleton, fps=r.fps, title=r.prompt)

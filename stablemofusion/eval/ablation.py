@@ -12,6 +12,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..errors import SMFError
+from ..motion.rigid import DEFAULT_FIT, RigidFitConfig
 from .protocol import EvalConfig, evaluate
 
 ARCH_PRESETS = ("unet-baseline", "unet-xattn", "unet-xattn-gn", "dit", "dit-xattn", "retnet", "retnet-xattn")
@@ -66,9 +67,9 @@ def sampler_markdown(result: dict, tol: float = 0.05) -> str:
 
 
 def ablate_arch(data, out: Path, embedder, cfg: EvalConfig, presets, train_cfg, *, progress: bool = True,
-                text_cache: Path | None = None, log=print) -> dict:
+                text_cache: Path | None = None, log=print, rigid: RigidFitConfig | None = DEFAULT_FIT) -> dict:
     """Train each preset with ``train_cfg`` (same steps, batch, seed) into ``out/<preset>`` (a finished run is
-    reused), evaluate it with ``cfg``; returns {preset: {"params", "train_seconds", "row"}}."""
+    reused), evaluate it with ``cfg`` (the pipeline's rigid stage ``rigid``); returns {preset: {"params", "train_seconds", "row"}}."""
     import csv
     import json
 
@@ -87,7 +88,7 @@ def ablate_arch(data, out: Path, embedder, cfg: EvalConfig, presets, train_cfg, 
         with open(run / "log.csv") as f:
             rows = list(csv.DictReader(f))
         seconds = float(rows[-1]["seconds"]) if rows else float("nan")
-        pipe = MotionPipeline.from_pretrained(run, device="cpu")
+        pipe = MotionPipeline.from_pretrained(run, device="cpu", rigid=rigid)
         res = evaluate(pipe, embedder, data, cfg, progress=progress)
         params = sum(p.numel() for p in pipe.model.parameters())
         table[preset] = {"label": ARCH_LABELS.get(preset, preset), "params": params, "train_seconds": seconds,

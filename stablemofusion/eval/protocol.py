@@ -22,6 +22,7 @@ from tqdm import tqdm
 
 from ..data.dataset import MotionTextDataset
 from ..errors import SMFError
+from ..motion.features import joints_from_features
 from .metrics import activation_stats, diversity, frechet_distance, mean_ci, multimodality, r_precision
 
 REFERENCE_EPOCH = 1_000_000  # the crop draw used for the reference statistics (never a replication's)
@@ -119,37 +120,66 @@ class EmbeddingModel:
         return np.concatenate(out)
 
 
+@dataclass
+class Generated:
+    """One generated motion: final ``features`` (n, D) in dataset units and ``joints`` (n, J, 3) metres,
+    the rigid body they come from (None with the rigid stage off), and ``raw_joints`` (n, J, 3) decoded from
+    the model's own features before the final stage."""
+
+    features: np.ndarray
+    joints: np.ndarray
+    motion: object | None
+    raw_joints: np.ndarray
+
+
 def generate(pipe, captions: list[str], lengths: list[int], cfg: EvalConfig, seed: int,
-             progress: Callable[[int], None] | None = None) -> list[np.ndarray]:
-    """One motion per caption at its length (raw features), batched by similar lengths."""
+             progress: Callable[[int], None] | None = None) -> list[Generated]:
+    """One motion per caption at its length, batched by similar lengths: the pipeline's denoising, then its
+    final stage (rigid fit, cleanup) on each."""
+    from ..motion.features import joints_from_features
+
     order = np.argsort(lengths, kind="stable")
-    out: list[np.ndarray | None] = [None] * len(captions)
-    kw = {} if cfg.footskate == "off" else {"footskate": cfg.footskate}
+    out: list[Generated | None] = [None] * len(captions)
     for k, a in enumerate(range(0, len(order), cfg.gen_batch)):
         idx = order[a:a + cfg.gen_batch]
-        feats = pipe.sample([captions[i] for i in idx], [lengths[i] for i in idx], guidance_scale=cfg.guidance_scale,
-                            steps=cfg.steps, sampler=cfg.sampler, seed=seed * 100_003 + k, **kw)
+        raw = pipe.denoise([captions[i] for i in idx], [lengths[i] for i in idx], guidance_scale=cfg.guidance_scale,
+                           steps=cfg.steps, sampler=cfg.sampler, seed=seed * 100_003 + k, footskate=cfg.footskate)
         for j, i in enumerate(idx):
-            out[i] = feats[j, :lengths[i]].numpy()
+            f0 = raw[j, :lengths[i]].numpy().astype(np.float64)
+            f, motion = pipe.finish(f0, cfg.footskate)
+            joints = motion.joints() if motion is not None else joints_from_features(f, pipe.skeleton)
+            out[i] = Generated(f, joints, motion, joints_from_features(f0, pipe.skeleton))
         if progress:
             progress(len(idx))
     return out  # type: ignore[return-value]
 
 
-def cleanup_change(before: list[np.ndarray], after: list[np.ndarray], skeleton) -> dict[str, float]:
-    """Mean joint change and pose change (root-relative) in metres between two lists of raw features of the
+def cleanup_change(before: list[np.ndarray], after: list[np.ndarray]) -> dict[str, float]:
+    """Mean joint change and pose change (root-relative) in metres between two lists of joints (n, J, 3) of the
     same motions, after aligning each cleaned motion's heading and start to the original."""
     from ..footskate.cleanup import align_yaw_xz
     from ..footskate.metrics import joint_change, pose_change
-    from ..motion.features import joints_from_features
 
     jc, pc = [], []
-    for a, b in zip(before, after):
-        ja = joints_from_features(a.astype(np.float64), skeleton)
-        jb = align_yaw_xz(joints_from_features(b.astype(np.float64), skeleton), ja)
+    for ja, b in zip(before, after):
+        jb = align_yaw_xz(b, ja)
         jc.append(joint_change(ja, jb))
         pc.append(pose_change(ja, jb))
     return {"joint_change": float(np.mean(jc)), "pose_change": float(np.mean(pc))}
+
+
+def body_metrics(joints: list[np.ndarray], motions: list | None, skeleton, fps: float) -> dict[str, float]:
+    """Rigidity of a set of motions: mean bone-length std (m), worst-frame bone deviation (m; mean over motions
+    and the largest), and the largest distance between a motion's joints ``.npy`` and its BVH read back (m)."""
+    from ..motion.files import bvh_round_trip_error
+    from ..motion.rigid import bone_length_deviation
+
+    dev = [bone_length_deviation(j, skeleton) for j in joints]
+    motions = motions if motions is not None else [None] * len(joints)
+    bvh = [bvh_round_trip_error(j, m, skeleton, fps) for j, m in zip(joints, motions)]
+    worst = [d["bone_worst"] for d in dev]
+    return {"bone_std": float(np.mean([d["bone_std"] for d in dev])), "bone_worst": float(np.mean(worst)),
+            "bone_worst_max": float(np.max(worst)), "npy_bvh_max": float(np.max(bvh))}
 
 
 def row_metrics(emb_text: np.ndarray, emb_motion: np.ndarray, ref: tuple[np.ndarray, np.ndarray],
@@ -162,11 +192,12 @@ def row_metrics(emb_text: np.ndarray, emb_motion: np.ndarray, ref: tuple[np.ndar
 
 
 def evaluate(pipe, embedder: EmbeddingModel, data: str | Path, cfg: EvalConfig, *, progress: bool = True,
-             skate_metrics: Callable[[list[np.ndarray]], dict[str, float]] | None = None) -> dict:
+             skate_metrics: Callable[[list[np.ndarray]], dict[str, float]] | None = None, body: bool = False) -> dict:
     """Run the protocol; returns {"config", "rows": {"Real motion": {...}, "Generated": {...}}, "runs"}.
 
     Each row maps a metric to (mean, 95% half-interval); ``runs`` keeps the per-replication values.
-    ``skate_metrics`` (raw feature list -> dict) adds footskate figures to both rows when given."""
+    ``skate_metrics`` (list of joints (n, J, 3) -> dict) adds footskate figures to both rows when given; with
+    ``body`` both rows also get :func:`body_metrics` (bone lengths, joints .npy vs BVH)."""
     if pipe is not None and cfg.mm_repeats <= cfg.mm_times:
         raise SMFError(f"mm_repeats ({cfg.mm_repeats}) must exceed mm_times ({cfg.mm_times})")
     ds = MotionTextDataset(data, cfg.split, seed=cfg.seed, max_frames=pipe.max_frames if pipe else 196,
@@ -184,8 +215,11 @@ def evaluate(pipe, embedder: EmbeddingModel, data: str | Path, cfg: EvalConfig, 
         items = draw_items(ds, r, cfg.seed, cfg.batch_size, cfg.max_items)
         text = embedder.texts(items.captions, items.tokens)
         real_row = row_metrics(text, embedder.motions(items.real), ref, cfg, rng)
+        real_joints = [joints_from_features(f.astype(np.float64), ds.skeleton) for f in items.real]
         if skate_metrics:
-            real_row.update(skate_metrics(items.real))
+            real_row.update(skate_metrics(real_joints))
+        if body:
+            real_row.update(body_metrics(real_joints, None, ds.skeleton, ds.skeleton.fps))
         runs["Real motion"].append(real_row)
         if pipe is None:
             continue
@@ -193,20 +227,25 @@ def evaluate(pipe, embedder: EmbeddingModel, data: str | Path, cfg: EvalConfig, 
         gen = generate(pipe, items.captions, items.lengths, cfg, seed=cfg.seed * 1000 + r, progress=bar.update)
         gen_seconds += time.perf_counter() - t0
         gen_count += len(gen)
-        row = row_metrics(text, embedder.motions(gen), ref, cfg, rng)
+        row = row_metrics(text, embedder.motions([g.features for g in gen]), ref, cfg, rng)
         if skate_metrics:
-            row.update(skate_metrics(gen))
-        if cfg.footskate != "off":  # the same seeds without cleanup: how much did cleanup move the joints?
-            base = generate(pipe, items.captions, items.lengths, replace(cfg, footskate="off"),
-                            seed=cfg.seed * 1000 + r)
-            row.update(cleanup_change(base, gen, pipe.skeleton))
+            row.update(skate_metrics([g.joints for g in gen]))
+        if body:
+            row.update(body_metrics([g.joints for g in gen], [g.motion for g in gen], pipe.skeleton, pipe.fps))
+        # the same seeds without cleanup: how much did cleanup move the joints? (and everything after the
+        # model: the rigid stage too, from the model's own decoded joints)
+        base = gen if cfg.footskate == "off" else generate(
+            pipe, items.captions, items.lengths, replace(cfg, footskate="off"), seed=cfg.seed * 1000 + r)
+        if cfg.footskate != "off":
+            row.update(cleanup_change([g.joints for g in base], [g.joints for g in gen]))
+        row["model_change"] = cleanup_change([g.raw_joints for g in base], [g.joints for g in gen])["joint_change"]
         if mm_n:
             caps = items.captions[:mm_n]
             lens = items.lengths[:mm_n]
-            mm_feats = generate(pipe, [c for c in caps for _ in range(cfg.mm_repeats)],
-                                [n for n in lens for _ in range(cfg.mm_repeats)], cfg, seed=cfg.seed * 1000 + r + 500,
-                                progress=bar.update)
-            emb = embedder.motions(mm_feats).reshape(mm_n, cfg.mm_repeats, -1)
+            mm_gen = generate(pipe, [c for c in caps for _ in range(cfg.mm_repeats)],
+                              [n for n in lens for _ in range(cfg.mm_repeats)], cfg, seed=cfg.seed * 1000 + r + 500,
+                              progress=bar.update)
+            emb = embedder.motions([g.features for g in mm_gen]).reshape(mm_n, cfg.mm_repeats, -1)
             row["multimodality"] = multimodality(emb, cfg.mm_times, rng)
         runs["Generated"].append(row)
     bar.close()
@@ -242,4 +281,4 @@ class T2MEmbedding(EmbeddingModel):
                                for a in range(0, len(tokens), self.batch_size)])
 
 
-__all__ = ["EvalConfig", "T2MEmbedding", "evaluate", "draw_items", "generate", "row_metrics", "EmbeddingModel", "markdown_table"]
+__all__ = ["EvalConfig", "Generated", "T2MEmbedding", "body_metrics", "evaluate", "draw_items", "generate", "row_metrics", "EmbeddingModel", "markdown_table"]

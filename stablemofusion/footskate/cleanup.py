@@ -1,21 +1,22 @@
-"""Footskate cleanup: a short L-BFGS optimisation of joint positions with the paper's four losses.
+"""Footskate cleanup on a rigid body: a short L-BFGS optimisation of joint rotations and the root path.
 
-Losses (positions in centimetres so the terms are O(1)):
+The body is a :class:`~stablemofusion.motion.rigid.RigidMotion`, so the cleanup moves rotations and the
+root, never bone lengths. Losses (positions in centimetres so the terms are O(1)):
   pose    - joints stay close to the input (root-relative displacement; legs are freer than the body);
-  anchor  - every contact joint stays, for its whole contact interval, at its mean position over the
-            interval (planted toes on the floor, y = 0; ankles at their mean height);
+  anchor  - every contact joint stays, for its contact interval, at its mean position over the interval
+            (planted toes on the floor, y = 0; ankles at their mean height);
   root    - the root velocity is kept, and (``w_root_offset``) so is the root's path itself: the legs
             absorb a drift of the body over planted feet, and a foot hovering over the floor is lowered
             by bending its leg, instead of the whole body being moved;
   vgrf    - the predicted vertical ground reaction forces are kept (only with a vGRF model);
-plus two regularisers that keep the result a valid motion: bone lengths kept and joint velocities kept
-(no popping at contact boundaries), and a floor term against penetration.
+plus joint velocities kept (no popping at contact boundaries) and a floor term against penetration.
 
-Back to features (:func:`edit_features`): the change the cleanup made to the joints is turned into a change
-of the features (features of the cleaned joints minus features of the input joints) and added to the input
-features, so every dimension the cleanup did not touch (e.g. a generated motion's joint rotations) is kept
-exactly; recomputing all features from positions alone would replace a model's rotations by inverse
-kinematics of its positions, which on our shipped model costs far more FID (docs/footskate.md).
+A contact never holds a foot the body has left (:func:`anchor_targets`): an interval in which the foot
+travels further than ``max_anchor_shift`` from its anchor is split into shorter contacts, each with its
+own anchor, and a frame whose anchor lies beyond the leg's reach from the hip is not anchored.
+
+Back to features (:func:`cleanup_features`): the cleaned body is written in the body frames of the input
+features (:func:`~stablemofusion.motion.rigid.rigid_to_features`), so the features decode to its joints.
 """
 
 from __future__ import annotations
@@ -27,21 +28,26 @@ import numpy as np
 import torch
 
 from ..errors import SMFError
-from ..motion.features import feature_slices, features_from_joints, joints_from_features
-from ..motion.skeleton import get_skeleton
+from ..motion.features import feature_slices, features_from_joints
+from ..motion.rigid import (CM, DEFAULT_FIT, RigidFitConfig, RigidMotion, fit_rigid, optimise_pose,
+                            rigid_from_features, rigid_to_features)
 from .contacts import HML_FOOT_JOINTS, KinematicContactConfig, contacts_from_vgrf, kinematic_contacts, runs
 
 VgrfModel = Callable[[torch.Tensor], torch.Tensor]  # (B, T, 22, 3) metres, Y up, 20 fps -> (B, T, 2, 16)
 LEG_JOINTS = (1, 2, 4, 5, 7, 8, 10, 11)
+# the chain from each contact joint (left ankle, left toe, right ankle, right toe) up to its hip
+FOOT_CHAINS = ((1, 4, 7), (1, 4, 7, 10), (2, 5, 8), (2, 5, 8, 11))
 CONTACT_ROUTES = ("kinematic", "vgrf")
 # looser than the detector's defaults (0.5/0.8 m/s, 5/8 cm): a sliding foot is still a planted foot that must
 # be pinned, and a generated motion's floor level is noisy (chosen on the validation split, docs/footskate.md)
 CLEANUP_CONTACTS = KinematicContactConfig(speed_on=2.0, speed_off=2.5, height_on=0.06, height_off=0.08)
+# a joints file keeps its own skeleton: bone lengths are the motion's median
+JOINTS_FIT = RigidFitConfig(bone_lengths="median", start="positions")
 
 
 @dataclass(frozen=True)
 class CleanupConfig:
-    """Weights and solver settings of :func:`cleanup_joints`."""
+    """Weights and solver settings of :func:`cleanup_rigid`."""
 
     contacts: str = "kinematic"  # or "vgrf" (needs a vGRF model)
     iterations: int = 20  # L-BFGS iterations
@@ -51,38 +57,62 @@ class CleanupConfig:
     w_root: float = 1.0
     w_root_offset: float = 10.0  # keeps the root's path (0: the body may be moved back over its feet)
     w_vgrf: float = 1.0
-    w_bone: float = 10.0
     w_smooth: float = 1.0
     w_floor: float = 10.0
     anchor_floor: bool = True  # planted toes at y = 0; False: at their mean height over the contact
+    max_anchor_shift: float = 0.15  # m: a contact whose foot travels further from its anchor is split
     kinematic: KinematicContactConfig = CLEANUP_CONTACTS  # frozen, so one shared default is safe
 
 
 @dataclass
 class CleanupResult:
-    """Cleaned joints (T, 22, 3) in the input's frame, and the contacts (T, 4) that were enforced."""
+    """Cleaned joints (T, 22, 3) in the input's frame, the contacts (T, 4) that were enforced, and the cleaned
+    rigid body the joints come from."""
 
     joints: np.ndarray
     contacts: np.ndarray
+    motion: RigidMotion
 
 
-def anchor_targets(joints: np.ndarray, contacts: np.ndarray, *, floor: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def split_contact(points: np.ndarray, max_shift: float) -> list[tuple[int, int]]:
+    """Split one contact interval of a joint's positions (n, 3) into [(start, stop)) pieces in which no
+    position lies further than ``max_shift`` (m, horizontally) from the piece's mean."""
+    pieces, a = [], 0
+    for b in range(1, len(points) + 1):
+        xz = points[a:b, [0, 2]]
+        if np.linalg.norm(xz - xz.mean(0), axis=-1).max() > max_shift:
+            pieces.append((a, b - 1))
+            a = b - 1
+    pieces.append((a, len(points)))
+    return pieces
+
+
+def anchor_targets(joints: np.ndarray, contacts: np.ndarray, *, floor: bool = True, max_shift: float = np.inf,
+                   bone_lengths: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Targets (T, 4, 3) and a mask (T, 4) for the foot joints (left ankle, left toe, right ankle, right toe).
 
     Each contact interval is pinned to the joint's mean position over the interval (the point that moves
     it least), not below the floor; with ``floor`` planted toes are put on the floor (y = 0). Ankles keep
     their mean height: how high a planted ankle sits depends on heel and toe, and lowering it with its toe
-    bent the legs of generated motions and cost FID in our validation runs.
+    bent the legs of generated motions and cost FID in our validation runs. An interval in which the joint
+    travels further than ``max_shift`` (m) from the mean is split (see :func:`split_contact`); with
+    ``bone_lengths`` (22,) a frame whose anchor lies further from the hip than the leg can reach (the sum of
+    the bones from hip to the joint) is left free: the body has left that foot.
     """
     feet = joints[:, list(HML_FOOT_JOINTS)]
     target = np.zeros_like(feet)
     mask = np.zeros(contacts.shape, dtype=bool)
     for k in range(4):
         for a, b in runs(contacts[:, k]):
-            p = feet[a:b, k].mean(0)
-            p[1] = 0.0 if floor and k in (1, 3) else max(0.0, p[1])
-            target[a:b, k] = p
-            mask[a:b, k] = True
+            for a2, b2 in split_contact(feet[a:b, k], max_shift):
+                p = feet[a + a2:a + b2, k].mean(0)
+                p[1] = 0.0 if floor and k in (1, 3) else max(0.0, p[1])
+                target[a + a2:a + b2, k] = p
+                mask[a + a2:a + b2, k] = True
+        if bone_lengths is not None:
+            chain = FOOT_CHAINS[k]
+            reach = float(np.sum(np.asarray(bone_lengths)[list(chain[1:])]))
+            mask[:, k] &= np.linalg.norm(target[:, k] - joints[:, chain[0]], axis=-1) <= reach
     return target, mask
 
 
@@ -100,55 +130,55 @@ def detect_contacts(joints: np.ndarray, fps: float, config: CleanupConfig,
     raise SMFError(f"unknown contact route {config.contacts!r}; choose from {', '.join(CONTACT_ROUTES)}")
 
 
-def cleanup_joints(joints: np.ndarray, fps: float = 20.0, config: CleanupConfig = CleanupConfig(), *,
-                   vgrf_model: VgrfModel | None = None, contacts: np.ndarray | None = None) -> CleanupResult:
-    """Remove foot skating from joints (T, 22, 3) (metres, Y up, floor y = 0) at ``fps``."""
-    x0 = np.asarray(joints, dtype=np.float64)
-    if x0.ndim != 3 or x0.shape[1:] != (22, 3) or len(x0) < 2:
-        raise SMFError(f"expected joints of shape (T>=2, 22, 3), got {tuple(x0.shape)}")
+def cleanup_rigid(motion: RigidMotion, fps: float = 20.0, config: CleanupConfig = CleanupConfig(), *,
+                  vgrf_model: VgrfModel | None = None, contacts: np.ndarray | None = None) -> CleanupResult:
+    """Remove foot skating from a rigid HumanML3D motion (metres, Y up, floor y = 0) at ``fps``: moves its
+    rotations and root, never its bone lengths."""
+    if motion.skeleton != "humanml3d" or len(motion) < 2:
+        raise SMFError(f"footskate cleanup needs a HumanML3D motion of at least 2 frames, got {motion.skeleton} "
+                       f"with {len(motion)}")
+    x0 = motion.joints()
     c = detect_contacts(x0, fps, config, vgrf_model) if contacts is None else np.asarray(contacts, bool)
-    target, mask = anchor_targets(x0, c, floor=config.anchor_floor)
-    parents = np.array(get_skeleton("humanml3d").parents)
-    T = len(x0)
-    S = 100.0  # metres -> centimetres
-    X0 = torch.as_tensor(x0 * S, dtype=torch.float32)
-    tgt = torch.as_tensor(target * S, dtype=torch.float32)
+    target, mask = anchor_targets(x0, c, floor=config.anchor_floor, max_shift=config.max_anchor_shift,
+                                  bone_lengths=motion.bone_lengths)
+    X0 = torch.as_tensor(x0 * CM, dtype=torch.float32)
+    tgt = torch.as_tensor(target * CM, dtype=torch.float32)
     m = torch.as_tensor(mask, dtype=torch.float32)[..., None]
     n_anchor = max(1.0, float(mask.sum()))
-    bones0 = torch.linalg.vector_norm(X0[:, 1:] - X0[:, parents[1:]], dim=-1)
     w_joint = torch.ones(22)
     w_joint[list(LEG_JOINTS)] = config.leg_pose_scale
-    w_joint[0] = 0.0  # the root moves through its own displacement
     use_vgrf = vgrf_model is not None and config.w_vgrf > 0
     if use_vgrf:
         with torch.no_grad():
-            g0 = vgrf_model(X0[None] / S)
-    root = torch.zeros(T, 1, 3, requires_grad=True)
-    local = torch.zeros(T, 22, 3, requires_grad=True)
-    opt = torch.optim.LBFGS([root, local], lr=1.0, max_iter=config.iterations, history_size=10,
-                            line_search_fn="strong_wolfe")
+            g0 = vgrf_model(X0[None] / CM)
     foot_idx = list(HML_FOOT_JOINTS)
 
-    def loss_fn() -> torch.Tensor:
-        opt.zero_grad()
-        X = X0 + root + local
+    def loss_fn(X: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
+        move = X - X0
+        local = move - shift[:, None]  # the pose's own change (the root's is zero)
         loss = config.w_pose * ((local ** 2).sum(-1) * w_joint).mean()
         loss = loss + config.w_anchor * (((X[:, foot_idx] - tgt) ** 2) * m).sum() / n_anchor
-        loss = loss + config.w_root * ((root[1:] - root[:-1]) ** 2).sum(-1).mean()
-        loss = loss + config.w_root_offset * (root ** 2).sum(-1).mean()
-        loss = loss + config.w_smooth * ((local[1:] - local[:-1]) ** 2).sum(-1).mean()
-        bones = torch.linalg.vector_norm(X[:, 1:] - X[:, parents[1:]], dim=-1)
-        loss = loss + config.w_bone * ((bones - bones0) ** 2).mean()
+        loss = loss + config.w_root * ((shift[1:] - shift[:-1]) ** 2).sum(-1).mean()
+        loss = loss + config.w_root_offset * (shift ** 2).sum(-1).mean()
+        loss = loss + config.w_smooth * ((move[1:] - move[:-1]) ** 2).sum(-1).mean()
         loss = loss + config.w_floor * (torch.relu(-X[..., 1]) ** 2).mean()
         if use_vgrf:
-            loss = loss + config.w_vgrf * 100.0 * ((vgrf_model(X[None] / S) - g0) ** 2).mean()
-        loss.backward()
+            loss = loss + config.w_vgrf * 100.0 * ((vgrf_model(X[None] / CM) - g0) ** 2).mean()
         return loss
 
-    opt.step(loss_fn)
-    with torch.no_grad():
-        out = ((X0 + root + local) / S).double().numpy()
-    return CleanupResult(out, c)
+    out = optimise_pose(motion, loss_fn, config.iterations)
+    return CleanupResult(out.joints(), c, out)
+
+
+def cleanup_joints(joints: np.ndarray, fps: float = 20.0, config: CleanupConfig = CleanupConfig(), *,
+                   vgrf_model: VgrfModel | None = None, contacts: np.ndarray | None = None,
+                   rigid: RigidFitConfig = JOINTS_FIT) -> CleanupResult:
+    """Remove foot skating from joints (T, 22, 3) (metres, Y up, floor y = 0) at ``fps``: fits a rigid body
+    (bone lengths by ``rigid``: the motion's median by default), then :func:`cleanup_rigid`."""
+    x0 = np.asarray(joints, dtype=np.float64)
+    if x0.ndim != 3 or x0.shape[1:] != (22, 3) or len(x0) < 2:
+        raise SMFError(f"expected joints of shape (T>=2, 22, 3), got {tuple(x0.shape)}")
+    return cleanup_rigid(fit_rigid(x0, "humanml3d", rigid), fps, config, vgrf_model=vgrf_model, contacts=contacts)
 
 
 def features_from_cleaned(joints: np.ndarray) -> np.ndarray:
@@ -166,30 +196,18 @@ def features_from_cleaned(joints: np.ndarray) -> np.ndarray:
     return feats
 
 
-def edit_features(features: np.ndarray, before: np.ndarray, after: np.ndarray) -> np.ndarray:
-    """Apply a joint edit to features: ``features`` (T, 263) decode to ``before`` (T, 22, 3); returns
-    features that decode to ``after`` and equal ``features`` wherever the edit changes nothing.
-
-    The change is ``features_from_cleaned(after) - features_from_cleaned(before)``; foot-contact labels
-    are taken from ``after`` on the frames where they change."""
-    f = np.asarray(features, dtype=np.float64)
-    new = features_from_cleaned(after)
-    d = new - features_from_cleaned(before)
-    out = f + d
-    sl = feature_slices("humanml3d").contacts
-    out[:, sl] = np.where(d[:, sl] != 0, new[:, sl], f[:, sl])
-    return out
-
-
 def cleanup_features(features: np.ndarray, config: CleanupConfig = CleanupConfig(), *,
-                     vgrf_model: VgrfModel | None = None, fps: float = 20.0) -> np.ndarray:
-    """HumanML3D features (T, 263) in dataset units -> cleaned features (T, 263) (see :func:`edit_features`)."""
+                     vgrf_model: VgrfModel | None = None, fps: float = 20.0,
+                     rigid: RigidFitConfig = DEFAULT_FIT) -> tuple[np.ndarray, RigidMotion]:
+    """HumanML3D features (T, 263) in dataset units -> cleaned features (T, 263) and the cleaned rigid body
+    they decode to: the rigid fit of the features (``rigid``), :func:`cleanup_rigid`, then the body written in
+    the input's body frames (:func:`~stablemofusion.motion.rigid.rigid_to_features`)."""
     f = np.asarray(features, dtype=np.float64)
     if f.ndim != 2 or f.shape[1] != 263 or len(f) < 2:
         raise SMFError(f"expected features of shape (T>=2, 263), got {tuple(f.shape)}")
-    joints = joints_from_features(f)
-    res = cleanup_joints(joints, fps, config, vgrf_model=vgrf_model)
-    return edit_features(f, joints, res.joints)
+    res = cleanup_rigid(rigid_from_features(f, "humanml3d", rigid), fps, config, vgrf_model=vgrf_model)
+    motion, out = rigid_to_features(res.motion, f, rigid)
+    return out, motion
 
 
 def align_yaw_xz(moving: np.ndarray, fixed: np.ndarray) -> np.ndarray:

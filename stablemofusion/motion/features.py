@@ -16,7 +16,7 @@ import torch
 from scipy.ndimage import gaussian_filter1d
 
 from ..errors import MotionFormatError
-from .rotation import qbetween, qinv, qmul, qrot, quat_to_cont6d, yaw_quat
+from .rotation import cont6d_to_matrix, qbetween, qinv, qmul, qrot, quat_to_cont6d, quat_to_matrix, yaw_quat
 from .skeleton import Skeleton, get_skeleton
 
 _Y = np.array([0.0, 1.0, 0.0])
@@ -110,16 +110,18 @@ def facing_quat(joints: np.ndarray, sk: Skeleton, *, official_ik: bool = False, 
 
 
 def inverse_kinematics(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d", *,
-                       smooth_forward: bool = True) -> np.ndarray:
+                       smooth_forward: bool = True, root: np.ndarray | None = None) -> np.ndarray:
     """HumanML3D inverse kinematics: (T, J, 3) -> (T, J, 4) quaternions.
 
-    Index 0 holds the root yaw (identity on frame 0, as in the official code); index c holds the rotation
-    of the bone parent(c) -> c relative to the accumulated rotation along its chain, taking the bone's
-    rest direction ``raw_offsets[c]`` onto its actual direction by the shortest arc.
+    Index 0 holds the root yaw (identity on frame 0, as in the official code; or the given ``root`` (T, 4)
+    body-frame quaternions); index c holds the rotation of the bone parent(c) -> c relative to the
+    accumulated rotation along its chain, taking the bone's rest direction ``raw_offsets[c]`` onto its
+    actual direction by the shortest arc.
     """
     sk = get_skeleton(skeleton)
-    root = facing_quat(joints, sk, official_ik=True, smooth=20.0 if smooth_forward else 0.0)
-    root[0] = (1.0, 0.0, 0.0, 0.0)
+    if root is None:
+        root = facing_quat(joints, sk, official_ik=True, smooth=20.0 if smooth_forward else 0.0)
+        root[0] = (1.0, 0.0, 0.0, 0.0)
     quats = np.zeros(joints.shape[:-1] + (4,))
     quats[:, 0] = root
     raw = sk.offsets_array
@@ -227,6 +229,69 @@ def joints_from_features(features, skeleton: str | Skeleton = "humanml3d"):
     world = torch.cat([world[..., :1] + root[..., None, [0]], world[..., 1:2], world[..., 2:] + root[..., None, [2]]], -1)
     out = torch.cat([root[..., None, :], world], dim=-2)
     return out.numpy() if is_numpy else out
+
+
+def joints_from_rotations(features: np.ndarray, skeleton: str | Skeleton = "humanml3d",
+                          lengths: np.ndarray | None = None) -> np.ndarray:
+    """Features (T, D) -> joints (T, J, 3) through the rotation channels instead of the positions: the root
+    path, then each bone of ``lengths`` (J,) metres (default: the skeleton's target lengths) along the
+    direction its chain of 6D rotations gives (HumanML3D's forward kinematics). Exact for real features."""
+    sk = get_skeleton(skeleton)
+    _check_features(features, sk)
+    x = torch.from_numpy(np.asarray(features, dtype=np.float64))
+    if lengths is None:
+        if sk.bone_lengths is None:
+            raise MotionFormatError(f"the {sk.name} skeleton has no target bone lengths; pass lengths")
+        lengths = np.asarray(sk.bone_lengths)
+    quat, root = root_from_features(x)
+    T, J = len(x), sk.num_joints
+    local = cont6d_to_matrix(x[:, feature_slices(sk).rotations].reshape(T, J - 1, 6)).numpy()
+    pos = np.zeros((T, J, 3))
+    pos[:, 0] = root.numpy()
+    raw = sk.offsets_array * np.asarray(lengths, dtype=np.float64)[:, None]
+    root_m = quat_to_matrix(quat).numpy()
+    for chain in sk.chains:
+        acc = root_m
+        for p, c in zip(chain[:-1], chain[1:]):
+            acc = acc @ local[:, c - 1]
+            pos[:, c] = pos[:, p] + acc @ raw[c]
+    return pos
+
+
+def features_in_frames_of(joints: np.ndarray, reference: np.ndarray, skeleton: str | Skeleton = "humanml3d", *,
+                          rotations: str = "ik") -> np.ndarray:
+    """Features (T, D) that decode exactly to ``joints`` (T, J, 3), written in the body frames of
+    ``reference`` features (T, D): its yaw channel and foot contacts are kept, root, positions and
+    velocities are computed from the joints in those frames (the last frame's velocity by extrapolation).
+    The joints' first root must sit at the XZ origin, where :func:`joints_from_features` starts.
+
+    ``rotations``: "ik" computes the 6D rotations from the joints (HumanML3D's inverse kinematics in the
+    reference's frames, as real features have them); "keep" keeps the reference's rotation channels.
+    """
+    sk = get_skeleton(skeleton)
+    ref = np.asarray(reference, dtype=np.float64)
+    _check_features(ref, sk)
+    pos = _check_joints(joints, sk, min_frames=2)
+    if len(pos) != len(ref):
+        raise MotionFormatError(f"{len(pos)} frames of joints but {len(ref)} of reference features")
+    if rotations not in ("ik", "keep"):
+        raise MotionFormatError(f"rotations must be 'ik' or 'keep', got {rotations!r}")
+    quat = root_from_features(torch.from_numpy(ref))[0].numpy()  # (T, 4) world -> body frame
+    s = feature_slices(sk)
+    T, J = pos.shape[:2]
+    ext = np.concatenate([pos, 2 * pos[-1:] - pos[-2:-1]])  # one extrapolated frame for the last velocity
+    q_next = np.concatenate([quat[1:], quat[-1:]])
+    out = ref.copy()
+    out[:, s.root_xz_velocity] = qrot(q_next, ext[1:, 0] - ext[:-1, 0])[:, [0, 2]]
+    out[:, s.root_height] = pos[:, 0, 1:2]
+    local = pos[:, 1:] - pos[:, :1] * np.array([1.0, 0.0, 1.0])
+    out[:, s.positions] = qrot(np.broadcast_to(quat[:, None], local.shape[:-1] + (4,)), local).reshape(T, -1)
+    step = ext[1:] - ext[:-1]
+    out[:, s.velocities] = qrot(np.broadcast_to(quat[:, None], step.shape[:-1] + (4,)), step).reshape(T, -1)
+    if rotations == "ik":
+        quats = inverse_kinematics(pos, sk, root=quat)
+        out[:, s.rotations] = quat_to_cont6d(quats[:, 1:]).reshape(T, -1)
+    return out
 
 
 def mirror_joints(joints, skeleton: str | Skeleton = "humanml3d"):

@@ -15,6 +15,7 @@ from ..errors import MotionFormatError, SMFError
 from ..io import save_npy
 from .bvh import forward_kinematics, read_bvh, write_bvh
 from .features import features_from_joints, joints_from_features
+from .rigid import RigidMotion, pose_from_joints
 from .skeleton import Skeleton, get_skeleton, skeleton_for_shape
 
 MOTION_SUFFIXES = (".npy", ".bvh")
@@ -100,79 +101,39 @@ def _load_bvh(path: Path, skeleton: str | Skeleton | None) -> Motion:
     )
 
 
-def _branch_frame(joints: np.ndarray, sk: Skeleton, joint: int, children: list[int]) -> np.ndarray:
-    """(T, 3, 3) orientation of a branching joint: X from its -X child to its +X child, Y towards the
-    remaining (up or down) child, Z = X x Y."""
-    raw = sk.offsets_array
-    pos_x = [c for c in children if raw[c][0] > 0]
-    neg_x = [c for c in children if raw[c][0] < 0]
-    other = [c for c in children if raw[c][0] == 0]
-    if len(pos_x) != 1 or len(neg_x) != 1 or len(other) != 1:
-        raise SMFError(f"cannot orient branching joint {sk.joint_names[joint]}")
-    x = joints[:, pos_x[0]] - joints[:, neg_x[0]]
-    x /= np.linalg.norm(x, axis=-1, keepdims=True) + 1e-12
-    y = (joints[:, other[0]] - joints[:, joint]) * np.sign(raw[other[0]][1])
-    y -= (y * x).sum(-1, keepdims=True) * x
-    y /= np.linalg.norm(y, axis=-1, keepdims=True) + 1e-12
-    return np.stack([x, y, np.cross(x, y)], axis=-1)
-
-
-def _shortest_arc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(T, 3, 3) rotation taking unit vectors a onto b (T, 3) by the shortest arc (Rodrigues)."""
-    v = np.cross(a, b)
-    c = (a * b).sum(-1)
-    k = np.zeros(a.shape[:-1] + (3, 3))
-    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    k = k - np.swapaxes(k, -1, -2)
-    scale = 1.0 / np.maximum(1.0 + c, 1e-9)
-    return np.eye(3) + k + (k @ k) * scale[..., None, None]
-
-
-def bvh_pose(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d") -> tuple[np.ndarray, np.ndarray]:
-    """Inverse kinematics for BVH export: joints (T, J, 3) -> (rest offsets (J, 3), local rotations (T, J, 3, 3)).
-
-    Branching joints (pelvis, upper spine) get the frame spanned by their children and rest offsets that
-    are the children's mean position in that frame; every other bone gets its mean length along the
-    skeleton's rest direction and the shortest rotation from its parent-rotated rest direction, so the
-    twist of each limb follows its parent. Leaf joints keep their parent's rotation.
-    """
-    sk = get_skeleton(skeleton)
-    T, J = joints.shape[:2]
-    parents = sk.parents
-    children = {j: [c for c in range(J) if parents[c] == j] for j in range(J)}
-    raw = sk.offsets_array
-    offsets = np.zeros((J, 3))
-    glob = np.zeros((T, J, 3, 3))
-    for j in range(J):  # joints are in topological order
-        parent_rot = glob[:, parents[j]] if parents[j] >= 0 else np.broadcast_to(np.eye(3), (T, 3, 3))
-        kids = children[j]
-        if len(kids) > 1:
-            glob[:, j] = _branch_frame(joints, sk, j, kids)
-            for c in kids:
-                local = np.einsum("tij,ti->tj", glob[:, j], joints[:, c] - joints[:, j])
-                offsets[c] = local.mean(0)
-        elif len(kids) == 1:
-            c = kids[0]
-            bone = joints[:, c] - joints[:, j]
-            length = np.linalg.norm(bone, axis=-1)
-            offsets[c] = raw[c] * length.mean()
-            rest_dir = np.einsum("tij,j->ti", parent_rot, raw[c])
-            glob[:, j] = _shortest_arc(rest_dir, bone / np.maximum(length, 1e-12)[:, None]) @ parent_rot
-        else:
-            glob[:, j] = parent_rot
-    local = glob.copy()
-    for j in range(1, J):
-        local[:, j] = np.swapaxes(glob[:, parents[j]], -1, -2) @ glob[:, j]
-    return offsets, local
-
-
 def save_bvh(joints: np.ndarray, path: str | Path, skeleton: str | Skeleton = "humanml3d",
              fps: float | None = None) -> None:
-    """Write joints (T, J, 3) in metres as a BVH file (metres, Y up) with our skeleton's joint names."""
+    """Write joints (T, J, 3) in metres as a BVH file (metres, Y up) with our skeleton's joint names: the
+    closed-form rigid pose of the joints (exact for a rigid motion; see :func:`save_rigid_bvh` for a
+    :class:`RigidMotion`)."""
     sk = get_skeleton(skeleton)
-    offsets, local = bvh_pose(np.asarray(joints, dtype=np.float64), sk)
-    write_bvh(path, names=list(sk.joint_names), parents=np.array(sk.parents), offsets=offsets, rotations=local,
-              root_positions=joints[:, 0], frame_time=1.0 / (fps or sk.fps))
+    joints = np.asarray(joints, dtype=np.float64)
+    offsets, local = pose_from_joints(joints, sk)
+    save_rigid_bvh(RigidMotion(offsets, local, joints[:, 0], sk.name), path, fps)
+
+
+def save_rigid_bvh(motion: RigidMotion, path: str | Path, fps: float | None = None) -> None:
+    """Write a :class:`RigidMotion` as a BVH file (metres, Y up, our joint names): its own skeleton and
+    rotations, so the file reads back to ``motion.joints()``."""
+    sk = get_skeleton(motion.skeleton)
+    write_bvh(path, names=list(sk.joint_names), parents=np.array(sk.parents), offsets=motion.offsets,
+              rotations=motion.rotations, root_positions=motion.root, frame_time=1.0 / (fps or sk.fps))
+
+
+def bvh_round_trip_error(joints: np.ndarray, motion: RigidMotion | None = None,
+                         skeleton: str | Skeleton = "humanml3d", fps: float | None = None) -> float:
+    """Largest distance (m) between joints (T, J, 3) as a joints ``.npy`` holds them (float32) and the BVH file
+    written for them (from ``motion`` when given, as `smf generate` does, else by :func:`save_bvh`), read back."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "m.bvh"
+        if motion is not None:
+            save_rigid_bvh(motion, path, fps)
+        else:
+            save_bvh(joints, path, skeleton, fps)
+        back = load_motion(path, skeleton).joints
+    return float(np.linalg.norm(back - np.asarray(joints, np.float32), axis=-1).max())
 
 
 def save_motion(motion: Motion, path: str | Path, kind: str) -> None:

@@ -1,0 +1,287 @@
+"""Rigid bodies: one skeleton whose bones keep their lengths, posed by local rotations and a root path.
+
+Every output of the pipeline (joints, features, video, BVH) comes from a :class:`RigidMotion`, so no bone
+stretches and the BVH file (which can only hold a rigid skeleton) is the same motion as the joints.
+
+Convention (BVH's): ``offsets[c]`` (J, 3) is joint c's rest position relative to its parent, in the parent's
+frame; ``rotations[t, j]`` (T, J, 3, 3) is joint j's local rotation and turns the offsets of j's children.
+Global rotations G_j = G_parent(j) @ R_j; positions p_0 = root, p_c = p_parent(c) + G_parent(c) @ offsets[c].
+Joints are indexed in the skeleton's order, where every parent precedes its children.
+
+Bone lengths are chosen once per motion (:data:`BONE_LENGTHS`): ``"dataset"`` takes the skeleton's target
+lengths (HumanML3D's; every motion of a uniformed corpus has exactly these), ``"median"`` the median length of
+each bone over the input's frames (also the fallback for skeletons without target lengths, e.g. KIT).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from functools import lru_cache
+from typing import Callable
+
+import numpy as np
+import torch
+
+from ..errors import SMFError
+from .rotation import cont6d_to_matrix
+from .skeleton import Skeleton, get_skeleton
+
+BONE_LENGTHS = ("dataset", "median")
+CM = 100.0  # the optimisation works in centimetres, so squared errors are O(1)
+
+# (X (T, J, 3) positions in cm, root_shift (T, 3) cm) -> scalar loss; see :func:`optimise_pose`
+PoseLoss = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+@dataclass
+class RigidMotion:
+    """A rigid skeleton's motion: ``offsets`` (J, 3) metres, local ``rotations`` (T, J, 3, 3), ``root`` (T, 3)
+    metres (see the module docstring for the convention)."""
+
+    offsets: np.ndarray
+    rotations: np.ndarray
+    root: np.ndarray
+    skeleton: str = "humanml3d"
+
+    def __len__(self) -> int:
+        return len(self.root)
+
+    @property
+    def bone_lengths(self) -> np.ndarray:
+        """(J,) length of the bone into each joint (0 for the root)."""
+        return np.linalg.norm(self.offsets, axis=-1)
+
+    def joints(self) -> np.ndarray:
+        """(T, J, 3) joint positions in metres."""
+        sk = get_skeleton(self.skeleton)
+        with torch.no_grad():
+            x = forward_kinematics(torch.from_numpy(self.offsets), torch.from_numpy(self.rotations),
+                                   torch.from_numpy(self.root), sk.parents)
+        return x.numpy()
+
+    def translated(self, shift: np.ndarray) -> "RigidMotion":
+        """The same motion moved by ``shift`` (3,) metres."""
+        return replace(self, root=self.root + np.asarray(shift, dtype=np.float64))
+
+
+def forward_kinematics(offsets: torch.Tensor, rotations: torch.Tensor, root: torch.Tensor,
+                       parents: tuple[int, ...]) -> torch.Tensor:
+    """Offsets (J, 3), local rotations (..., J, 3, 3), root (..., 3) -> positions (..., J, 3), differentiable.
+    Works one depth level of the tree at a time (a few ops per level, not per joint)."""
+    levels, gather, order = _levels(tuple(parents))
+    glob = rotations[..., levels[0], :, :]
+    pos = root[..., None, :]
+    all_pos = [pos]
+    for js, idx in zip(levels[1:], gather):
+        g_par = glob[..., idx, :, :]
+        pos = pos[..., idx, :] + (g_par @ offsets[js, :, None])[..., 0]
+        glob = g_par @ rotations[..., js, :, :]
+        all_pos.append(pos)
+    return torch.cat(all_pos, dim=-2)[..., order, :]
+
+
+@lru_cache(maxsize=8)
+def _levels(parents: tuple[int, ...]) -> tuple[list[list[int]], list[list[int]], list[int]]:
+    """Joints by depth, each level's parents as indices into the previous level, and the permutation from
+    level order back to joint order."""
+    depth = [0] * len(parents)
+    for j, p in enumerate(parents):
+        depth[j] = 0 if p < 0 else depth[p] + 1
+    levels = [[j for j in range(len(parents)) if depth[j] == d] for d in range(max(depth) + 1)]
+    gather = [[levels[d - 1].index(parents[j]) for j in levels[d]] for d in range(1, len(levels))]
+    flat = [j for level in levels for j in level]
+    return levels, gather, [flat.index(j) for j in range(len(parents))]
+
+
+def choose_bone_lengths(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d", mode: str = "dataset") -> np.ndarray:
+    """(J,) bone lengths in metres for a rigid fit of joints (T, J, 3); ``mode`` one of :data:`BONE_LENGTHS`."""
+    from .features import bone_lengths
+
+    sk = get_skeleton(skeleton)
+    if mode not in BONE_LENGTHS:
+        raise SMFError(f"bone lengths must be one of {', '.join(BONE_LENGTHS)}, got {mode!r}")
+    if mode == "dataset" and sk.bone_lengths is not None:
+        return np.asarray(sk.bone_lengths, dtype=np.float64)
+    return np.median(bone_lengths(np.asarray(joints, dtype=np.float64), sk), axis=0)
+
+
+def _branch_frame(joints: np.ndarray, sk: Skeleton, joint: int, children: list[int]) -> np.ndarray:
+    """(T, 3, 3) orientation of a branching joint: X from its -X child to its +X child, Y towards the
+    remaining (up or down) child, Z = X x Y."""
+    raw = sk.offsets_array
+    pos_x = [c for c in children if raw[c][0] > 0]
+    neg_x = [c for c in children if raw[c][0] < 0]
+    other = [c for c in children if raw[c][0] == 0]
+    if len(pos_x) != 1 or len(neg_x) != 1 or len(other) != 1:
+        raise SMFError(f"cannot orient branching joint {sk.joint_names[joint]}")
+    x = joints[:, pos_x[0]] - joints[:, neg_x[0]]
+    x /= np.linalg.norm(x, axis=-1, keepdims=True) + 1e-12
+    y = (joints[:, other[0]] - joints[:, joint]) * np.sign(raw[other[0]][1])
+    y -= (y * x).sum(-1, keepdims=True) * x
+    y /= np.linalg.norm(y, axis=-1, keepdims=True) + 1e-12
+    return np.stack([x, y, np.cross(x, y)], axis=-1)
+
+
+def _shortest_arc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(T, 3, 3) rotation taking unit vectors a onto b (T, 3) by the shortest arc (Rodrigues)."""
+    v = np.cross(a, b)
+    c = (a * b).sum(-1)
+    k = np.zeros(a.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    k = k - np.swapaxes(k, -1, -2)
+    scale = 1.0 / np.maximum(1.0 + c, 1e-9)
+    return np.eye(3) + k + (k @ k) * scale[..., None, None]
+
+
+def pose_from_joints(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d",
+                     lengths: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-form inverse kinematics: joints (T, J, 3) -> (rest offsets (J, 3), local rotations (T, J, 3, 3)).
+
+    Branching joints (pelvis, upper spine) get the frame spanned by their children and rest offsets that
+    are the children's mean position in that frame; every other bone lies along the skeleton's rest
+    direction, and turns by the shortest rotation from its parent-rotated rest direction, so the twist of
+    each limb follows its parent. Leaf joints keep their parent's rotation. Bone ``lengths`` (J,) default
+    to each bone's mean length. Exact for a rigid input with those lengths.
+    """
+    sk = get_skeleton(skeleton)
+    joints = np.asarray(joints, dtype=np.float64)
+    T, J = joints.shape[:2]
+    parents = sk.parents
+    children = {j: [c for c in range(J) if parents[c] == j] for j in range(J)}
+    raw = sk.offsets_array
+    offsets = np.zeros((J, 3))
+    glob = np.zeros((T, J, 3, 3))
+    for j in range(J):  # joints are in topological order
+        parent_rot = glob[:, parents[j]] if parents[j] >= 0 else np.broadcast_to(np.eye(3), (T, 3, 3))
+        kids = children[j]
+        if len(kids) > 1:
+            glob[:, j] = _branch_frame(joints, sk, j, kids)
+            for c in kids:
+                local = np.einsum("tij,ti->tj", glob[:, j], joints[:, c] - joints[:, j]).mean(0)
+                if lengths is not None:
+                    local = local / max(np.linalg.norm(local), 1e-12) * lengths[c]
+                offsets[c] = local
+        elif len(kids) == 1:
+            c = kids[0]
+            bone = joints[:, c] - joints[:, j]
+            length = np.linalg.norm(bone, axis=-1)
+            offsets[c] = raw[c] * (length.mean() if lengths is None else lengths[c])
+            rest_dir = np.einsum("tij,j->ti", parent_rot, raw[c])
+            glob[:, j] = _shortest_arc(rest_dir, bone / np.maximum(length, 1e-12)[:, None]) @ parent_rot
+        else:
+            glob[:, j] = parent_rot
+    local = glob.copy()
+    for j in range(1, J):
+        local[:, j] = np.swapaxes(glob[:, parents[j]], -1, -2) @ glob[:, j]
+    return offsets, local
+
+
+def optimise_pose(motion: RigidMotion, loss: PoseLoss, iterations: int, *, free_root: bool = True) -> RigidMotion:
+    """Minimise ``loss`` over the rotations and the root path of ``motion`` with L-BFGS; bone lengths never
+    change. ``loss`` gets the posed joints X (T, J, 3) and the root's shift from ``motion.root`` (T, 3), both
+    in centimetres. Returns the optimised motion (the input when ``iterations`` is 0)."""
+    if iterations <= 0:
+        return motion
+    sk = get_skeleton(motion.skeleton)
+    off = torch.as_tensor(motion.offsets * CM, dtype=torch.float32)
+    root0 = torch.as_tensor(motion.root * CM, dtype=torch.float32)
+    rot = torch.as_tensor(motion.rotations, dtype=torch.float32)
+    r6 = torch.cat([rot[..., :, 0], rot[..., :, 1]], -1).requires_grad_(True)  # (T, J, 6), see cont6d_to_matrix
+    shift = torch.zeros_like(root0, requires_grad=free_root)
+    params = [r6, shift] if free_root else [r6]
+    opt = torch.optim.LBFGS(params, lr=1.0, max_iter=iterations, history_size=10, line_search_fn="strong_wolfe")
+
+    def closure() -> torch.Tensor:
+        opt.zero_grad()
+        X = forward_kinematics(off, cont6d_to_matrix(r6), root0 + shift, sk.parents)
+        value = loss(X, shift)
+        value.backward()
+        return value
+
+    opt.step(closure)
+    with torch.no_grad():
+        rotations = cont6d_to_matrix(r6.double()).numpy()
+        root = ((root0 + shift).double() / CM).numpy()
+    return RigidMotion(motion.offsets.copy(), rotations, root, motion.skeleton)
+
+
+FIT_STARTS = ("rotations", "positions")
+FEATURE_ROTATIONS = ("ik", "keep")
+
+
+@dataclass(frozen=True)
+class RigidFitConfig:
+    """How the pipeline's rigid final stage fits a rigid body to a model's features (:func:`rigid_from_features`)
+    and writes it back as features (:func:`rigid_to_features`)."""
+
+    bone_lengths: str = "dataset"  # one of BONE_LENGTHS
+    iterations: int = 30  # L-BFGS iterations (0: the closed-form start only)
+    start: str = "rotations"  # closed-form start from the joints the rotation channels describe, or the positions
+    rotations: str = "ik"  # feature rotation channels: "ik" of the rigid joints, or "keep" the model's
+
+    def __post_init__(self):
+        if self.bone_lengths not in BONE_LENGTHS:
+            raise SMFError(f"bone lengths must be one of {', '.join(BONE_LENGTHS)}, got {self.bone_lengths!r}")
+        if self.start not in FIT_STARTS:
+            raise SMFError(f"start must be one of {', '.join(FIT_STARTS)}, got {self.start!r}")
+        if self.rotations not in FEATURE_ROTATIONS:
+            raise SMFError(f"rotations must be one of {', '.join(FEATURE_ROTATIONS)}, got {self.rotations!r}")
+
+
+DEFAULT_FIT = RigidFitConfig()
+
+
+def fit_rigid(targets: np.ndarray, skeleton: str | Skeleton = "humanml3d", config: RigidFitConfig = DEFAULT_FIT, *,
+              start: np.ndarray | None = None) -> RigidMotion:
+    """Fit a rigid skeleton to joint positions ``targets`` (T, J, 3) metres: bone lengths by
+    ``config.bone_lengths``; rotations start from the closed-form pose of ``start`` (T, J, 3) (default: the
+    targets themselves), then L-BFGS minimises the mean squared distance of every joint to its target."""
+    sk = get_skeleton(skeleton)
+    x = np.asarray(targets, dtype=np.float64)
+    if x.ndim != 3 or x.shape[1:] != (sk.num_joints, 3) or len(x) < 1:
+        raise SMFError(f"expected joints of shape (T, {sk.num_joints}, 3), got {tuple(x.shape)}")
+    if not np.isfinite(x).all():
+        raise SMFError("joints contain NaN or inf")
+    lengths = choose_bone_lengths(x, sk, config.bone_lengths)
+    offsets, rotations = pose_from_joints(x if start is None else start, sk, lengths)
+    motion = RigidMotion(offsets, rotations, x[:, 0].copy(), sk.name)
+    target = torch.as_tensor(x * CM, dtype=torch.float32)
+    return optimise_pose(motion, lambda X, _: ((X - target) ** 2).sum(-1).mean(), config.iterations)
+
+
+def rigid_from_features(features: np.ndarray, skeleton: str | Skeleton = "humanml3d",
+                        config: RigidFitConfig = DEFAULT_FIT) -> RigidMotion:
+    """The rigid body that a model's features (T, D) describe: their joint positions are the targets, and the
+    joints their rotation channels describe (with the chosen bone lengths) the start (``config.start``)."""
+    from .features import joints_from_features, joints_from_rotations
+
+    sk = get_skeleton(skeleton)
+    f = np.asarray(features, dtype=np.float64)
+    targets = joints_from_features(f, sk)
+    start = None
+    if config.start == "rotations":
+        start = joints_from_rotations(f, sk, choose_bone_lengths(targets, sk, config.bone_lengths))
+    return fit_rigid(targets, sk, config, start=start)
+
+
+def rigid_to_features(motion: RigidMotion, reference: np.ndarray,
+                      config: RigidFitConfig = DEFAULT_FIT) -> tuple[RigidMotion, np.ndarray]:
+    """Features (T, D) of ``motion`` in the body frames of the ``reference`` features it was fitted to (see
+    :func:`stablemofusion.motion.features.features_in_frames_of`), and the motion moved so that its first root
+    sits at the XZ origin, where the features' decoding starts: the features decode to its joints exactly."""
+    from .features import features_in_frames_of
+
+    moved = motion.translated(-motion.root[0] * np.array([1.0, 0.0, 1.0]))
+    return moved, features_in_frames_of(moved.joints(), reference, motion.skeleton, rotations=config.rotations)
+
+
+def bone_length_deviation(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d") -> dict[str, float]:
+    """How far a motion's bones stray from their own median length, joints (T, J, 3) metres:
+    ``bone_std`` the mean over bones of each bone's length std (m), ``bone_worst`` the largest deviation of
+    any bone in any frame from its median (m)."""
+    from .features import bone_lengths
+
+    sk = get_skeleton(skeleton)
+    lengths = bone_lengths(np.asarray(joints, dtype=np.float64), sk)[:, 1:]
+    return {"bone_std": float(lengths.std(0).mean()),
+            "bone_worst": float(np.abs(lengths - np.median(lengths, 0)).max())}

@@ -28,9 +28,9 @@ def add_eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rigid", default="dataset", choices=("dataset", "median", "off"),
                    help="rigid final stage: bone lengths of the dataset skeleton (default) or the motion's median; "
                         "off = the model's raw motion (to measure what the stage changes)")
-    p.add_argument("--rigid-rotations", default="ik", choices=("ik", "keep"),
-                   help="rotation channels of the final features: inverse kinematics of the rigid body (default) "
-                        "or the model's own")
+    p.add_argument("--rigid-rotations", default="keep", choices=("keep", "ik"),
+                   help="rotation channels of the final features: the model's own (default) or inverse kinematics "
+                        "of the rigid body")
     p.add_argument("--split", default="test", help="split to evaluate on (default test; tune settings on val)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")

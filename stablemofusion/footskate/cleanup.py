@@ -9,7 +9,7 @@ root, never bone lengths. Losses (positions in centimetres so the terms are O(1)
             absorb a drift of the body over planted feet, and a foot hovering over the floor is lowered
             by bending its leg, instead of the whole body being moved;
   vgrf    - the predicted vertical ground reaction forces are kept (only with a vGRF model);
-plus joint velocities kept (no popping at contact boundaries) and a floor term against penetration.
+plus the pose change kept smooth (no popping at contact boundaries) and a floor term against penetration.
 
 A contact never holds a foot the body has left (:func:`anchor_targets`): an interval in which the foot
 travels further than ``max_anchor_shift`` from its anchor is split into shorter contacts, each with its
@@ -60,7 +60,8 @@ class CleanupConfig:
     w_smooth: float = 1.0
     w_floor: float = 10.0
     anchor_floor: bool = True  # planted toes at y = 0; False: at their mean height over the contact
-    max_anchor_shift: float = 0.15  # m: a contact whose foot travels further from its anchor is split
+    max_anchor_shift: float = 0.25  # m: a contact whose foot travels further from its anchor is split
+    reach_margin: float = 0.05  # m: an anchor further than the leg's length plus this from the hip is not held
     kinematic: KinematicContactConfig = CLEANUP_CONTACTS  # frozen, so one shared default is safe
 
 
@@ -88,7 +89,7 @@ def split_contact(points: np.ndarray, max_shift: float) -> list[tuple[int, int]]
 
 
 def anchor_targets(joints: np.ndarray, contacts: np.ndarray, *, floor: bool = True, max_shift: float = np.inf,
-                   bone_lengths: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   bone_lengths: np.ndarray | None = None, reach_margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Targets (T, 4, 3) and a mask (T, 4) for the foot joints (left ankle, left toe, right ankle, right toe).
 
     Each contact interval is pinned to the joint's mean position over the interval (the point that moves
@@ -97,7 +98,8 @@ def anchor_targets(joints: np.ndarray, contacts: np.ndarray, *, floor: bool = Tr
     bent the legs of generated motions and cost FID in our validation runs. An interval in which the joint
     travels further than ``max_shift`` (m) from the mean is split (see :func:`split_contact`); with
     ``bone_lengths`` (22,) a frame whose anchor lies further from the hip than the leg can reach (the sum of
-    the bones from hip to the joint) is left free: the body has left that foot.
+    the bones from hip to the joint, plus ``reach_margin`` m that a small move of the pelvis makes up) is left
+    free: the body has left that foot.
     """
     feet = joints[:, list(HML_FOOT_JOINTS)]
     target = np.zeros_like(feet)
@@ -111,7 +113,7 @@ def anchor_targets(joints: np.ndarray, contacts: np.ndarray, *, floor: bool = Tr
                 mask[a + a2:a + b2, k] = True
         if bone_lengths is not None:
             chain = FOOT_CHAINS[k]
-            reach = float(np.sum(np.asarray(bone_lengths)[list(chain[1:])]))
+            reach = float(np.sum(np.asarray(bone_lengths)[list(chain[1:])])) + reach_margin
             mask[:, k] &= np.linalg.norm(target[:, k] - joints[:, chain[0]], axis=-1) <= reach
     return target, mask
 
@@ -140,7 +142,7 @@ def cleanup_rigid(motion: RigidMotion, fps: float = 20.0, config: CleanupConfig 
     x0 = motion.joints()
     c = detect_contacts(x0, fps, config, vgrf_model) if contacts is None else np.asarray(contacts, bool)
     target, mask = anchor_targets(x0, c, floor=config.anchor_floor, max_shift=config.max_anchor_shift,
-                                  bone_lengths=motion.bone_lengths)
+                                  bone_lengths=motion.bone_lengths, reach_margin=config.reach_margin)
     X0 = torch.as_tensor(x0 * CM, dtype=torch.float32)
     tgt = torch.as_tensor(target * CM, dtype=torch.float32)
     m = torch.as_tensor(mask, dtype=torch.float32)[..., None]
@@ -154,13 +156,12 @@ def cleanup_rigid(motion: RigidMotion, fps: float = 20.0, config: CleanupConfig 
     foot_idx = list(HML_FOOT_JOINTS)
 
     def loss_fn(X: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
-        move = X - X0
-        local = move - shift[:, None]  # the pose's own change (the root's is zero)
+        local = X - X0 - shift[:, None]  # the pose's own change (the root's is zero)
         loss = config.w_pose * ((local ** 2).sum(-1) * w_joint).mean()
         loss = loss + config.w_anchor * (((X[:, foot_idx] - tgt) ** 2) * m).sum() / n_anchor
         loss = loss + config.w_root * ((shift[1:] - shift[:-1]) ** 2).sum(-1).mean()
         loss = loss + config.w_root_offset * (shift ** 2).sum(-1).mean()
-        loss = loss + config.w_smooth * ((move[1:] - move[:-1]) ** 2).sum(-1).mean()
+        loss = loss + config.w_smooth * ((local[1:] - local[:-1]) ** 2).sum(-1).mean()
         loss = loss + config.w_floor * (torch.relu(-X[..., 1]) ** 2).mean()
         if use_vgrf:
             loss = loss + config.w_vgrf * 100.0 * ((vgrf_model(X[None] / CM) - g0) ** 2).mean()

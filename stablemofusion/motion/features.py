@@ -158,15 +158,30 @@ def foot_contacts(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d", th
     return (disp < thr).astype(np.float64)
 
 
+FIRST_FRAME = ("official", "consistent")
+
+
 def features_from_joints(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d", *, uniform: bool = True,
-                         feet_threshold: float | None = None) -> np.ndarray:
+                         feet_threshold: float | None = None, first_frame: str = "official") -> np.ndarray:
     """Joint positions (T, J, 3) in metres, Y up -> features (T-1, 263) for HumanML3D (251 for KIT).
 
     Canonicalises first (see :func:`canonicalize`); ``uniform`` rescales bones to the target skeleton
     (HumanML3D only: KIT has no known target, so its bone lengths are kept).
+
+    ``first_frame``: "official" reproduces HumanML3D, whose frame 0 faces +Z by one facing estimate while its
+    root rotation is set to the identity and every later frame uses the inverse kinematics' own (smoothed)
+    facing: frame 0 then sits in another body frame than frame 1, and the first yaw velocity holds the jump
+    between the two (2.6 degrees median, 14 degrees 95th percentile on our corpus). "consistent" turns the
+    motion so that the inverse kinematics' facing of frame 0 is +Z: every frame, the first too, is in the same
+    kind of body frame and the first yaw velocity is an ordinary one. Both decode the same way.
     """
     sk = get_skeleton(skeleton)
+    if first_frame not in FIRST_FRAME:
+        raise MotionFormatError(f"first_frame must be one of {', '.join(FIRST_FRAME)}, got {first_frame!r}")
     pos = canonicalize(_check_joints(joints, sk, min_frames=2), sk, uniform=uniform)
+    if first_frame == "consistent":
+        q0 = facing_quat(pos, sk, official_ik=True, smooth=20.0)[0]
+        pos = qrot(np.broadcast_to(q0, pos.shape[:-1] + (4,)), pos)
     contacts = foot_contacts(pos, sk, feet_threshold)
     quats = inverse_kinematics(pos, sk, smooth_forward=True)
     r_rot = quats[:, 0]

@@ -28,6 +28,7 @@ from .skeleton import Skeleton, get_skeleton
 
 BONE_LENGTHS = ("dataset", "median")
 CM = 100.0  # the optimisation works in centimetres, so squared errors are O(1)
+BRANCH_SCALE = 15.0  # cm: about the lever of a branching joint's children (hips, spine, neck, collars)
 
 # (X (T, J, 3) positions in cm, root_shift (T, 3) cm) -> scalar loss; see :func:`optimise_pose`
 PoseLoss = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
@@ -66,15 +67,15 @@ class RigidMotion:
 
 def forward_kinematics(offsets: torch.Tensor, rotations: torch.Tensor, root: torch.Tensor,
                        parents: tuple[int, ...]) -> torch.Tensor:
-    """Offsets (J, 3), local rotations (..., J, 3, 3), root (..., 3) -> positions (..., J, 3), differentiable.
-    Works one depth level of the tree at a time (a few ops per level, not per joint)."""
+    """Offsets (J, 3) (or (..., 1, J, 3) per motion of a batch), local rotations (..., J, 3, 3), root (..., 3) ->
+    positions (..., J, 3), differentiable. Works one depth level of the tree at a time (a few ops per level)."""
     levels, gather, order = _levels(tuple(parents))
     glob = rotations[..., levels[0], :, :]
     pos = root[..., None, :]
     all_pos = [pos]
     for js, idx in zip(levels[1:], gather):
         g_par = glob[..., idx, :, :]
-        pos = pos[..., idx, :] + (g_par @ offsets[js, :, None])[..., 0]
+        pos = pos[..., idx, :] + (g_par @ offsets[..., js, :, None])[..., 0]
         glob = g_par @ rotations[..., js, :, :]
         all_pos.append(pos)
     return torch.cat(all_pos, dim=-2)[..., order, :]
@@ -176,33 +177,71 @@ def pose_from_joints(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d",
     return offsets, local
 
 
-def optimise_pose(motion: RigidMotion, loss: PoseLoss, iterations: int, *, free_root: bool = True) -> RigidMotion:
-    """Minimise ``loss`` over the rotations and the root path of ``motion`` with L-BFGS; bone lengths never
-    change. ``loss`` gets the posed joints X (T, J, 3) and the root's shift from ``motion.root`` (T, 3), both
-    in centimetres. Returns the optimised motion (the input when ``iterations`` is 0)."""
+def global_rotations(motion: RigidMotion) -> np.ndarray:
+    """(T, J, 3, 3) global rotation of every joint: G_j = G_parent(j) @ R_j."""
+    sk = get_skeleton(motion.skeleton)
+    glob = np.empty_like(motion.rotations)
+    for j, p in enumerate(sk.parents):
+        glob[:, j] = motion.rotations[:, j] if p < 0 else glob[:, p] @ motion.rotations[:, j]
+    return glob
+
+
+def optimise_pose(motion: RigidMotion, loss: PoseLoss, iterations: int) -> RigidMotion:
+    """Minimise ``loss`` over the pose and the root path of ``motion`` with L-BFGS; bone lengths never change.
+    ``loss`` gets the posed joints X (T, J, 3) and the root's shift from ``motion.root`` (T, 3), both in
+    centimetres. Returns the optimised motion (the input when ``iterations`` is 0).
+
+    Parametrised for a well-conditioned problem: the root path, the global orientation of each branching
+    joint (its children's offsets stay rigid) and the global direction of every other bone (its length
+    fixed), so moving one bone moves its subtree without swinging it about a long lever. The rotations are
+    then the closed-form pose of the result (:func:`pose_from_joints`: each bone's shortest turn from its
+    parent, as the motion's own were), which reproduces its joints exactly."""
     if iterations <= 0:
         return motion
     sk = get_skeleton(motion.skeleton)
+    parents = sk.parents
+    J = sk.num_joints
+    kids = [sum(1 for c in parents if c == j) for j in range(J)]
+    branch = [j for j in range(J) if kids[j] > 1]
+    free = [c for c in range(1, J) if kids[parents[c]] == 1]  # bones free to turn: parent has one child
+    x0 = motion.joints()
+    glob = global_rotations(motion)[:, branch]
     off = torch.as_tensor(motion.offsets * CM, dtype=torch.float32)
+    length = torch.as_tensor(motion.bone_lengths * CM, dtype=torch.float32)
     root0 = torch.as_tensor(motion.root * CM, dtype=torch.float32)
-    rot = torch.as_tensor(motion.rotations, dtype=torch.float32)
-    r6 = torch.cat([rot[..., :, 0], rot[..., :, 1]], -1).requires_grad_(True)  # (T, J, 6), see cont6d_to_matrix
-    shift = torch.zeros_like(root0, requires_grad=free_root)
-    params = [r6, shift] if free_root else [r6]
-    opt = torch.optim.LBFGS(params, lr=1.0, max_iter=iterations, history_size=10, line_search_fn="strong_wolfe")
+    # flat leaves (L-BFGS needs contiguous gradients): bone vectors in cm (T, F, 3), so that a unit step moves a
+    # joint about 1 cm; scaled 6D orientations of the branching joints (T, B, 6); the root's shift in cm (T, 3)
+    u0 = (x0[:, free] - x0[:, [parents[c] for c in free]]) * CM
+    g0 = np.concatenate([glob[..., :, 0], glob[..., :, 1]], -1) * BRANCH_SCALE
+    flat = [torch.tensor(a.ravel(), dtype=torch.float32, requires_grad=True) for a in (u0, g0, np.zeros((len(x0), 3)))]
+    b_index, f_index = {j: i for i, j in enumerate(branch)}, {c: i for i, c in enumerate(free)}
+
+    def positions() -> torch.Tensor:
+        u, g6, shift = flat[0].reshape(u0.shape), flat[1].reshape(g0.shape), flat[2].reshape(-1, 3)
+        rot = cont6d_to_matrix(g6 / BRANCH_SCALE)
+        unit = u / torch.linalg.vector_norm(u, dim=-1, keepdim=True).clamp_min(1e-6)
+        pos = [root0 + shift]
+        for j in range(1, J):
+            p = parents[j]
+            if p in b_index:
+                pos.append(pos[p] + (rot[:, b_index[p]] @ off[j, :, None])[..., 0])
+            else:
+                pos.append(pos[p] + length[j] * unit[:, f_index[j]])
+        return torch.stack(pos, dim=1)
+
+    opt = torch.optim.LBFGS(flat, lr=1.0, max_iter=iterations, history_size=10, line_search_fn="strong_wolfe")
 
     def closure() -> torch.Tensor:
         opt.zero_grad()
-        X = forward_kinematics(off, cont6d_to_matrix(r6), root0 + shift, sk.parents)
-        value = loss(X, shift)
+        value = loss(positions(), flat[2].reshape(-1, 3))
         value.backward()
         return value
 
     opt.step(closure)
     with torch.no_grad():
-        rotations = cont6d_to_matrix(r6.double()).numpy()
-        root = ((root0 + shift).double() / CM).numpy()
-    return RigidMotion(motion.offsets.copy(), rotations, root, motion.skeleton)
+        x = positions().double().numpy() / CM
+    offsets, rotations = pose_from_joints(x, sk, motion.bone_lengths)
+    return RigidMotion(offsets, rotations, x[:, 0].copy(), motion.skeleton)
 
 
 FIT_STARTS = ("rotations", "positions")
@@ -215,9 +254,9 @@ class RigidFitConfig:
     and writes it back as features (:func:`rigid_to_features`)."""
 
     bone_lengths: str = "dataset"  # one of BONE_LENGTHS
-    iterations: int = 30  # L-BFGS iterations (0: the closed-form start only)
-    start: str = "rotations"  # closed-form start from the joints the rotation channels describe, or the positions
-    rotations: str = "ik"  # feature rotation channels: "ik" of the rigid joints, or "keep" the model's
+    iterations: int = 20  # L-BFGS iterations (0: the closed-form start only)
+    start: str = "positions"  # closed-form start from the positions, or from the joints the rotation channels describe
+    rotations: str = "keep"  # feature rotation channels: the model's own ("keep"), or "ik" of the rigid joints
 
     def __post_init__(self):
         if self.bone_lengths not in BONE_LENGTHS:

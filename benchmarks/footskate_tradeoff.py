@@ -1,9 +1,9 @@
-"""Post-cleanup trade-off: skate ratio vs joint change vs FID for the default cleanup and for settings that
-each undo one of its design choices.
+"""Post-cleanup trade-off on the rigid body: skate ratio vs joint change vs FID for the default cleanup and
+for settings that each undo one of its design choices.
 
-Generates one motion per caption of a split once (footskate off), then cleans the same motions with each
-setting, so only the cleanup differs. FID is against the whole test split. Prints JSON rows. Tune on
-``--split val``; report on test.
+Generates one motion per caption of a split once (the model's raw features), fits each one rigid body (the
+pipeline's final stage), then cleans the same bodies with each setting, so only the cleanup differs. FID is
+against the whole test split. Prints JSON rows. Tune on ``--split val``; report on test.
 
     python benchmarks/footskate_tradeoff.py --checkpoint DIR --data /work/cache/bandai-corpus --n 256 \
         --split val --evaluator DIR [--vgrf-model vgrf22.safetensors]
@@ -14,54 +14,38 @@ from __future__ import annotations
 import argparse
 import json
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from stablemofusion.footskate.cleanup import (CleanupConfig, align_yaw_xz, cleanup_features, cleanup_joints,
-                                              features_from_cleaned)
+from stablemofusion.footskate.cleanup import CleanupConfig, align_yaw_xz, cleanup_rigid
 from stablemofusion.footskate.contacts import KinematicContactConfig
 from stablemofusion.footskate.metrics import joint_change, mean_metrics, pose_change
 from stablemofusion.motion.features import joints_from_features
+from stablemofusion.motion.rigid import rigid_from_features, rigid_to_features
 from stablemofusion.pipeline import MotionPipeline
 
 from footskate_generated import pick_test_items  # noqa: E402  (run from the repo root: benchmarks/ is on sys.path)
 
-
-def _leg_bone_change(before: np.ndarray, after: np.ndarray) -> dict[str, float]:
-    """Mean |change| (m) of the shin (knee-ankle) and foot (ankle-toe) lengths, frame by frame."""
-    def length(j, a, b):
-        return np.linalg.norm(j[:, a] - j[:, b], axis=-1)
-    shin = [np.abs(length(after, c, p) - length(before, c, p)).mean() for c, p in ((7, 4), (8, 5))]
-    foot = [np.abs(length(after, c, p) - length(before, c, p)).mean() for c, p in ((10, 7), (11, 8))]
-    return {"shin_change": float(np.mean(shin)), "foot_change": float(np.mean(foot))}
-
-
-def _recomputed(f: np.ndarray, cfg: CleanupConfig = CleanupConfig()) -> np.ndarray:
-    """The default cleanup, but every feature recomputed from the cleaned joints (rotations by IK)."""
-    return features_from_cleaned(cleanup_joints(joints_from_features(f), config=cfg).joints)
-
-
+DEFAULT = CleanupConfig()
 SETTINGS = {
-    "default": lambda f: cleanup_features(f),
-    "features recomputed from joints (no edit)": _recomputed,
-    "root path free (w_root_offset 0)": lambda f: cleanup_features(f, CleanupConfig(w_root_offset=0.0)),
-    "root path free + recomputed (session 2's cleanup, new anchors)":
-        lambda f: _recomputed(f, CleanupConfig(w_root_offset=0.0)),
-    "toes at their mean height (anchor_floor False)": lambda f: cleanup_features(f, CleanupConfig(anchor_floor=False)),
-    "bone lengths kept harder (w_bone 100)": lambda f: cleanup_features(f, CleanupConfig(w_bone=100.0)),
-    "anchor weight 10, 12 iterations": lambda f: cleanup_features(f, CleanupConfig(w_anchor=10.0, iterations=12)),
-    "contact speeds 1.0/1.5 m/s": lambda f: cleanup_features(
-        f, CleanupConfig(kinematic=KinematicContactConfig(speed_on=1.0, speed_off=1.5))),
-    "detector's contact speeds 0.5/0.8 m/s": lambda f: cleanup_features(
-        f, CleanupConfig(kinematic=KinematicContactConfig())),
+    "default": DEFAULT,
+    "contacts never split (max_anchor_shift inf)": replace(DEFAULT, max_anchor_shift=float("inf")),
+    "contacts split at 0.15 m": replace(DEFAULT, max_anchor_shift=0.15),
+    "contacts split at 0.3 m": replace(DEFAULT, max_anchor_shift=0.3),
+    "no reach margin (anchor within the leg's length)": replace(DEFAULT, reach_margin=0.0),
+    "root path free (w_root_offset 0)": replace(DEFAULT, w_root_offset=0.0),
+    "toes at their mean height (anchor_floor False)": replace(DEFAULT, anchor_floor=False),
+    "40 iterations": replace(DEFAULT, iterations=40),
+    "detector's contact speeds 0.5/0.8 m/s": replace(DEFAULT, kinematic=KinematicContactConfig()),
 }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--checkpoint", type=Path, required=True)
+    ap.add_argument("--checkpoint", type=Path, default=None, help="default: the shipped model")
     ap.add_argument("--data", type=Path, required=True)
     ap.add_argument("--n", type=int, default=48)
     ap.add_argument("--steps", type=int, default=10)
@@ -75,10 +59,11 @@ def main() -> None:
     pipe = MotionPipeline.from_pretrained(args.checkpoint, device="cpu")
     ids, captions, lengths = pick_test_items(pipe, args.data, args.n, args.split)
     test_ids = [s for s in (args.data / "test.txt").read_text().split() if s]
-    feats = []
+    raw = []
     for a in range(0, len(ids), 32):
-        x = pipe.sample(captions[a:a + 32], lengths[a:a + 32], steps=args.steps, seed=a)
-        feats += [x[j, :n].double().numpy() for j, n in enumerate(lengths[a:a + 32])]
+        x = pipe.denoise(captions[a:a + 32], lengths[a:a + 32], steps=args.steps, seed=a)
+        raw += [x[j, :n].double().numpy() for j, n in enumerate(lengths[a:a + 32])]
+    bodies = [rigid_to_features(rigid_from_features(f), f) for f in raw]  # (body at the origin, features)
     emb = ref = None
     if args.evaluator is not None:
         from stablemofusion.eval.evaluator import load_evaluator
@@ -87,27 +72,29 @@ def main() -> None:
 
         emb = EmbeddingModel(load_evaluator(args.evaluator)[0], pipe.text_cache)
         ref = emb.motions([np.load(args.data / "new_joint_vecs" / f"{i}.npy") for i in test_ids])
-    off = [joints_from_features(f) for f in feats]
-    rows = [{"setting": "off", **mean_metrics(off), **({"fid": fid(ref, emb.motions(feats))} if emb else {})}]
-    settings = dict(SETTINGS)
+    off = [b.joints() for b, _ in bodies]
+    rows = [{"setting": "model's raw motion", **mean_metrics([joints_from_features(f) for f in raw]),
+             **({"fid": fid(ref, emb.motions(raw))} if emb else {})},
+            {"setting": "off (rigid stage only)", **mean_metrics(off),
+             **({"fid": fid(ref, emb.motions([f for _, f in bodies]))} if emb else {})}]
+    settings = {k: (v, None) for k, v in SETTINGS.items()}
     if args.vgrf_model is not None:
         from stablemofusion.footskate.distil import load_vgrf_model
 
         vgrf = load_vgrf_model(args.vgrf_model).eval()
-        settings["+ vGRF loss (distilled model)"] = lambda f: cleanup_features(f, vgrf_model=vgrf)
-        settings["vGRF contacts + vGRF loss (distilled model)"] = lambda f: cleanup_features(
-            f, CleanupConfig(contacts="vgrf"), vgrf_model=vgrf)
-    for name, clean_fn in settings.items():
-        clean = [clean_fn(f) for f in feats]
-        joints = [joints_from_features(f) for f in clean]
-        bones = [_leg_bone_change(o, c) for o, c in zip(off, joints)]
+        settings["+ vGRF loss (distilled model)"] = (DEFAULT, vgrf)
+        settings["vGRF contacts + vGRF loss (distilled model)"] = (replace(DEFAULT, contacts="vgrf"), vgrf)
+    for name, (cfg, model) in settings.items():
+        clean = [rigid_to_features(cleanup_rigid(b, pipe.fps, cfg, vgrf_model=model).motion, f)
+                 for (b, _), f in zip(bodies, raw)]
+        joints = [m.joints() for m, _ in clean]
         rows.append({"setting": name, **mean_metrics(joints),
                      "joint_change": float(np.mean([joint_change(o, align_yaw_xz(c, o)) for o, c in zip(off, joints)])),
                      "pose_change": float(np.mean([pose_change(o, c) for o, c in zip(off, joints)])),
-                     **{k: float(np.mean([b[k] for b in bones])) for k in ("shin_change", "foot_change")},
-                     **({"fid": fid(ref, emb.motions(clean))} if emb else {})})
+                     **({"fid": fid(ref, emb.motions([f for _, f in clean]))} if emb else {})})
+        print(json.dumps(rows[-1]), flush=True)
     real = mean_metrics([np.load(args.data / "new_joints" / f"{i}.npy") for i in ids])
-    print(json.dumps({"checkpoint": str(args.checkpoint), "split": args.split, "motions": len(ids),
+    print(json.dumps({"checkpoint": str(args.checkpoint or "shipped"), "split": args.split, "motions": len(ids),
                       "real_same_items": real, "rows": rows}, indent=1))
 
 

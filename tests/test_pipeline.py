@@ -35,6 +35,30 @@ def test_every_sampler_runs_and_is_reproducible(pipe, sampler):
     assert not np.array_equal(a.features, c.features)
 
 
+@pytest.mark.parametrize("footskate", ["off", "post", "loop"])
+def test_every_output_comes_from_one_rigid_body(pipe, footskate, tmp_path):
+    """Joints, features and BVH of every footskate mode are one rigid motion: the dataset skeleton's bone
+    lengths in every frame, features that decode to the joints, a BVH that reads back to them."""
+    from stablemofusion.motion.features import bone_lengths, joints_from_features
+    from stablemofusion.motion.files import bvh_round_trip_error
+    from stablemofusion.motion.skeleton import HUMANML3D
+
+    for r in pipe(["a person walks", "a man jumps"], frames=[40, 52], steps=3, seed=2, footskate=footskate):
+        assert np.abs(bone_lengths(r.joints)[:, 1:] - np.asarray(HUMANML3D.bone_lengths[1:])).max() < 1e-5
+        assert np.abs(joints_from_features(r.features) - r.joints).max() < 1e-6
+        assert np.allclose(r.motion.joints(), r.joints)
+        assert bvh_round_trip_error(r.joints, r.motion) < 1e-3
+
+
+def test_rigid_stage_off_gives_the_models_own_features(checkpoint):
+    raw = MotionPipeline.from_pretrained(checkpoint, device="cpu", rigid=None)
+    r = raw(["a person walks"], frames=40, steps=3, seed=2)[0]
+    assert r.motion is None
+    assert np.array_equal(r.features, raw.denoise(["a person walks"], [40], steps=3, seed=2)[0].double().numpy())
+    with pytest.raises(SMFError, match="needs the rigid stage"):
+        raw(["a person walks"], frames=40, steps=3, seed=2, footskate="post")
+
+
 def test_batched_cfg_equals_separate_passes(pipe):
     prompts, lengths = ["a person waves", "someone runs in a circle"], [40, 64]
     a = pipe.denoise(prompts, lengths, guidance_scale=2.5, steps=5, sampler="ddim", seed=1, batched_cfg=True)

@@ -20,6 +20,9 @@ def add_parser(sub, name: str) -> None:
     b.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     b.add_argument("--limit", type=int, default=None, help="only this many clips, spread over the labels")
     b.add_argument("--captions", type=int, default=6, help="captions per motion (default 6)")
+    b.add_argument("--first-frame", default="official", choices=("official", "consistent"),
+                   help="frame 0's body frame: HumanML3D's (official, default) or the one every other frame uses "
+                        "(consistent: no yaw jump at frame 0; docs/rigid.md)")
     b.set_defaults(func=run_bandai)
     u = kinds.add_parser("bvh", help="your own BVH files, retargeted with a joint map")
     u.add_argument("dir", type=Path, help="folder with .bvh files (searched recursively); optional <name>.txt "
@@ -38,7 +41,7 @@ def run_bandai(args: argparse.Namespace) -> None:
     if args.limit is not None and args.limit < 1:
         raise SMFError("--limit must be at least 1")
     stats = build_corpus(args.source, args.out, cache=args.cache, workers=args.workers, limit=args.limit,
-                         n_captions=args.captions)
+                         n_captions=args.captions, first_frame=args.first_frame)
     print(format_stats(stats))
     print(f"wrote {args.out} (figures in {args.out / 'stats.json'})")
 

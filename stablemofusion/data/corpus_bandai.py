@@ -103,13 +103,14 @@ def _texts(captions: list[tuple[str, list[str]]]) -> str:
     return "".join(format_text_line(CaptionLine(c, t, 0.0, 0.0)) + "\n" for c, t in captions)
 
 
-def process_clip(clip: Clip, first_id: int, out: Path, n_captions: int) -> dict:
-    """Retarget, segment, featurise, mirror and caption one clip; write its files; return its record."""
+def process_clip(clip: Clip, first_id: int, out: Path, n_captions: int, first_frame: str = "official") -> dict:
+    """Retarget, segment, featurise (``first_frame``: see :func:`features_from_joints`), mirror and caption one
+    clip; write its files; return its record."""
     joints = retarget_bvh(clip.path, JointMap.builtin("bandai-namco"))
     lengths = bone_lengths(joints)[:, 1:]
     record = {"clip": clip.name, "dataset": clip.dataset, "content": clip.content, "style": clip.style,
               "source_frames_20fps": len(joints), "bone_length_std_cm": float(lengths.std(0).max() * 100),
-              "segments": []}
+              "first_frame": first_frame, "segments": []}
     speed = np.linalg.norm(np.diff(joints[:, 0, [0, 2]], axis=0), axis=-1).mean() * 20.0
     record["mean_root_speed_m_s"] = float(speed)
     for k, (a, b) in enumerate(segment_bounds(len(joints) - 1)):
@@ -121,7 +122,7 @@ def process_clip(clip: Clip, first_id: int, out: Path, n_captions: int) -> dict:
             ("", seg, caps),
             ("M", mirror_joints(seg), [(mirror_caption(c), mirror_tokens(t)) for c, t in caps]),
         ):
-            feats = features_from_joints(src)
+            feats = features_from_joints(src, first_frame=first_frame)
             save_npy(out / "new_joint_vecs" / f"{prefix}{mid}.npy", feats.astype(np.float32))
             save_npy(out / "new_joints" / f"{prefix}{mid}.npy", joints_from_features(feats).astype(np.float32))
             write_text(out / "texts" / f"{prefix}{mid}.txt", _texts(texts))
@@ -130,8 +131,8 @@ def process_clip(clip: Clip, first_id: int, out: Path, n_captions: int) -> dict:
 
 
 def _work(args) -> dict:
-    clip, first_id, out, n_captions = args
-    rec = process_clip(clip, first_id, out, n_captions)
+    clip, first_id, out, n_captions, first_frame = args
+    rec = process_clip(clip, first_id, out, n_captions, first_frame)
     write_text(out / ".work" / f"{clip.name}.json", json.dumps(rec))
     return rec
 
@@ -160,7 +161,7 @@ def assign_splits(records: list[dict], seed: int = 0) -> dict[str, list[str]]:
 
 
 def build_corpus(source: Path, out: Path, *, cache: Path | None = None, workers: int = 2, limit: int | None = None,
-                 n_captions: int = 6, seed: int = 0) -> dict:
+                 n_captions: int = 6, seed: int = 0, first_frame: str = "official") -> dict:
     """Build the corpus at ``out`` from the archive (or an unpacked folder holding ``dataset/``).
 
     Idempotent: clips whose record exists in ``out/.work`` are not processed again. Returns the stats.
@@ -182,8 +183,11 @@ def build_corpus(source: Path, out: Path, *, cache: Path | None = None, workers:
         done = out / ".work" / f"{c.name}.json"
         if done.exists():
             records[c.name] = json.loads(done.read_text())
+            if records[c.name].get("first_frame", "official") != first_frame:
+                raise SMFError(f"{out} was prepared with first_frame={records[c.name].get('first_frame', 'official')!r}; "
+                               f"use another --out for {first_frame!r}")
         else:
-            todo.append((c, fid, out, n_captions))
+            todo.append((c, fid, out, n_captions, first_frame))
     if todo and workers <= 1:
         for rec in tqdm(map(_work, todo), total=len(todo), desc="clips", unit="clip"):
             records[rec["clip"]] = rec

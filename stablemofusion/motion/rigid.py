@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from ..errors import SMFError
-from .rotation import cont6d_to_matrix
+from .rotation import cont6d_to_matrix, quat_to_matrix
 from .skeleton import Skeleton, get_skeleton
 
 BONE_LENGTHS = ("dataset", "median")
@@ -124,14 +124,16 @@ def _branch_frame(joints: np.ndarray, sk: Skeleton, joint: int, children: list[i
 
 
 def _shortest_arc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(T, 3, 3) rotation taking unit vectors a onto b (T, 3) by the shortest arc (Rodrigues)."""
-    v = np.cross(a, b)
-    c = (a * b).sum(-1)
-    k = np.zeros(a.shape[:-1] + (3, 3))
-    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    k = k - np.swapaxes(k, -1, -2)
-    scale = 1.0 / np.maximum(1.0 + c, 1e-9)
-    return np.eye(3) + k + (k @ k) * scale[..., None, None]
+    """(T, 3, 3) rotation taking unit vectors a onto b (T, 3) by the shortest arc, built from the normalised
+    quaternion (1 + a.b, a x b) so it stays orthonormal near a half turn; opposite vectors (no unique shortest
+    arc) get the half turn about an axis perpendicular to a."""
+    q = np.concatenate([1.0 + (a * b).sum(-1, keepdims=True), np.cross(a, b)], -1)
+    flip = q[..., 0] < 1e-6
+    if flip.any():
+        a_f = a[flip]
+        e = np.eye(3)[np.argmin(np.abs(a_f), axis=-1)]  # the basis vector least aligned with a
+        q[flip] = np.concatenate([np.zeros((len(a_f), 1)), np.cross(a_f, e)], -1)
+    return quat_to_matrix(q / np.linalg.norm(q, axis=-1, keepdims=True))
 
 
 def pose_from_joints(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d",

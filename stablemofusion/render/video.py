@@ -26,7 +26,7 @@ from ..errors import SMFError
 from ..io import atomic_path
 from ..motion.skeleton import Skeleton, get_skeleton
 
-__all__ = ["render_video", "render_frame", "VIDEO_SUFFIXES"]
+__all__ = ["render_video", "render_frame", "render_strip", "VIDEO_SUFFIXES"]
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
@@ -316,4 +316,25 @@ def render_frame(joints: np.ndarray, frame: int, path: str | os.PathLike, *,
     image = Image.fromarray(scene.draw(int(frame)))
     with atomic_path(path, suffix=".png") as tmp:
         image.save(tmp, format="PNG")
+    return Path(path)
+
+
+def render_strip(rows: list[tuple[str, np.ndarray]], frames: list[int], path: str | os.PathLike, *,
+                 skeleton: str | Skeleton = "humanml3d", size: int = 240, window: int | None = None) -> Path:
+    """A PNG grid: one row per (title, joints (T, J, 3)) motion, one ``size`` x ``size`` column per frame index
+    of ``frames``, titled "<title>, frame N"; written atomically. Each row's camera frames the whole motion, or
+    with ``window`` only the frames within ``window`` of the strip's (closer up on a long walk)."""
+    if not rows or not frames:
+        raise SMFError("a strip needs at least one motion and one frame")
+    grid = []
+    for title, joints in rows:
+        n = len(_validate(joints, get_skeleton(skeleton)))
+        bad = [f for f in frames if not 0 <= f < n]
+        if bad:
+            raise SMFError(f"frames {bad} are out of range for {title!r} (0..{n - 1})")
+        lo, hi = (0, n) if window is None else (max(0, min(frames) - window), min(n, max(frames) + window + 1))
+        grid.append(np.concatenate([_scene(joints[lo:hi], skeleton, f"{title}, frame {f}", size, None).draw(f - lo)
+                                    for f in frames], axis=1))
+    with atomic_path(path, suffix=".png") as tmp:
+        Image.fromarray(np.concatenate(grid, axis=0)).save(tmp, format="PNG")
     return Path(path)

@@ -136,11 +136,15 @@ def test_evaluate_with_footskate_cleanup_reports_skating_and_joint_change(setup,
 
     pipe, emb = setup
     cfg = EvalConfig(**{**CFG, "replications": 1, "mm_captions": 0, "footskate": "post"})
-    res = evaluate(pipe, emb, eval_corpus, cfg, progress=False, skate_metrics=skate_fn(get_skeleton("humanml3d")))
+    res = evaluate(pipe, emb, eval_corpus, cfg, progress=False, skate_metrics=skate_fn(get_skeleton("humanml3d")),
+                   body=True)
     gen, real = res["rows"]["Generated"], res["rows"]["Real motion"]
-    for key in ("skate_ratio", "slide_speed", "penetration"):
+    for key in ("skate_ratio", "slide_speed", "penetration", "bone_std", "bone_worst", "bone_worst_max", "npy_bvh_max"):
         assert key in gen and key in real
     assert gen["joint_change"][0] > 0 and gen["pose_change"][0] <= gen["joint_change"][0] + 1e-9
+    assert gen["model_change"][0] >= gen["joint_change"][0] * 0.5
+    assert gen["bone_worst_max"][0] < 1e-4 and gen["npy_bvh_max"][0] < 1e-3  # one rigid body in every output
+    assert real["bone_worst_max"][0] < 1e-4
     assert real["skate_ratio"][0] < 0.3  # real motion capture barely skates
 
 

@@ -147,3 +147,19 @@ def test_failed_render_leaves_no_partial_file(suffix: str, tmp_path: Path, monke
         render_video(rest_pose_clip(), target, size=128)
     assert target.read_bytes() == b"old"
     assert [p.name for p in tmp_path.iterdir()] == [target.name]
+
+
+def test_strip_grid_of_motions_and_frames(tmp_path: Path) -> None:
+    from stablemofusion.render import render_strip
+
+    clip = rest_pose_clip(10)
+    out = render_strip([("a", clip), ("b", clip + [0.0, 0.0, 0.5])], [0, 4, 9], tmp_path / "s.png", size=100,
+                       window=2)
+    image = np.asarray(Image.open(out).convert("RGB"))
+    assert image.shape == (200, 300, 3)
+    for r in range(2):
+        for c in range(3):
+            assert non_background(image[r * 100:(r + 1) * 100, c * 100:(c + 1) * 100]) > 100  # a figure in every cell
+    with pytest.raises(SMFError, match="out of range"):
+        render_strip([("a", clip)], [10], tmp_path / "t.png")
+    assert not (tmp_path / "t.png").exists()

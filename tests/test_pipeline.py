@@ -127,6 +127,24 @@ def test_generate_bad_input(argv, msg, tmp_path, capsys):
     assert code == 2 and msg in err and err.count("\n") == 1
 
 
+@pytest.mark.parametrize("config", ['{"model": 3}', '[1, 2]', '{"model": {"options": {}}}', '{"model": {"arch": "unet", "options": 7}}'])
+def test_generate_rejects_a_malformed_checkpoint_config(config, tmp_path, capsys):
+    ck = tmp_path / "ck"
+    ck.mkdir()
+    (ck / "config.json").write_text(config)
+    code = main(["generate", "x", "--out", str(tmp_path / "o"), "--checkpoint", str(ck)])
+    err = capsys.readouterr().err
+    assert code == 2 and "not a checkpoint config" in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_generate_rejects_a_prompts_file_that_is_not_utf8(tmp_path, capsys):
+    (tmp_path / "p.txt").write_bytes("une personne saute\n".encode("utf-16"))
+    code = main(["generate", "--prompts", str(tmp_path / "p.txt"), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2 and "not UTF-8 text" in err and err.count("\n") == 1 and "Traceback" not in err
+
+
 def test_bench_prints_json(checkpoint, tmp_path, capsys):
     out = tmp_path / "bench.json"
     assert main(["bench", "--checkpoint", str(checkpoint), "--steps", "2", "--batch-sizes", "1,2", "--repeats", "1",

@@ -72,7 +72,11 @@ def run(args: argparse.Namespace) -> None:
     if args.prompts is not None:
         if not args.prompts.is_file():
             raise SMFError(f"no such file: {args.prompts}")
-        prompts = [ln.strip() for ln in args.prompts.read_text(encoding="utf-8").splitlines() if ln.strip()]
+        try:
+            text = args.prompts.read_text(encoding="utf-8")
+        except UnicodeDecodeError as e:
+            raise SMFError(f"{args.prompts}: not UTF-8 text (byte {e.start}); save the prompts file as UTF-8") from None
+        prompts = [ln.strip() for ln in text.splitlines() if ln.strip()]
         if not prompts:
             raise SMFError(f"{args.prompts} holds no prompts")
     else:

@@ -78,9 +78,13 @@ def read_config(path: str | Path) -> dict:
     if not (path / CONFIG).is_file():
         raise SMFError(f"not a checkpoint folder (no {CONFIG}): {path}")
     try:
-        return json.loads((path / CONFIG).read_text())
-    except json.JSONDecodeError as e:
+        config = json.loads((path / CONFIG).read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise SMFError(f"{path / CONFIG}: invalid JSON ({e})") from None
+    model = config.get("model") if isinstance(config, dict) else None
+    if not isinstance(model, dict) or not isinstance(model.get("arch"), str) or not isinstance(model.get("options", {}), dict):
+        raise SMFError(f"{path / CONFIG}: not a checkpoint config (needs an object 'model' with a string 'arch')")
+    return config
 
 
 def load_checkpoint(path: str | Path, *, ema: bool = True, device: str | torch.device = "cpu") -> Checkpoint:

@@ -116,10 +116,11 @@ class MotionPipeline:
     @torch.no_grad()
     def __call__(self, prompts: str | list[str], *, seconds: float | list[float] | None = None,
                  frames: int | list[int] | None = None, guidance_scale: float = 2.5, steps: int = 10,
-                 sampler: str = DEFAULT_SAMPLER, seed: int | None = None, batch_size: int = 32,
+                 sampler: str = DEFAULT_SAMPLER, seed: int | list[int] | None = None, batch_size: int = 32,
                  progress: bool = False, footskate: str = "off", footskate_options=None) -> list[MotionResult]:
         """Generate one motion per prompt. ``seconds``/``frames`` may be one value or one per prompt.
-        The same seed gives the same motions. ``footskate``: 'off', 'post' (clean up each result) or 'loop'
+        The same seed gives the same motions; one seed per prompt makes each motion independent of the others
+        it is generated with. ``footskate``: 'off', 'post' (clean up each result) or 'loop'
         (clean up the predicted x0 in the last denoising steps, StableMoFusion*); ``footskate_options`` a
         :class:`stablemofusion.footskate.FootskateOptions`."""
         prompts = [prompts] if isinstance(prompts, str) else list(prompts)
@@ -135,20 +136,23 @@ class MotionPipeline:
         if len(secs) != n or len(frs) != n:
             raise SMFError("give one length for all prompts or one per prompt")
         lengths = [self.frames_for(s, f) for s, f in zip(secs, frs)]
+        per_item = isinstance(seed, (list, tuple))
+        if per_item and len(seed) != n:
+            raise SMFError(f"give one seed for all prompts or one per prompt: {len(seed)} seeds for {n} prompts")
         make_sampler(sampler, self.schedule)  # fail early on an unknown name
         _check_footskate(footskate)
         results: list[MotionResult] = []
         starts = range(0, n, batch_size)
         for k, start in enumerate(tqdm(starts, desc="generate", unit="batch", disable=not progress)):
             idx = list(range(start, min(n, start + batch_size)))
-            batch_seed = None if seed is None else seed + k
+            batch_seed = [seed[i] for i in idx] if per_item else None if seed is None else seed + k
             raw = self.denoise([prompts[i] for i in idx], [lengths[i] for i in idx], guidance_scale=guidance_scale,
                                steps=steps, sampler=sampler, seed=batch_seed, footskate=footskate,
                                footskate_options=footskate_options)
             for j, i in enumerate(idx):
                 f, motion = self.finish(raw[j, :lengths[i]].numpy(), footskate, footskate_options)
                 joints = joints_from_features(f, self.skeleton) if motion is None else motion.joints()
-                results.append(MotionResult(prompts[i], f, joints, self.fps, batch_seed, motion))
+                results.append(MotionResult(prompts[i], f, joints, self.fps, seed[i] if per_item else batch_seed, motion))
         return results
 
     def finish(self, features: np.ndarray, footskate: str = "off",
@@ -174,7 +178,7 @@ class MotionPipeline:
         return f, motion
 
     def sample(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = 2.5, steps: int = 10,
-               sampler: str = DEFAULT_SAMPLER, seed: int | None = None, batched_cfg: bool = True,
+               sampler: str = DEFAULT_SAMPLER, seed: int | list[int] | None = None, batched_cfg: bool = True,
                footskate: str = "off", footskate_options=None) -> torch.Tensor:
         """Generate a batch: features (B, max(lengths), D) in dataset units (CPU, float32) of the final motions
         (:meth:`denoise`, then :meth:`finish` on each; frames past an item's length are zero).
@@ -188,10 +192,12 @@ class MotionPipeline:
 
     @torch.no_grad()
     def denoise(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = 2.5, steps: int = 10,
-                sampler: str = DEFAULT_SAMPLER, seed: int | None = None, batched_cfg: bool = True,
+                sampler: str = DEFAULT_SAMPLER, seed: int | list[int] | None = None, batched_cfg: bool = True,
                 footskate: str = "off", footskate_options=None) -> torch.Tensor:
         """Denoise a batch: the model's raw features (B, max(lengths), D) in dataset units (CPU, float32), before
-        the final stage; in 'loop' mode the last predicted x0 are cleaned (rigid body) inside the loop."""
+        the final stage; in 'loop' mode the last predicted x0 are cleaned (rigid body) inside the loop.
+        ``seed``: one seed for the batch, or one per item (then an item's result does not depend on the
+        other items it is batched with: the server's dynamic batching relies on this)."""
         _check_footskate(footskate)
         if footskate != "off" and self.rigid is None:
             raise SMFError("the footskate cleanup works on the rigid body: it needs the rigid stage")
@@ -202,8 +208,16 @@ class MotionPipeline:
         B, T, D = len(prompts), max(lengths), int(self.mean.shape[0])
         sched = make_sampler(sampler, self.schedule)
         sched.set_timesteps(steps, device=self.device)
-        gen = torch.Generator().manual_seed(seed if seed is not None else int(torch.seed() % 2**63))
-        x = (torch.randn(B, T, D, generator=gen) * sched.init_noise_sigma).to(self.device, self.dtype)
+        per_item = isinstance(seed, (list, tuple))
+        if per_item:  # one generator per item: an item's noise depends on its own seed and length only
+            if len(seed) != B:
+                raise SMFError(f"give one seed per prompt: {len(seed)} seeds for {B} prompts")
+            gens = [torch.Generator().manual_seed(int(s)) for s in seed]
+            x = _item_noise(gens, lengths, T, D) * sched.init_noise_sigma
+        else:
+            gen = torch.Generator().manual_seed(seed if seed is not None else int(torch.seed() % 2**63))
+            x = torch.randn(B, T, D, generator=gen) * sched.init_noise_sigma
+        x = x.to(self.device, self.dtype)
         mask = (torch.arange(T)[None] < torch.tensor(lengths)[:, None]).to(self.device)
         tokens, tmask = self.encode_text(prompts)
         tokens = tokens.to(self.dtype)
@@ -226,7 +240,14 @@ class MotionPipeline:
             if footskate == "loop" and footskate_options.in_loop(k, n_steps):
                 x0 = self._clean_normalised(x0, lengths, footskate_options)
             out = model_output_for(sched, x0, x, int(t))
-            if stochastic:  # per-step noise from the call's seed, drawn on the model's device
+            if stochastic and per_item and "variance_noise" in inspect.signature(sched.step).parameters:
+                noise = _item_noise(gens, lengths, T, D).to(self.device, torch.float32)
+                x = sched.step(out, t, x, variance_noise=noise).prev_sample
+            elif stochastic and per_item:
+                step_gens = [torch.Generator(device=self.device).manual_seed(int(torch.randint(0, 2**62, (1,), generator=g)))
+                             for g in gens]
+                x = sched.step(out, t, x, generator=step_gens).prev_sample
+            elif stochastic:  # per-step noise from the call's seed, drawn on the model's device
                 step_seed = int(torch.randint(0, 2**62, (1,), generator=gen))
                 x = sched.step(out, t, x, generator=torch.Generator(device=self.device).manual_seed(step_seed)).prev_sample
             else:
@@ -253,6 +274,15 @@ class MotionPipeline:
         cond = self.model(x, t, tokens, tmask, torch.zeros(B, dtype=torch.bool, device=x.device), mask)
         uncond = self.model(x, t, tokens, tmask, torch.ones(B, dtype=torch.bool, device=x.device), mask)
         return uncond + scale * (cond - uncond)
+
+
+def _item_noise(gens: list[torch.Generator], lengths: list[int], T: int, D: int) -> torch.Tensor:
+    """(B, T, D) standard normal noise, item i drawn from ``gens[i]`` for its own ``lengths[i]`` frames (zeros
+    after), so it does not depend on the other items of the batch."""
+    out = torch.zeros(len(gens), T, D)
+    for i, (g, n) in enumerate(zip(gens, lengths)):
+        out[i, :n] = torch.randn(n, D, generator=g)
+    return out
 
 
 FOOTSKATE_MODES = ("off", "post", "loop")

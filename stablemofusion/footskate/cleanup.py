@@ -143,16 +143,16 @@ def cleanup_rigid(motion: RigidMotion, fps: float = 20.0, config: CleanupConfig 
     c = detect_contacts(x0, fps, config, vgrf_model) if contacts is None else np.asarray(contacts, bool)
     target, mask = anchor_targets(x0, c, floor=config.anchor_floor, max_shift=config.max_anchor_shift,
                                   bone_lengths=motion.bone_lengths, reach_margin=config.reach_margin)
-    X0 = torch.as_tensor(x0 * CM, dtype=torch.float32)
-    tgt = torch.as_tensor(target * CM, dtype=torch.float32)
-    m = torch.as_tensor(mask, dtype=torch.float32)[..., None]
+    X0 = torch.as_tensor(x0 * CM, dtype=torch.float64)
+    tgt = torch.as_tensor(target * CM, dtype=torch.float64)
+    m = torch.as_tensor(mask, dtype=torch.float64)[..., None]
     n_anchor = max(1.0, float(mask.sum()))
-    w_joint = torch.ones(22)
+    w_joint = torch.ones(22, dtype=torch.float64)
     w_joint[list(LEG_JOINTS)] = config.leg_pose_scale
     use_vgrf = vgrf_model is not None and config.w_vgrf > 0
     if use_vgrf:
         with torch.no_grad():
-            g0 = vgrf_model(X0[None] / CM)
+            g0 = vgrf_model(X0[None].float() / CM).double()
     foot_idx = list(HML_FOOT_JOINTS)
 
     def loss_fn(X: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
@@ -164,7 +164,7 @@ def cleanup_rigid(motion: RigidMotion, fps: float = 20.0, config: CleanupConfig 
         loss = loss + config.w_smooth * ((local[1:] - local[:-1]) ** 2).sum(-1).mean()
         loss = loss + config.w_floor * (torch.relu(-X[..., 1]) ** 2).mean()
         if use_vgrf:
-            loss = loss + config.w_vgrf * 100.0 * ((vgrf_model(X[None] / CM) - g0) ** 2).mean()
+            loss = loss + config.w_vgrf * 100.0 * ((vgrf_model(X[None].float() / CM).double() - g0) ** 2).mean()
         return loss
 
     out = optimise_pose(motion, loss_fn, config.iterations)

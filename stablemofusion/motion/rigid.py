@@ -191,7 +191,7 @@ def global_rotations(motion: RigidMotion) -> np.ndarray:
 def optimise_pose(motion: RigidMotion, loss: PoseLoss, iterations: int) -> RigidMotion:
     """Minimise ``loss`` over the pose and the root path of ``motion`` with L-BFGS; bone lengths never change.
     ``loss`` gets the posed joints X (T, J, 3) and the root's shift from ``motion.root`` (T, 3), both in
-    centimetres. Returns the optimised motion (the input when ``iterations`` is 0).
+    centimetres, float64. Returns the optimised motion (the input when ``iterations`` is 0).
 
     Parametrised for a well-conditioned problem: the root path, the global orientation of each branching
     joint (its children's offsets stay rigid) and the global direction of every other bone (its length
@@ -208,14 +208,14 @@ def optimise_pose(motion: RigidMotion, loss: PoseLoss, iterations: int) -> Rigid
     free = [c for c in range(1, J) if kids[parents[c]] == 1]  # bones free to turn: parent has one child
     x0 = motion.joints()
     glob = global_rotations(motion)[:, branch]
-    off = torch.as_tensor(motion.offsets * CM, dtype=torch.float32)
-    length = torch.as_tensor(motion.bone_lengths * CM, dtype=torch.float32)
-    root0 = torch.as_tensor(motion.root * CM, dtype=torch.float32)
+    off = torch.as_tensor(motion.offsets * CM, dtype=torch.float64)  # float64: fewer steps' results depend on
+    length = torch.as_tensor(motion.bone_lengths * CM, dtype=torch.float64)  # rounding, and on CPU it is faster
+    root0 = torch.as_tensor(motion.root * CM, dtype=torch.float64)
     # flat leaves (L-BFGS needs contiguous gradients): bone vectors in cm (T, F, 3), so that a unit step moves a
     # joint about 1 cm; scaled 6D orientations of the branching joints (T, B, 6); the root's shift in cm (T, 3)
     u0 = (x0[:, free] - x0[:, [parents[c] for c in free]]) * CM
     g0 = np.concatenate([glob[..., :, 0], glob[..., :, 1]], -1) * BRANCH_SCALE
-    flat = [torch.tensor(a.ravel(), dtype=torch.float32, requires_grad=True) for a in (u0, g0, np.zeros((len(x0), 3)))]
+    flat = [torch.tensor(a.ravel(), dtype=torch.float64, requires_grad=True) for a in (u0, g0, np.zeros((len(x0), 3)))]
     b_index, f_index = {j: i for i, j in enumerate(branch)}, {c: i for i, c in enumerate(free)}
 
     def positions() -> torch.Tensor:
@@ -241,7 +241,7 @@ def optimise_pose(motion: RigidMotion, loss: PoseLoss, iterations: int) -> Rigid
 
     opt.step(closure)
     with torch.no_grad():
-        x = positions().double().numpy() / CM
+        x = positions().numpy() / CM
     offsets, rotations = pose_from_joints(x, sk, motion.bone_lengths)
     return RigidMotion(offsets, rotations, x[:, 0].copy(), motion.skeleton)
 
@@ -286,7 +286,7 @@ def fit_rigid(targets: np.ndarray, skeleton: str | Skeleton = "humanml3d", confi
     lengths = choose_bone_lengths(x, sk, config.bone_lengths)
     offsets, rotations = pose_from_joints(x if start is None else start, sk, lengths)
     motion = RigidMotion(offsets, rotations, x[:, 0].copy(), sk.name)
-    target = torch.as_tensor(x * CM, dtype=torch.float32)
+    target = torch.as_tensor(x * CM, dtype=torch.float64)
     return optimise_pose(motion, lambda X, _: ((X - target) ** 2).sum(-1).mean(), config.iterations)
 
 

@@ -114,7 +114,8 @@ def test_cleanup_never_drags_a_foot_the_body_has_left():
     res = cleanup_rigid(body, 20.0)
     assert bone_length_deviation(res.joints)["bone_worst"] < 1e-6
     moved = np.linalg.norm(res.joints - body.joints(), axis=-1)
-    assert moved[:, [7, 8, 10, 11]].max() < 0.25  # without split and reach the left toe is dragged back 0.6 m
+    # a foot moves at most about the split distance (0.25 m); without split and reach the toe is dragged 0.6 m
+    assert moved[:, [7, 8, 10, 11]].max() < 0.3
     assert moved.mean() < 0.04
     out, motion = cleanup_features(f)
     assert bone_length_deviation(joints_from_features(out))["bone_worst"] < 1e-6

@@ -196,8 +196,10 @@ class MotionPipeline:
                 footskate: str = "off", footskate_options=None) -> torch.Tensor:
         """Denoise a batch: the model's raw features (B, max(lengths), D) in dataset units (CPU, float32), before
         the final stage; in 'loop' mode the last predicted x0 are cleaned (rigid body) inside the loop.
-        ``seed``: one seed for the batch, or one per item (then an item's result does not depend on the
-        other items it is batched with: the server's dynamic batching relies on this)."""
+        ``seed``: one seed for the batch, or one per item: then an item's result does not depend on the other
+        items it is batched with, for deterministic samplers and those whose step takes its noise
+        (``variance_noise``: SDE DPM-Solver++, the default); others draw an item's step noise for the batch's
+        length."""
         _check_footskate(footskate)
         if footskate != "off" and self.rigid is None:
             raise SMFError("the footskate cleanup works on the rigid body: it needs the rigid stage")

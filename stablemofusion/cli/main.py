@@ -23,6 +23,7 @@ COMMANDS = {
     "evaluate": "evaluate",
     "export": "export",
     "ablate": "ablate",
+    "serve": "serve",
 }
 
 

@@ -1,0 +1,136 @@
+"""The HTTP API of `smf serve` (FastAPI): text to motion as JSON joints, BVH or .npy, with dynamic batching.
+
+    POST /v1/generate[?format=json|bvh|npy]  {"prompt", "seconds"?, "seed"?, "guidance"?, "steps"?, "footskate"?}
+    GET  /v1/health
+
+Bad input gets a 4xx JSON ``{"error": "<one line>"}``; a full queue 503. Nothing uploaded is ever unpickled.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import random
+import tempfile
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse, Response
+from pydantic import BaseModel, ConfigDict, Field
+
+from ..errors import SMFError
+from .batcher import DynamicBatcher, Job, QueueFull
+
+MAX_PROMPT_CHARS = 300
+MAX_BODY_BYTES = 16 * 1024
+MAX_STEPS = 50
+FORMATS = ("json", "bvh", "npy")
+
+
+class GenerateRequest(BaseModel):
+    """The body of POST /v1/generate."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    prompt: str
+    seconds: float = 4.0
+    seed: int | None = Field(default=None, ge=0, lt=2**63)
+    guidance: float = Field(default=2.5, ge=0.0, le=20.0)
+    steps: int = Field(default=10, ge=1, le=MAX_STEPS)
+    footskate: Literal["off", "post", "loop"] = "off"
+
+
+def _error(status: int, message: str) -> JSONResponse:
+    return JSONResponse({"error": message}, status_code=status)
+
+
+def _validation_message(exc: RequestValidationError) -> str:
+    first = exc.errors()[0] if exc.errors() else {}
+    where = ".".join(str(p) for p in first.get("loc", ()) if p != "body") or "body"
+    return f"{where}: {first.get('msg', 'invalid request')}".replace("\n", " ")
+
+
+def create_app(pipe, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: int = 256,
+               max_body_bytes: int = MAX_BODY_BYTES) -> FastAPI:
+    """The ASGI app serving ``pipe`` (a :class:`~stablemofusion.pipeline.MotionPipeline`)."""
+    batcher = DynamicBatcher(pipe, max_batch=max_batch, wait_ms=wait_ms, max_queue=max_queue)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI):
+        yield
+        batcher.close()
+
+    app = FastAPI(title="stablemofusion", summary="Text to human motion", docs_url=None, redoc_url=None,
+                  lifespan=lifespan)
+    app.state.batcher = batcher
+    min_s, max_s = pipe.min_frames / pipe.fps, pipe.max_frames / pipe.fps
+
+    @app.middleware("http")
+    async def limit_body(request: Request, call_next):
+        size = request.headers.get("content-length")
+        if size is not None and (not size.isdigit() or int(size) > max_body_bytes):
+            return _error(413, f"request body larger than {max_body_bytes} bytes")
+        return await call_next(request)
+
+    @app.exception_handler(RequestValidationError)
+    async def bad_request(request: Request, exc: RequestValidationError):
+        return _error(422, _validation_message(exc))
+
+    @app.exception_handler(404)
+    async def not_found(request: Request, exc):
+        return _error(404, f"no such endpoint: {request.method} {request.url.path}")
+
+    @app.exception_handler(405)
+    async def bad_method(request: Request, exc):
+        return _error(405, f"method {request.method} not allowed on {request.url.path}")
+
+    @app.get("/v1/health")
+    async def health() -> dict:
+        return {"status": "ok", "fps": pipe.fps, "seconds": [min_s, max_s], "max_batch": max_batch,
+                "waiting": batcher.waiting}
+
+    @app.post("/v1/generate")
+    async def generate(body: GenerateRequest, format: str = "json"):
+        if format not in FORMATS:
+            return _error(400, f"format must be one of {', '.join(FORMATS)}, got {format!r}")
+        prompt = body.prompt.strip()
+        if not prompt or len(prompt) > MAX_PROMPT_CHARS:
+            return _error(422, f"prompt must have 1 to {MAX_PROMPT_CHARS} characters, got {len(prompt)}")
+        if not min_s <= body.seconds <= max_s:
+            return _error(422, f"seconds must be between {min_s:g} and {max_s:g}, got {body.seconds:g}")
+        frames = int(round(body.seconds * pipe.fps)) // 4 * 4
+        seed = random.randrange(2**31) if body.seed is None else body.seed
+        try:
+            r = await batcher.submit(Job(prompt, frames, seed, body.guidance, body.steps, body.footskate))
+        except QueueFull as e:
+            return _error(503, str(e))
+        except SMFError as e:
+            return _error(422, str(e))
+        if format == "npy":
+            buf = io.BytesIO()
+            np.save(buf, r.joints.astype(np.float32), allow_pickle=False)
+            return Response(buf.getvalue(), media_type="application/octet-stream",
+                            headers={"Content-Disposition": 'attachment; filename="motion_joints.npy"'})
+        if format == "bvh":
+            return Response(_bvh_text(r), media_type="text/plain; charset=utf-8",
+                            headers={"Content-Disposition": 'attachment; filename="motion.bvh"'})
+        return {"prompt": r.prompt, "fps": r.fps, "frames": len(r.joints), "seed": seed,
+                "joints": np.round(r.joints, 5).tolist()}
+
+    return app
+
+
+def _bvh_text(result) -> str:
+    """The BVH file of a result's rigid body (as `smf generate` writes it)."""
+    from ..motion.files import save_bvh, save_rigid_bvh
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "motion.bvh"
+        if result.motion is not None:
+            save_rigid_bvh(result.motion, path, result.fps)
+        else:
+            save_bvh(result.joints, path, fps=result.fps)
+        return path.read_text(encoding="utf-8")

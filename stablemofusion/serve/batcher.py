@@ -1,0 +1,105 @@
+"""Dynamic batching: requests that arrive within a few milliseconds of each other are generated in one call.
+
+Each request carries its own seed, and the pipeline draws an item's noise from its own seed and length
+(``MotionPipeline.denoise`` with one seed per item), so a request's motion does not depend on the requests it
+was batched with. The pipeline runs on one worker thread; the event loop only queues and gathers.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections import defaultdict
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+from ..errors import SMFError
+
+
+class QueueFull(SMFError):
+    """The server's queue of waiting requests is full (HTTP 503)."""
+
+
+@dataclass(frozen=True)
+class Job:
+    """One generation request, validated: ``frames`` within the model's range."""
+
+    prompt: str
+    frames: int
+    seed: int
+    guidance: float = 2.5
+    steps: int = 10
+    footskate: str = "off"
+
+    @property
+    def key(self) -> tuple:
+        """Requests with the same key can share a sampling call."""
+        return self.guidance, self.steps, self.footskate
+
+
+class DynamicBatcher:
+    """Gathers jobs for up to ``wait_ms`` after the first (at most ``max_batch``) and runs them together;
+    at most ``max_queue`` jobs wait (:class:`QueueFull` beyond). ``batch_sizes`` records every call's size."""
+
+    def __init__(self, pipe, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: int = 256):
+        if max_batch < 1 or wait_ms < 0 or max_queue < 0:
+            raise SMFError("max_batch must be >= 1, wait_ms and max_queue >= 0")
+        self.pipe, self.max_batch, self.wait, self.max_queue = pipe, max_batch, wait_ms / 1000.0, max_queue
+        self.batch_sizes: list[int] = []
+        self._queue: asyncio.Queue | None = None
+        self._task: asyncio.Task | None = None
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="smf-generate")
+
+    @property
+    def waiting(self) -> int:
+        return 0 if self._queue is None else self._queue.qsize()
+
+    async def submit(self, job: Job):
+        """Queue ``job`` and wait for its :class:`~stablemofusion.pipeline.MotionResult`."""
+        if self._task is None or self._task.done():
+            self._queue = asyncio.Queue()
+            self._task = asyncio.get_running_loop().create_task(self._worker())
+        if self._queue.qsize() >= self.max_queue:
+            raise QueueFull(f"the server is busy: {self._queue.qsize()} requests are waiting; try again shortly")
+        future = asyncio.get_running_loop().create_future()
+        self._queue.put_nowait((job, future))
+        return await future
+
+    async def _worker(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            batch = [await self._queue.get()]
+            deadline = loop.time() + self.wait
+            while len(batch) < self.max_batch:
+                try:
+                    batch.append(await asyncio.wait_for(self._queue.get(), max(0.0, deadline - loop.time())))
+                except asyncio.TimeoutError:
+                    break
+            groups: dict[tuple, list] = defaultdict(list)
+            for job, future in batch:
+                groups[job.key].append((job, future))
+            for items in groups.values():
+                live = [(j, f) for j, f in items if not f.cancelled()]
+                if not live:
+                    continue
+                self.batch_sizes.append(len(live))
+                try:
+                    results = await loop.run_in_executor(self._executor, self._run, [j for j, _ in live])
+                except Exception as e:  # noqa: BLE001 - handed to every waiting request
+                    for _, f in live:
+                        if not f.done():
+                            f.set_exception(e)
+                    continue
+                for (_, f), r in zip(live, results):
+                    if not f.done():
+                        f.set_result(r)
+
+    def _run(self, jobs: list[Job]):
+        first = jobs[0]
+        return self.pipe([j.prompt for j in jobs], frames=[j.frames for j in jobs], seed=[j.seed for j in jobs],
+                         guidance_scale=first.guidance, steps=first.steps, footskate=first.footskate,
+                         batch_size=self.max_batch)
+
+    def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+        self._executor.shutdown(wait=False, cancel_futures=True)

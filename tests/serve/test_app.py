@@ -1,0 +1,109 @@
+"""`smf serve`'s API on a tiny random-weight checkpoint: formats, errors, limits, dynamic batching."""
+
+from __future__ import annotations
+
+import asyncio
+import io
+
+import httpx
+import numpy as np
+import pytest
+import torch
+
+from stablemofusion.cli.main import main
+from stablemofusion.motion.bvh import forward_kinematics, read_bvh
+from stablemofusion.motion.skeleton import HUMANML3D
+from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.serve import create_app
+
+
+@pytest.fixture(scope="module")
+def pipe(tmp_path_factory, save_tiny_checkpoint):
+    torch.set_num_threads(1)
+    mean, std = np.zeros(263), np.full(263, 0.1)
+    mean[3] = 0.9
+    ck = save_tiny_checkpoint(tmp_path_factory.mktemp("serve-ckpt") / "checkpoint", mean, std)
+    return MotionPipeline.from_pretrained(ck, device="cpu")
+
+
+def call(app, *requests):
+    """Send (method, url, json) requests concurrently to the app; returns the responses."""
+    async def go():
+        transport = httpx.ASGITransport(app=app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://test") as client:
+            return await asyncio.gather(*[client.request(m, u, json=j) for m, u, j in requests])
+    return asyncio.run(go())
+
+
+def test_health_and_json_generation(pipe):
+    app = create_app(pipe)
+    health, gen = call(app, ("GET", "/v1/health", None),
+                       ("POST", "/v1/generate", {"prompt": "a person walks", "seconds": 2.4, "seed": 5, "steps": 2}))
+    assert health.status_code == 200 and health.json()["status"] == "ok"
+    body = gen.json()
+    assert gen.status_code == 200 and body["frames"] == 48 and body["fps"] == 20.0 and body["seed"] == 5
+    joints = np.asarray(body["joints"])
+    assert joints.shape == (48, 22, 3)
+    lengths = np.linalg.norm(joints[:, 1:] - joints[:, list(HUMANML3D.parents[1:])], axis=-1)
+    assert np.abs(lengths - np.asarray(HUMANML3D.bone_lengths[1:])).max() < 1e-4  # the rigid body
+
+
+def test_bvh_and_npy_formats_are_the_same_motion(pipe, tmp_path):
+    app = create_app(pipe)
+    req = {"prompt": "a person walks", "seconds": 2.0, "seed": 1, "steps": 2}
+    js, npy, bvh = call(app, ("POST", "/v1/generate", req), ("POST", "/v1/generate?format=npy", req),
+                        ("POST", "/v1/generate?format=bvh", req))
+    joints = np.asarray(js.json()["joints"])
+    arr = np.load(io.BytesIO(npy.content), allow_pickle=False)
+    assert npy.headers["content-type"] == "application/octet-stream" and arr.shape == (40, 22, 3)
+    assert np.abs(arr - joints).max() < 1e-4
+    (tmp_path / "m.bvh").write_text(bvh.text)
+    b = read_bvh(tmp_path / "m.bvh")
+    order = [b.names.index(n) for n in HUMANML3D.joint_names]
+    assert np.abs(forward_kinematics(b)[:, order] - arr).max() < 1e-3
+
+
+@pytest.mark.parametrize("url, body, status, message", [
+    ("/v1/generate", {"prompt": "   "}, 422, "prompt must have"),
+    ("/v1/generate", {"prompt": "x" * 301}, 422, "prompt must have"),
+    ("/v1/generate", {"prompt": "walk", "seconds": 60}, 422, "seconds must be between"),
+    ("/v1/generate", {"prompt": "walk", "seconds": 0.5}, 422, "seconds must be between"),
+    ("/v1/generate", {"prompt": "walk", "steps": 0}, 422, "steps"),
+    ("/v1/generate", {"prompt": "walk", "footskate": "maybe"}, 422, "footskate"),
+    ("/v1/generate", {"prompt": "walk", "colour": "red"}, 422, "colour"),
+    ("/v1/generate", {"seconds": 3}, 422, "prompt"),
+    ("/v1/generate?format=fbx", {"prompt": "walk"}, 400, "format must be one of"),
+    ("/v1/nothing", {"prompt": "walk"}, 404, "no such endpoint"),
+])
+def test_bad_requests_get_one_line_json_errors(pipe, url, body, status, message):
+    (r,) = call(create_app(pipe), ("POST", url, body))
+    assert r.status_code == status
+    err = r.json()["error"]
+    assert message in err and "\n" not in err
+
+
+def test_body_size_limit_and_full_queue(pipe):
+    (r,) = call(create_app(pipe, max_body_bytes=100), ("POST", "/v1/generate", {"prompt": "x" * 200}))
+    assert r.status_code == 413 and "larger than 100 bytes" in r.json()["error"]
+    app = create_app(pipe, max_queue=1, wait_ms=50)
+    reqs = [("POST", "/v1/generate", {"prompt": "walk", "seconds": 2, "seed": i, "steps": 1}) for i in range(4)]
+    codes = sorted(r.status_code for r in call(app, *reqs))
+    assert codes[0] == 200 and codes[-1] == 503
+
+
+def test_dynamic_batching_gathers_requests_and_matches_generating_alone(pipe):
+    """Concurrent requests share one sampling call, and each gets the motion it would get alone."""
+    app = create_app(pipe, wait_ms=200)
+    reqs = [("walks", 2.0, 3), ("jumps", 3.2, 7), ("waves", 2.4, 11), ("walks", 2.0, 3)]
+    out = call(app, *[("POST", "/v1/generate", {"prompt": f"a person {p}", "seconds": s, "seed": k, "steps": 3})
+                      for p, s, k in reqs])
+    assert app.state.batcher.batch_sizes == [4]
+    for r, (p, s, k) in zip(out, reqs):
+        alone = pipe([f"a person {p}"], seconds=s, seed=[k], steps=3)[0]
+        assert np.abs(np.asarray(r.json()["joints"]) - alone.joints).max() < 1e-4
+    assert np.array_equal(out[0].json()["joints"], out[3].json()["joints"])  # same request, same motion
+
+
+def test_serve_cli_rejects_a_bad_port(capsys):
+    assert main(["serve", "--port", "0"]) == 2
+    assert "--port" in capsys.readouterr().err

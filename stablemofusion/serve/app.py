@@ -1,7 +1,9 @@
 """The HTTP API of `smf serve` (FastAPI): text to motion as JSON joints, BVH or .npy, with dynamic batching.
 
     POST /v1/generate[?format=json|bvh|npy]  {"prompt", "seconds"?, "seed"?, "guidance"?, "steps"?, "footskate"?}
+    POST /v1/convert?filename=NAME.bvh|.npy  (raw file bytes) -> the file's joints as JSON, for the viewer
     GET  /v1/health
+    GET  /  the three.js viewer (assets/viewer, three.js vendored from npm: no CDN)
 
 Bad input gets a 4xx JSON ``{"error": "<one line>"}``; a full queue 503. Nothing uploaded is ever unpickled.
 """
@@ -18,7 +20,8 @@ from typing import Literal
 import numpy as np
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse, Response
+from fastapi.responses import FileResponse, JSONResponse, Response
+from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field
 
 from ..errors import SMFError
@@ -26,6 +29,8 @@ from .batcher import DynamicBatcher, Job, QueueFull
 
 MAX_PROMPT_CHARS = 300
 MAX_BODY_BYTES = 16 * 1024
+MAX_UPLOAD_BYTES = 16 * 1024 * 1024  # a dropped .bvh / .npy
+VIEWER = Path(__file__).resolve().parents[1] / "assets" / "viewer"
 MAX_STEPS = 50
 FORMATS = ("json", "bvh", "npy")
 
@@ -70,9 +75,10 @@ def create_app(pipe, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: in
 
     @app.middleware("http")
     async def limit_body(request: Request, call_next):
+        limit = MAX_UPLOAD_BYTES if request.url.path == "/v1/convert" else max_body_bytes
         size = request.headers.get("content-length")
-        if size is not None and (not size.isdigit() or int(size) > max_body_bytes):
-            return _error(413, f"request body larger than {max_body_bytes} bytes")
+        if size is not None and (not size.isdigit() or int(size) > limit):
+            return _error(413, f"request body larger than {limit} bytes")
         return await call_next(request)
 
     @app.exception_handler(RequestValidationError)
@@ -120,6 +126,32 @@ def create_app(pipe, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: in
         return {"prompt": r.prompt, "fps": r.fps, "frames": len(r.joints), "seed": seed,
                 "joints": np.round(r.joints, 5).tolist()}
 
+    @app.post("/v1/convert")
+    async def convert(request: Request, filename: str):
+        from ..motion.files import load_motion
+
+        suffix = Path(filename).suffix.lower()
+        if suffix not in (".bvh", ".npy"):
+            return _error(415, f"only .bvh and .npy files can be viewed, got {filename!r}")
+        data = await request.body()
+        if len(data) > MAX_UPLOAD_BYTES:
+            return _error(413, f"request body larger than {MAX_UPLOAD_BYTES} bytes")
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / f"upload{suffix}"
+            path.write_bytes(data)
+            try:
+                m = load_motion(path)  # .npy with allow_pickle=False
+            except SMFError as e:
+                return _error(422, str(e).replace(str(path), filename))
+        if m.skeleton.name != "humanml3d":
+            return _error(422, f"{filename}: the viewer shows 22-joint (HumanML3D) motions, not {m.skeleton.name}")
+        return {"fps": m.fps, "frames": len(m.joints), "joints": np.round(m.joints, 5).tolist()}
+
+    @app.get("/", include_in_schema=False)
+    async def viewer():
+        return FileResponse(VIEWER / "index.html")
+
+    app.mount("/viewer", StaticFiles(directory=VIEWER), name="viewer")
     return app
 
 

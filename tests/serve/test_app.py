@@ -107,3 +107,34 @@ def test_dynamic_batching_gathers_requests_and_matches_generating_alone(pipe):
 def test_serve_cli_rejects_a_bad_port(capsys):
     assert main(["serve", "--port", "0"]) == 2
     assert "--port" in capsys.readouterr().err
+
+
+def test_viewer_page_and_convert(pipe, tmp_path):
+    from stablemofusion.motion.files import load_motion, save_bvh
+
+    app = create_app(pipe)
+    joints = load_motion("example:wave-both-hands").joints
+    buf = io.BytesIO()
+    np.save(buf, joints.astype(np.float32))
+    save_bvh(joints, tmp_path / "w.bvh")
+    pickled = io.BytesIO()
+    np.save(pickled, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+
+    async def go():
+        transport = httpx.ASGITransport(app=app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://test") as c:
+            return await asyncio.gather(
+                c.get("/"), c.get("/viewer/vendor/three.module.js"), c.get("/viewer/viewer.js"),
+                c.post("/v1/convert?filename=w.npy", content=buf.getvalue()),
+                c.post("/v1/convert?filename=w.bvh", content=(tmp_path / "w.bvh").read_bytes()),
+                c.post("/v1/convert?filename=w.txt", content=b"hi"),
+                c.post("/v1/convert?filename=p.npy", content=pickled.getvalue()),
+                c.post("/v1/convert?filename=x.npy", content=b"not a numpy file"))
+    page, three, js, npy, bvh, txt, pick, junk = asyncio.run(go())
+    assert page.status_code == 200 and "importmap" in page.text and "/viewer/vendor/three.module.js" in page.text
+    assert three.status_code == 200 and "REVISION" in three.text and js.status_code == 200
+    assert npy.status_code == 200 and np.abs(np.asarray(npy.json()["joints"]) - joints).max() < 1e-4
+    assert bvh.status_code == 200 and np.abs(np.asarray(bvh.json()["joints"]) - joints).max() < 1e-3
+    assert txt.status_code == 415 and "only .bvh and .npy" in txt.json()["error"]
+    for r in (pick, junk):  # never unpickled; one-line error naming the file
+        assert r.status_code == 422 and "\n" not in r.json()["error"] and ".npy" in r.json()["error"]

@@ -1,0 +1,221 @@
+// stablemofusion viewer: a three.js skeleton player for the HTTP API (POST /v1/generate, POST /v1/convert).
+import * as THREE from 'three';
+import { OrbitControls } from '/viewer/vendor/OrbitControls.js';
+
+const PARENTS = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19];
+const LEFT = new Set([1, 4, 7, 10, 13, 16, 18, 20]);
+const RIGHT = new Set([2, 5, 8, 11, 14, 17, 19, 21]);
+const FEET = [7, 10, 8, 11]; // left ankle, left toe, right ankle, right toe
+const CONTACT_HEIGHT = 0.05; // m above the joint's lowest point in the motion
+const CONTACT_SPEED = 0.5; // m/s
+const COLORS = { left: 0x1f77b4, right: 0xd62728, spine: 0x333333, contact: 0x2ca02c };
+
+const $ = (id) => document.getElementById(id);
+const state = { joints: null, frames: 0, fps: 20, frame: 0, playing: true, contacts: null, request: null, ready: false };
+window.smf = state; // for tests and the console
+
+// scene
+const view = $('view');
+const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+renderer.setPixelRatio(window.devicePixelRatio);
+view.appendChild(renderer.domElement);
+const scene = new THREE.Scene();
+scene.background = new THREE.Color(0xf4f4f2);
+const camera = new THREE.PerspectiveCamera(45, 1, 0.05, 100);
+camera.position.set(3, 1.7, 4.5);
+const controls = new OrbitControls(camera, renderer.domElement);
+controls.target.set(0, 0.9, 0);
+scene.add(new THREE.GridHelper(20, 40, 0x888888, 0xbbbbbb));
+
+const bonePositions = new Float32Array(21 * 2 * 3);
+const boneColors = new Float32Array(21 * 2 * 3);
+PARENTS.slice(1).forEach((p, i) => {
+  const j = i + 1;
+  const c = new THREE.Color(LEFT.has(j) ? COLORS.left : RIGHT.has(j) ? COLORS.right : COLORS.spine);
+  for (const k of [0, 1]) boneColors.set([c.r, c.g, c.b], (2 * i + k) * 3);
+});
+const boneGeometry = new THREE.BufferGeometry();
+boneGeometry.setAttribute('position', new THREE.BufferAttribute(bonePositions, 3));
+boneGeometry.setAttribute('color', new THREE.BufferAttribute(boneColors, 3));
+const bones = new THREE.LineSegments(boneGeometry, new THREE.LineBasicMaterial({ vertexColors: true }));
+scene.add(bones);
+const jointMeshes = PARENTS.map((_, j) => {
+  const m = new THREE.Mesh(new THREE.SphereGeometry(j === 15 ? 0.08 : 0.025, 16, 12),
+    new THREE.MeshBasicMaterial({ color: COLORS.spine }));
+  scene.add(m);
+  return m;
+});
+bones.visible = false;
+jointMeshes.forEach((m) => { m.visible = false; });
+
+function resize() {
+  const w = view.clientWidth, h = view.clientHeight;
+  renderer.setSize(w, h);
+  camera.aspect = w / Math.max(h, 1);
+  camera.updateProjectionMatrix();
+}
+window.addEventListener('resize', resize);
+resize();
+
+// motion
+function contactsOf(joints, frames, fps) {
+  const out = FEET.map(() => new Uint8Array(frames));
+  FEET.forEach((j, k) => {
+    let low = Infinity;
+    for (let t = 0; t < frames; t++) low = Math.min(low, joints[(t * 22 + j) * 3 + 1]);
+    for (let t = 0; t < frames; t++) {
+      const a = Math.max(0, t - 1), b = Math.min(frames - 1, t + 1);
+      let d = 0;
+      for (let c = 0; c < 3; c++) d += (joints[(b * 22 + j) * 3 + c] - joints[(a * 22 + j) * 3 + c]) ** 2;
+      const speed = b > a ? Math.sqrt(d) * fps / (b - a) : 0;
+      out[k][t] = joints[(t * 22 + j) * 3 + 1] - low < CONTACT_HEIGHT && speed < CONTACT_SPEED ? 1 : 0;
+    }
+  });
+  return out;
+}
+
+function setMotion(joints, frames, fps, label) {
+  state.joints = Float32Array.from(joints.flat(2));
+  state.frames = frames;
+  state.fps = fps;
+  state.contacts = contactsOf(state.joints, frames, fps);
+  $('scrub').max = String(frames - 1);
+  $('scrub').disabled = false;
+  $('play').disabled = false;
+  bones.visible = true;
+  jointMeshes.forEach((m) => { m.visible = true; });
+  const r = state.joints;
+  controls.target.set(r[0], 0.85, r[2]);
+  camera.position.set(r[0] + 3, 1.7, r[2] + 4.5);
+  setFrame(0);
+  state.playing = true;
+  $('play').textContent = 'Pause';
+  status(label);
+  state.ready = true;
+}
+
+function setFrame(t) {
+  if (!state.joints) return;
+  state.frame = Math.max(0, Math.min(state.frames - 1, Math.round(t)));
+  const base = state.frame * 22 * 3, J = state.joints;
+  PARENTS.slice(1).forEach((p, i) => {
+    bonePositions.set(J.subarray(base + p * 3, base + p * 3 + 3), (2 * i) * 3);
+    bonePositions.set(J.subarray(base + (i + 1) * 3, base + (i + 1) * 3 + 3), (2 * i + 1) * 3);
+  });
+  boneGeometry.attributes.position.needsUpdate = true;
+  boneGeometry.computeBoundingSphere();
+  jointMeshes.forEach((m, j) => {
+    m.position.set(J[base + j * 3], J[base + j * 3 + 1], J[base + j * 3 + 2]);
+    const k = FEET.indexOf(j);
+    m.material.color.setHex(k >= 0 && state.contacts[k][state.frame] ? COLORS.contact : COLORS.spine);
+  });
+  $('scrub').value = String(state.frame);
+  $('frame').textContent = `frame ${state.frame + 1} / ${state.frames} (${(state.frame / state.fps).toFixed(2)} s)`;
+}
+window.smf.setFrame = setFrame;
+
+let last = performance.now(), clock = 0;
+function loop(now) {
+  const dt = (now - last) / 1000;
+  last = now;
+  if (state.playing && state.joints) {
+    clock += dt * state.fps;
+    if (clock >= 1) {
+      setFrame((state.frame + Math.floor(clock)) % state.frames);
+      clock -= Math.floor(clock);
+    }
+  }
+  controls.update();
+  renderer.render(scene, camera);
+  requestAnimationFrame(loop);
+}
+requestAnimationFrame(loop);
+
+// UI
+function status(text, error = false) {
+  $('status').textContent = text;
+  $('status').className = error ? 'error' : '';
+}
+
+async function post(url, body, headers) {
+  const res = await fetch(url, { method: 'POST', body, headers });
+  if (!res.ok) {
+    let message = `${res.status} ${res.statusText}`;
+    try { message = (await res.json()).error || message; } catch (e) { /* not JSON */ }
+    throw new Error(message);
+  }
+  return res;
+}
+
+$('form').addEventListener('submit', async (ev) => {
+  ev.preventDefault();
+  const body = {
+    prompt: $('prompt').value, seconds: Number($('seconds').value), seed: Number($('seed').value),
+    footskate: $('footskate').value,
+  };
+  state.ready = false;
+  $('generate').disabled = true;
+  status('generating...');
+  try {
+    const res = await post('/v1/generate', JSON.stringify(body), { 'Content-Type': 'application/json' });
+    const m = await res.json();
+    state.request = { ...body, seed: m.seed };
+    setMotion(m.joints, m.frames, m.fps, `"${m.prompt}": ${m.frames} frames, seed ${m.seed}`);
+    $('bvh').disabled = false;
+    $('npy').disabled = false;
+  } catch (e) {
+    status(e.message, true);
+  } finally {
+    $('generate').disabled = false;
+  }
+});
+
+$('play').addEventListener('click', () => {
+  state.playing = !state.playing;
+  $('play').textContent = state.playing ? 'Pause' : 'Play';
+});
+$('scrub').addEventListener('input', () => {
+  state.playing = false;
+  $('play').textContent = 'Play';
+  setFrame(Number($('scrub').value));
+});
+
+async function download(format) {
+  if (!state.request) return;
+  try {
+    const res = await post(`/v1/generate?format=${format}`, JSON.stringify(state.request),
+      { 'Content-Type': 'application/json' });
+    const a = document.createElement('a');
+    a.href = URL.createObjectURL(await res.blob());
+    a.download = format === 'bvh' ? 'motion.bvh' : 'motion_joints.npy';
+    a.click();
+    URL.revokeObjectURL(a.href);
+  } catch (e) {
+    status(e.message, true);
+  }
+}
+$('bvh').addEventListener('click', () => download('bvh'));
+$('npy').addEventListener('click', () => download('npy'));
+
+// drop a local .bvh or .npy: the server reads it (never unpickled) and returns its joints
+window.addEventListener('dragover', (ev) => { ev.preventDefault(); document.body.classList.add('dragging'); });
+window.addEventListener('dragleave', () => document.body.classList.remove('dragging'));
+window.addEventListener('drop', async (ev) => {
+  ev.preventDefault();
+  document.body.classList.remove('dragging');
+  const file = ev.dataTransfer.files[0];
+  if (!file) return;
+  state.ready = false;
+  status(`reading ${file.name}...`);
+  try {
+    const res = await post(`/v1/convert?filename=${encodeURIComponent(file.name)}`, await file.arrayBuffer(),
+      { 'Content-Type': 'application/octet-stream' });
+    const m = await res.json();
+    state.request = null;
+    $('bvh').disabled = true;
+    $('npy').disabled = true;
+    setMotion(m.joints, m.frames, m.fps, `${file.name}: ${m.frames} frames`);
+  } catch (e) {
+    status(e.message, true);
+  }
+});

@@ -95,8 +95,9 @@ def create_app(pipe, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: in
 
     @app.get("/v1/health")
     async def health() -> dict:
+        sizes = batcher.batch_sizes
         return {"status": "ok", "fps": pipe.fps, "seconds": [min_s, max_s], "max_batch": max_batch,
-                "waiting": batcher.waiting}
+                "waiting": batcher.waiting, "batches": len(sizes), "largest_batch": max(sizes, default=0)}
 
     @app.post("/v1/generate")
     async def generate(body: GenerateRequest, format: str = "json"):

@@ -25,7 +25,25 @@ const camera = new THREE.PerspectiveCamera(45, 1, 0.05, 100);
 camera.position.set(3, 1.7, 4.5);
 const controls = new OrbitControls(camera, renderer.domElement);
 controls.target.set(0, 0.9, 0);
-scene.add(new THREE.GridHelper(20, 40, 0x888888, 0xbbbbbb));
+scene.add(floorGrid(10, 0.5));
+
+// A floor grid of short segments (every line cut at each crossing): software WebGL (SwiftShader) drops a
+// whole line that passes behind the camera, which hid the near half of a plain GridHelper.
+function floorGrid(half, step) {
+  const pts = [], cols = [];
+  const major = new THREE.Color(0x888888), minor = new THREE.Color(0xbbbbbb);
+  for (let a = -half; a <= half + 1e-9; a += step) {
+    const c = Math.abs(a) < 1e-9 ? major : minor;
+    for (let b = -half; b < half - 1e-9; b += step) {
+      pts.push(a, 0, b, a, 0, b + step, b, 0, a, b + step, 0, a);
+      for (let k = 0; k < 4; k++) cols.push(c.r, c.g, c.b);
+    }
+  }
+  const g = new THREE.BufferGeometry();
+  g.setAttribute('position', new THREE.Float32BufferAttribute(pts, 3));
+  g.setAttribute('color', new THREE.Float32BufferAttribute(cols, 3));
+  return new THREE.LineSegments(g, new THREE.LineBasicMaterial({ vertexColors: true }));
+}
 
 const bonePositions = new Float32Array(21 * 2 * 3);
 const boneColors = new Float32Array(21 * 2 * 3);
@@ -109,6 +127,12 @@ function setFrame(t) {
     const k = FEET.indexOf(j);
     m.material.color.setHex(k >= 0 && state.contacts[k][state.frame] ? COLORS.contact : COLORS.spine);
   });
+  // follow the root over the floor: the camera keeps its offset from the body as it travels
+  const dx = J[base] - controls.target.x, dz = J[base + 2] - controls.target.z;
+  controls.target.x += dx;
+  controls.target.z += dz;
+  camera.position.x += dx;
+  camera.position.z += dz;
   $('scrub').value = String(state.frame);
   $('frame').textContent = `frame ${state.frame + 1} / ${state.frames} (${(state.frame / state.fps).toFixed(2)} s)`;
 }

@@ -1,0 +1,101 @@
+"""Load test of `smf serve` on this machine: N concurrent requests against the same N sent one by one.
+
+Starts the server (shipped model unless --checkpoint) as a subprocess on a free loopback port, waits for
+/v1/health, then sends the requests (distinct seeds and prompts, --seconds long) all at once with httpx, and
+again one at a time; prints JSON: errors, wall time, throughput (requests/s), p50/p99 latency, and the
+batch sizes the server formed. Loopback only; the server is stopped at the end.
+
+    python benchmarks/serve_load.py --requests 200 [--seconds 4] [--footskate off]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+
+import httpx
+import numpy as np
+
+PROMPTS = ["a person walks forward", "a tired man shuffles forward", "someone waves both hands",
+           "a person runs in a circle", "a proud soldier marches", "an old woman bows", "a child kicks",
+           "a person raises the right hand"]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def summary(latencies: list[float], wall: float, errors: int) -> dict:
+    lat = np.asarray(latencies) * 1000
+    return {"requests": len(latencies) + errors, "errors": errors, "wall_s": round(wall, 2),
+            "throughput_rps": round(len(latencies) / wall, 2),
+            "p50_ms": round(float(np.percentile(lat, 50)), 1), "p99_ms": round(float(np.percentile(lat, 99)), 1)}
+
+
+async def one(client: httpx.AsyncClient, body: dict) -> tuple[float, bool]:
+    t = time.perf_counter()
+    r = await client.post("/v1/generate", json=body)
+    ok = r.status_code == 200 and len(r.json()["joints"]) > 0
+    return time.perf_counter() - t, ok
+
+
+async def run(base: str, bodies: list[dict]) -> dict:
+    limits = httpx.Limits(max_connections=len(bodies) + 8)
+    async with httpx.AsyncClient(base_url=base, timeout=600, limits=limits) as client:
+        t = time.perf_counter()
+        out = await asyncio.gather(*[one(client, b) for b in bodies])
+        concurrent = summary([d for d, ok in out if ok], time.perf_counter() - t, sum(not ok for _, ok in out))
+        t = time.perf_counter()
+        seq = [await one(client, b) for b in bodies]
+        sequential = summary([d for d, ok in seq if ok], time.perf_counter() - t, sum(not ok for _, ok in seq))
+        health = (await client.get("/v1/health")).json()
+    return {"concurrent": concurrent, "one_by_one": sequential,
+            "speed_up": round(concurrent["throughput_rps"] / sequential["throughput_rps"], 2), "health": health}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--requests", type=int, default=200)
+    ap.add_argument("--seconds", type=float, default=4.0)
+    ap.add_argument("--footskate", default="off")
+    ap.add_argument("--checkpoint", default=None)
+    ap.add_argument("--threads", type=int, default=2, help="torch threads of the server (default 2)")
+    args = ap.parse_args()
+    port = free_port()
+    cmd = [sys.executable, "-m", "stablemofusion.cli.main", "serve", "--port", str(port), "--device", "cpu"]
+    if args.checkpoint:
+        cmd += ["--checkpoint", args.checkpoint]
+    env = {**os.environ, "OMP_NUM_THREADS": str(args.threads)}
+    server = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        for _ in range(600):
+            try:
+                if httpx.get(base + "/v1/health", timeout=1).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                time.sleep(0.2)
+        else:
+            raise SystemExit("server did not start: " + server.stderr.read().decode()[-500:])
+        warm = {"prompt": PROMPTS[0], "seconds": args.seconds, "seed": 0, "footskate": args.footskate}
+        httpx.post(base + "/v1/generate", json=warm, timeout=600)  # text encoder, first forward, torch.optim
+        bodies = [{"prompt": PROMPTS[i % len(PROMPTS)], "seconds": args.seconds, "seed": i, "footskate": args.footskate}
+                  for i in range(args.requests)]
+        report = asyncio.run(run(base, bodies))
+        report.update({"seconds": args.seconds, "footskate": args.footskate, "server_threads": args.threads})
+        print(json.dumps(report, indent=1))
+    finally:
+        server.terminate()
+        server.wait(10)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,3 +1,19 @@
-"""stablemofusion: text-to-human-motion generation with the StableMoFusion design."""
+"""stablemofusion: text-to-human-motion generation with the StableMoFusion design.
+
+``from stablemofusion import MotionPipeline`` (imported on first use, so ``smf --version`` stays fast).
+"""
 
 __version__ = "0.1.0"
+__all__ = ["MotionPipeline", "MotionResult", "RigidMotion", "__version__"]
+
+
+def __getattr__(name: str):
+    if name in ("MotionPipeline", "MotionResult"):
+        from . import pipeline
+
+        return getattr(pipeline, name)
+    if name == "RigidMotion":
+        from .motion.rigid import RigidMotion
+
+        return RigidMotion
+    raise AttributeError(f"module 'stablemofusion' has no attribute {name!r}")

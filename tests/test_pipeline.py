@@ -165,3 +165,12 @@ def test_bench_prints_json(checkpoint, tmp_path, capsys):
     report = json.loads(out.read_text())
     assert [r["batch_size"] for r in report["results"]] == [1, 2]
     assert all(r["aits"] > 0 for r in report["results"])
+
+
+def test_pipeline_is_importable_from_the_package_top():
+    import stablemofusion
+    from stablemofusion import MotionPipeline as top
+
+    assert top is MotionPipeline and stablemofusion.MotionResult.__name__ == "MotionResult"
+    with pytest.raises(AttributeError):
+        stablemofusion.nothing_here  # noqa: B018

@@ -70,7 +70,8 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2, help="torch threads of the server (default 2)")
     args = ap.parse_args()
     port = free_port()
-    cmd = [sys.executable, "-m", "stablemofusion.cli.main", "serve", "--port", str(port), "--device", "cpu"]
+    cmd = [sys.executable, "-m", "stablemofusion.cli.main", "serve", "--port", str(port), "--device", "cpu",
+           "--threads", str(args.threads)]
     if args.checkpoint:
         cmd += ["--checkpoint", args.checkpoint]
     env = {**os.environ, "OMP_NUM_THREADS": str(args.threads)}

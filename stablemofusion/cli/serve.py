@@ -16,6 +16,7 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--max-batch", type=int, default=32, help="most requests in one sampling call (default 32)")
     p.add_argument("--wait-ms", type=float, default=5.0, help="how long to gather requests for a batch (default 5)")
     p.add_argument("--max-queue", type=int, default=256, help="waiting requests before 503 (default 256)")
+    p.add_argument("--threads", type=int, default=2, help="torch threads of the generating process (default 2)")
     p.set_defaults(func=run)
 
 
@@ -25,10 +26,16 @@ def run(args: argparse.Namespace) -> None:
     from ..errors import SMFError
     from ..pipeline import MotionPipeline
     from ..serve import create_app
+    from ..serve.batcher import process_executor
 
     if not 0 < args.port < 65536:
         raise SMFError(f"--port must be 1-65535, got {args.port}")
-    pipe = MotionPipeline.from_pretrained(args.checkpoint, device=args.device)
-    app = create_app(pipe, max_batch=args.max_batch, wait_ms=args.wait_ms, max_queue=args.max_queue)
+    if args.threads < 1:
+        raise SMFError(f"--threads must be at least 1, got {args.threads}")
+    pipe = MotionPipeline.from_pretrained(args.checkpoint, device=args.device)  # checks it; limits, fps
+    checkpoint = None if args.checkpoint is None else str(args.checkpoint)
+    executor = process_executor(checkpoint, args.device, args.threads)  # generation off the event loop's GIL
+    app = create_app(pipe, max_batch=args.max_batch, wait_ms=args.wait_ms, max_queue=args.max_queue,
+                     executor=executor)
     print(f"smf serve: http://{args.host}:{args.port} (POST /v1/generate, GET /v1/health)", flush=True)
     uvicorn.run(app, host=args.host, port=args.port, log_level="warning")

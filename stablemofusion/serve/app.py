@@ -59,9 +59,10 @@ def _validation_message(exc: RequestValidationError) -> str:
 
 
 def create_app(pipe, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: int = 256,
-               max_body_bytes: int = MAX_BODY_BYTES) -> FastAPI:
-    """The ASGI app serving ``pipe`` (a :class:`~stablemofusion.pipeline.MotionPipeline`)."""
-    batcher = DynamicBatcher(pipe, max_batch=max_batch, wait_ms=wait_ms, max_queue=max_queue)
+               max_body_bytes: int = MAX_BODY_BYTES, executor=None) -> FastAPI:
+    """The ASGI app serving ``pipe`` (a :class:`~stablemofusion.pipeline.MotionPipeline`); ``executor`` where
+    generation runs (default a thread over ``pipe``; `smf serve` uses a worker process loading the same model)."""
+    batcher = DynamicBatcher(pipe, max_batch=max_batch, wait_ms=wait_ms, max_queue=max_queue, executor=executor)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -124,8 +125,10 @@ def create_app(pipe, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: in
         if format == "bvh":
             return Response(_bvh_text(r), media_type="text/plain; charset=utf-8",
                             headers={"Content-Disposition": 'attachment; filename="motion.bvh"'})
-        return {"prompt": r.prompt, "fps": r.fps, "frames": len(r.joints), "seed": seed,
-                "joints": np.round(r.joints, 5).tolist()}
+        # JSONResponse serialises with json.dumps (C); FastAPI's own encoder walks every float in Python and,
+        # on the event loop, starved the batching of requests arriving meanwhile
+        return JSONResponse({"prompt": r.prompt, "fps": r.fps, "frames": len(r.joints), "seed": seed,
+                             "joints": np.round(r.joints, 5).tolist()})
 
     @app.post("/v1/convert")
     async def convert(request: Request, filename: str):
@@ -146,7 +149,7 @@ def create_app(pipe, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: in
                 return _error(422, str(e).replace(str(path), filename))
         if m.skeleton.name != "humanml3d":
             return _error(422, f"{filename}: the viewer shows 22-joint (HumanML3D) motions, not {m.skeleton.name}")
-        return {"fps": m.fps, "frames": len(m.joints), "joints": np.round(m.joints, 5).tolist()}
+        return JSONResponse({"fps": m.fps, "frames": len(m.joints), "joints": np.round(m.joints, 5).tolist()})
 
     @app.get("/", include_in_schema=False)
     async def viewer():

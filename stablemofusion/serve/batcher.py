@@ -2,14 +2,18 @@
 
 Each request carries its own seed, and the pipeline draws an item's noise from its own seed and length
 (``MotionPipeline.denoise`` with one seed per item), so a request's motion does not depend on the requests it
-was batched with. The pipeline runs on one worker thread; the event loop only queues and gathers.
+was batched with. The event loop only queues and gathers; the pipeline runs on one worker: a thread, or (for
+`smf serve`) a separate process, so that its Python-heavy work (the rigid fit) does not hold the event loop's
+interpreter lock while requests arrive (with a thread, 200 concurrent requests on the 2-core CPU formed
+batches of at most 2).
 """
 
 from __future__ import annotations
 
 import asyncio
+import multiprocessing
 from collections import defaultdict
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 from dataclasses import dataclass
 
 from ..errors import SMFError
@@ -36,18 +40,51 @@ class Job:
         return self.guidance, self.steps, self.footskate
 
 
+def generate_jobs(pipe, jobs: list[Job], max_batch: int) -> list:
+    """Run jobs sharing one key as one pipeline call (one seed per job)."""
+    first = jobs[0]
+    return pipe([j.prompt for j in jobs], frames=[j.frames for j in jobs], seed=[j.seed for j in jobs],
+                guidance_scale=first.guidance, steps=first.steps, footskate=first.footskate, batch_size=max_batch)
+
+
+_WORKER_PIPE = None  # the pipeline of a worker process
+
+
+def _worker_init(checkpoint: str | None, device: str | None, threads: int) -> None:
+    global _WORKER_PIPE
+    import torch
+
+    from ..pipeline import MotionPipeline
+
+    torch.set_num_threads(threads)
+    _WORKER_PIPE = MotionPipeline.from_pretrained(checkpoint, device=device)
+
+
+def _worker_run(jobs: list[Job], max_batch: int) -> list:
+    return generate_jobs(_WORKER_PIPE, jobs, max_batch)
+
+
+def process_executor(checkpoint: str | None, device: str | None = None, threads: int = 2) -> Executor:
+    """One worker process that loads the checkpoint itself (spawned: no forked torch threads)."""
+    return ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_worker_init, initargs=(checkpoint, device, threads))
+
+
 class DynamicBatcher:
     """Gathers jobs for up to ``wait_ms`` after the first (at most ``max_batch``) and runs them together;
-    at most ``max_queue`` jobs wait (:class:`QueueFull` beyond). ``batch_sizes`` records every call's size."""
+    at most ``max_queue`` jobs wait (:class:`QueueFull` beyond). ``batch_sizes`` records every call's size.
+    ``executor``: where the pipeline runs; default one thread with ``pipe``; or :func:`process_executor`."""
 
-    def __init__(self, pipe, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: int = 256):
+    def __init__(self, pipe, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: int = 256,
+                 executor: Executor | None = None):
         if max_batch < 1 or wait_ms < 0 or max_queue < 0:
             raise SMFError("max_batch must be >= 1, wait_ms and max_queue >= 0")
         self.pipe, self.max_batch, self.wait, self.max_queue = pipe, max_batch, wait_ms / 1000.0, max_queue
         self.batch_sizes: list[int] = []
         self._queue: asyncio.Queue | None = None
         self._task: asyncio.Task | None = None
-        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="smf-generate")
+        self._in_process = executor is not None
+        self._executor = executor or ThreadPoolExecutor(max_workers=1, thread_name_prefix="smf-generate")
 
     @property
     def waiting(self) -> int:
@@ -82,8 +119,13 @@ class DynamicBatcher:
                 if not live:
                     continue
                 self.batch_sizes.append(len(live))
+                jobs = [j for j, _ in live]
                 try:
-                    results = await loop.run_in_executor(self._executor, self._run, [j for j, _ in live])
+                    if self._in_process:
+                        results = await loop.run_in_executor(self._executor, _worker_run, jobs, self.max_batch)
+                    else:
+                        results = await loop.run_in_executor(self._executor, generate_jobs, self.pipe, jobs,
+                                                             self.max_batch)
                 except Exception as e:  # noqa: BLE001 - handed to every waiting request
                     for _, f in live:
                         if not f.done():
@@ -92,12 +134,6 @@ class DynamicBatcher:
                 for (_, f), r in zip(live, results):
                     if not f.done():
                         f.set_result(r)
-
-    def _run(self, jobs: list[Job]):
-        first = jobs[0]
-        return self.pipe([j.prompt for j in jobs], frames=[j.frames for j in jobs], seed=[j.seed for j in jobs],
-                         guidance_scale=first.guidance, steps=first.steps, footskate=first.footskate,
-                         batch_size=self.max_batch)
 
     def close(self) -> None:
         if self._task is not None:

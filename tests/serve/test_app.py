@@ -18,12 +18,16 @@ from stablemofusion.serve import create_app
 
 
 @pytest.fixture(scope="module")
-def pipe(tmp_path_factory, save_tiny_checkpoint):
-    torch.set_num_threads(1)
+def checkpoint(tmp_path_factory, save_tiny_checkpoint):
     mean, std = np.zeros(263), np.full(263, 0.1)
     mean[3] = 0.9
-    ck = save_tiny_checkpoint(tmp_path_factory.mktemp("serve-ckpt") / "checkpoint", mean, std)
-    return MotionPipeline.from_pretrained(ck, device="cpu")
+    return save_tiny_checkpoint(tmp_path_factory.mktemp("serve-ckpt") / "checkpoint", mean, std)
+
+
+@pytest.fixture(scope="module")
+def pipe(checkpoint):
+    torch.set_num_threads(1)
+    return MotionPipeline.from_pretrained(checkpoint, device="cpu")
 
 
 def call(app, *requests):
@@ -102,6 +106,23 @@ def test_dynamic_batching_gathers_requests_and_matches_generating_alone(pipe):
         alone = pipe([f"a person {p}"], seconds=s, seed=[k], steps=3)[0]
         assert np.abs(np.asarray(r.json()["joints"]) - alone.joints).max() < 1e-4
     assert np.array_equal(out[0].json()["joints"], out[3].json()["joints"])  # same request, same motion
+
+
+def test_a_worker_process_generates_the_same_motions(pipe, checkpoint):
+    """`smf serve` generates in a worker process that loads the checkpoint itself: same batching, same motions."""
+    from stablemofusion.serve.batcher import process_executor
+
+    app = create_app(pipe, wait_ms=300, executor=process_executor(str(checkpoint), "cpu", threads=1))
+    try:
+        reqs = [("walks", 2.0, 3), ("jumps", 3.2, 7)]
+        out = call(app, *[("POST", "/v1/generate", {"prompt": f"a person {p}", "seconds": s, "seed": k, "steps": 2})
+                          for p, s, k in reqs])
+        assert app.state.batcher.batch_sizes == [2]
+        for r, (p, s, k) in zip(out, reqs):
+            alone = pipe([f"a person {p}"], seconds=s, seed=[k], steps=2)[0]
+            assert np.abs(np.asarray(r.json()["joints"]) - alone.joints).max() < 1e-4
+    finally:
+        app.state.batcher.close()
 
 
 def test_serve_cli_rejects_a_bad_port(capsys):

@@ -173,7 +173,8 @@ def features_from_joints(joints: np.ndarray, skeleton: str | Skeleton = "humanml
     facing: frame 0 then sits in another body frame than frame 1, and the first yaw velocity holds the jump
     between the two (2.6 degrees median, 14 degrees 95th percentile on our corpus). "consistent" turns the
     motion so that the inverse kinematics' facing of frame 0 is +Z: every frame, the first too, is in the same
-    kind of body frame and the first yaw velocity is an ordinary one. Both decode the same way.
+    kind of body frame and the first yaw velocity is an ordinary one. Both decode the same way. (A model trained
+    briefly on "consistent" data did not turn its first frame less: docs/rigid.md.)
     """
     sk = get_skeleton(skeleton)
     if first_frame not in FIRST_FRAME:

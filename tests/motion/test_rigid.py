@@ -150,3 +150,19 @@ def test_rigid_motion_basics(wave):
     assert np.allclose(shifted.joints() - m.joints(), [1.0, 0.0, 0.0])
     dev = bone_length_deviation(stretch(wave, 0.1, slice(3, 4)))
     assert abs(dev["bone_worst"] - 0.1) < 1e-6 and 0 < dev["bone_std"] < 0.01
+
+
+def test_first_frame_conventions(wave):
+    """'consistent' puts frame 0 in the same kind of body frame as the others: no yaw jump in the first yaw
+    velocity; the motion is the same up to its heading."""
+    from stablemofusion.footskate.cleanup import align_yaw_xz
+
+    turned = wave.copy()
+    turned[:, :, [0, 2]] = wave[:, :, [2, 0]] * [1.0, -1.0]  # start facing sideways
+    official = features_from_joints(turned)
+    consistent = features_from_joints(turned, first_frame="consistent")
+    assert abs(consistent[0, 0]) < 0.1 * abs(official[0, 0]) + 1e-6
+    a, b = joints_from_features(official), joints_from_features(consistent)
+    assert np.abs(align_yaw_xz(b, a) - a).max() < 1e-6
+    with pytest.raises(MotionFormatError, match="first_frame must be one of"):
+        features_from_joints(wave, first_frame="first")

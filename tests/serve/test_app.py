@@ -95,16 +95,22 @@ def test_body_size_limit_and_full_queue(pipe):
     assert codes[0] == 200 and codes[-1] == 503
 
 
+def batched_equals_alone(app, pipe, reqs, steps=2):
+    """Send (action, seconds, seed) requests at once: they form one batch, and each motion equals the pipeline's
+    for that request alone. Returns the responses."""
+    out = call(app, *[("POST", "/v1/generate", {"prompt": f"a person {p}", "seconds": s, "seed": k, "steps": steps})
+                      for p, s, k in reqs])
+    assert app.state.batcher.batch_sizes == [len(reqs)]
+    for r, (p, s, k) in zip(out, reqs):
+        alone = pipe([f"a person {p}"], seconds=s, seed=[k], steps=steps)[0]
+        assert np.abs(np.asarray(r.json()["joints"]) - alone.joints).max() < 1e-4
+    return out
+
+
 def test_dynamic_batching_gathers_requests_and_matches_generating_alone(pipe):
     """Concurrent requests share one sampling call, and each gets the motion it would get alone."""
     app = create_app(pipe, wait_ms=200)
-    reqs = [("walks", 2.0, 3), ("jumps", 3.2, 7), ("waves", 2.4, 11), ("walks", 2.0, 3)]
-    out = call(app, *[("POST", "/v1/generate", {"prompt": f"a person {p}", "seconds": s, "seed": k, "steps": 3})
-                      for p, s, k in reqs])
-    assert app.state.batcher.batch_sizes == [4]
-    for r, (p, s, k) in zip(out, reqs):
-        alone = pipe([f"a person {p}"], seconds=s, seed=[k], steps=3)[0]
-        assert np.abs(np.asarray(r.json()["joints"]) - alone.joints).max() < 1e-4
+    out = batched_equals_alone(app, pipe, [("walks", 2.0, 3), ("jumps", 3.2, 7), ("waves", 2.4, 11), ("walks", 2.0, 3)])
     assert np.array_equal(out[0].json()["joints"], out[3].json()["joints"])  # same request, same motion
 
 
@@ -114,13 +120,7 @@ def test_a_worker_process_generates_the_same_motions(pipe, checkpoint):
 
     app = create_app(pipe, wait_ms=300, executor=process_executor(str(checkpoint), "cpu", threads=1))
     try:
-        reqs = [("walks", 2.0, 3), ("jumps", 3.2, 7)]
-        out = call(app, *[("POST", "/v1/generate", {"prompt": f"a person {p}", "seconds": s, "seed": k, "steps": 2})
-                          for p, s, k in reqs])
-        assert app.state.batcher.batch_sizes == [2]
-        for r, (p, s, k) in zip(out, reqs):
-            alone = pipe([f"a person {p}"], seconds=s, seed=[k], steps=2)[0]
-            assert np.abs(np.asarray(r.json()["joints"]) - alone.joints).max() < 1e-4
+        batched_equals_alone(app, pipe, [("walks", 2.0, 3), ("jumps", 3.2, 7)])
     finally:
         app.state.batcher.close()
 

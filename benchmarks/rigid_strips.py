@@ -1,6 +1,6 @@
 """Frame strips before/after the rigid final stage (docs/rigid.md): the README example and the stored
 dragged-foot case, each as the model's own joints, the rigid stage, and the rigid stage + `--footskate post`;
-prints the worst bone deviation of each row.
+prints the worst bone deviation of each row and the README example's right forearm lengths.
 
     python benchmarks/rigid_strips.py --out docs/img [--extra "old post cleanup=old_post_joints.npy"]
 """
@@ -53,6 +53,10 @@ def main() -> None:
         rows = rows_for(feats) + more
         report[name] = {title: round(bone_length_deviation(j)["bone_worst"], 4) for title, j in rows}
         render_strip(rows, frames, args.out / f"rigid_{name}.png", size=200, window=window)
+    forearm = np.linalg.norm(joints_from_features(raw)[:, 21] - joints_from_features(raw)[:, 19], axis=-1)
+    report["readme_example_right_forearm_m"] = {"frame_0": round(float(forearm[0]), 3),
+                                                "median": round(float(np.median(forearm)), 3),
+                                                "skeleton": round(float(pipe.skeleton.bone_lengths[21]), 3)}
     print(json.dumps({"prompt": prompt, "worst_bone_deviation_m": report}, indent=1))
 
 

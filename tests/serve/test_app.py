@@ -86,6 +86,15 @@ def test_bad_requests_get_one_line_json_errors(pipe, url, body, status, message)
     assert message in err and "\n" not in err
 
 
+def test_a_body_that_is_not_json(pipe):
+    async def go():
+        transport = httpx.ASGITransport(app=create_app(pipe))
+        async with httpx.AsyncClient(transport=transport, base_url="http://test") as client:
+            return await client.post("/v1/generate", content=b"not json", headers={"Content-Type": "application/json"})
+    r = asyncio.run(go())
+    assert r.status_code == 422 and r.json() == {"error": "body: not valid JSON"}
+
+
 def test_body_size_limit_and_full_queue(pipe):
     (r,) = call(create_app(pipe, max_body_bytes=100), ("POST", "/v1/generate", {"prompt": "x" * 200}))
     assert r.status_code == 413 and "larger than 100 bytes" in r.json()["error"]

@@ -136,8 +136,6 @@ def generate(pipe, captions: list[str], lengths: list[int], cfg: EvalConfig, see
              progress: Callable[[int], None] | None = None) -> list[Generated]:
     """One motion per caption at its length, batched by similar lengths: the pipeline's denoising, then its
     final stage (rigid fit, cleanup) on each."""
-    from ..motion.features import joints_from_features
-
     order = np.argsort(lengths, kind="stable")
     out: list[Generated | None] = [None] * len(captions)
     for k, a in enumerate(range(0, len(order), cfg.gen_batch)):
@@ -215,7 +213,8 @@ def evaluate(pipe, embedder: EmbeddingModel, data: str | Path, cfg: EvalConfig, 
         items = draw_items(ds, r, cfg.seed, cfg.batch_size, cfg.max_items)
         text = embedder.texts(items.captions, items.tokens)
         real_row = row_metrics(text, embedder.motions(items.real), ref, cfg, rng)
-        real_joints = [joints_from_features(f.astype(np.float64), ds.skeleton) for f in items.real]
+        if skate_metrics or body:
+            real_joints = [joints_from_features(f.astype(np.float64), ds.skeleton) for f in items.real]
         if skate_metrics:
             real_row.update(skate_metrics(real_joints))
         if body:

@@ -331,7 +331,17 @@ def forward_kinematics(bvh: BVH, frames: slice | None = None) -> np.ndarray:
 def write_bvh(path: str | os.PathLike, *, names: list[str], parents, offsets, rotations, root_positions,
               frame_time: float, end_sites: dict[int, np.ndarray] | None = None, order: str = "ZXY",
               precision: int = 6) -> None:
-    """Write a BVH file in metres (atomically).
+    """Write a BVH file in metres, atomically; the arguments are those of :func:`format_bvh`."""
+    text = format_bvh(names=names, parents=parents, offsets=offsets, rotations=rotations,
+                      root_positions=root_positions, frame_time=frame_time, end_sites=end_sites, order=order,
+                      precision=precision)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def format_bvh(*, names: list[str], parents, offsets, rotations, root_positions, frame_time: float,
+               end_sites: dict[int, np.ndarray] | None = None, order: str = "ZXY", precision: int = 6) -> str:
+    """The text of a BVH file in metres.
 
     ``parents`` (J,) with -1 for the single root and parents before children; ``offsets`` (J, 3) metres;
     ``rotations`` (F, J, 3, 3) local rotation matrices or (F, J, 4) unit quaternions (w, x, y, z);
@@ -410,5 +420,4 @@ def write_bvh(path: str | os.PathLike, *, names: list[str], parents, offsets, ro
     row = " ".join([f"%.{precision}f"] * data.shape[1])
     out += ["MOTION", f"Frames: {F}", f"Frame Time: {frame_time:.9g}"]
     out += [row % tuple(r) for r in data.tolist()]
-    with atomic_path(path) as tmp:
-        tmp.write_text("\n".join(out) + "\n", encoding="utf-8")
+    return "\n".join(out) + "\n"

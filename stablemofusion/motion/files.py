@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import MotionFormatError, SMFError
-from ..io import save_npy
-from .bvh import forward_kinematics, read_bvh, write_bvh
+from ..io import atomic_path, save_npy
+from .bvh import format_bvh, forward_kinematics, read_bvh
 from .features import features_from_joints, joints_from_features
 from .rigid import RigidMotion, pose_from_joints
 from .skeleton import Skeleton, get_skeleton, skeleton_for_shape
@@ -106,18 +106,29 @@ def save_bvh(joints: np.ndarray, path: str | Path, skeleton: str | Skeleton = "h
     """Write joints (T, J, 3) in metres as a BVH file (metres, Y up) with our skeleton's joint names: the
     closed-form rigid pose of the joints (exact for a rigid motion; see :func:`save_rigid_bvh` for a
     :class:`RigidMotion`)."""
+    save_rigid_bvh(rigid_pose(joints, skeleton), path, fps)
+
+
+def rigid_pose(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d") -> RigidMotion:
+    """The closed-form rigid pose of joints (T, J, 3) (exact for a rigid motion; mean bone lengths)."""
     sk = get_skeleton(skeleton)
     joints = np.asarray(joints, dtype=np.float64)
     offsets, local = pose_from_joints(joints, sk)
-    save_rigid_bvh(RigidMotion(offsets, local, joints[:, 0], sk.name), path, fps)
+    return RigidMotion(offsets, local, joints[:, 0], sk.name)
+
+
+def rigid_bvh_text(motion: RigidMotion, fps: float | None = None) -> str:
+    """The BVH text (metres, Y up, our joint names) of a :class:`RigidMotion`: its own skeleton and rotations,
+    so the file reads back to ``motion.joints()``."""
+    sk = get_skeleton(motion.skeleton)
+    return format_bvh(names=list(sk.joint_names), parents=np.array(sk.parents), offsets=motion.offsets,
+                      rotations=motion.rotations, root_positions=motion.root, frame_time=1.0 / (fps or sk.fps))
 
 
 def save_rigid_bvh(motion: RigidMotion, path: str | Path, fps: float | None = None) -> None:
-    """Write a :class:`RigidMotion` as a BVH file (metres, Y up, our joint names): its own skeleton and
-    rotations, so the file reads back to ``motion.joints()``."""
-    sk = get_skeleton(motion.skeleton)
-    write_bvh(path, names=list(sk.joint_names), parents=np.array(sk.parents), offsets=motion.offsets,
-              rotations=motion.rotations, root_positions=motion.root, frame_time=1.0 / (fps or sk.fps))
+    """Write a :class:`RigidMotion` as a BVH file, atomically (see :func:`rigid_bvh_text`)."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(rigid_bvh_text(motion, fps), encoding="utf-8")
 
 
 def bvh_round_trip_error(joints: np.ndarray, motion: RigidMotion | None = None,

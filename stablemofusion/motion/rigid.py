@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from ..errors import SMFError
+from .features import bone_lengths, features_in_frames_of, joints_from_features, joints_from_rotations
 from .rotation import cont6d_to_matrix, quat_to_matrix
 from .skeleton import Skeleton, get_skeleton
 
@@ -96,8 +97,6 @@ def _levels(parents: tuple[int, ...]) -> tuple[list[list[int]], list[list[int]],
 
 def choose_bone_lengths(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d", mode: str = "dataset") -> np.ndarray:
     """(J,) bone lengths in metres for a rigid fit of joints (T, J, 3); ``mode`` one of :data:`BONE_LENGTHS`."""
-    from .features import bone_lengths
-
     sk = get_skeleton(skeleton)
     if mode not in BONE_LENGTHS:
         raise SMFError(f"bone lengths must be one of {', '.join(BONE_LENGTHS)}, got {mode!r}")
@@ -294,8 +293,6 @@ def rigid_from_features(features: np.ndarray, skeleton: str | Skeleton = "humanm
                         config: RigidFitConfig = DEFAULT_FIT) -> RigidMotion:
     """The rigid body that a model's features (T, D) describe: their joint positions are the targets, and the
     joints their rotation channels describe (with the chosen bone lengths) the start (``config.start``)."""
-    from .features import joints_from_features, joints_from_rotations
-
     sk = get_skeleton(skeleton)
     f = np.asarray(features, dtype=np.float64)
     targets = joints_from_features(f, sk)
@@ -310,8 +307,6 @@ def rigid_to_features(motion: RigidMotion, reference: np.ndarray,
     """Features (T, D) of ``motion`` in the body frames of the ``reference`` features it was fitted to (see
     :func:`stablemofusion.motion.features.features_in_frames_of`), and the motion moved so that its first root
     sits at the XZ origin, where the features' decoding starts: the features decode to its joints exactly."""
-    from .features import features_in_frames_of
-
     moved = motion.translated(-motion.root[0] * np.array([1.0, 0.0, 1.0]))
     return moved, features_in_frames_of(moved.joints(), reference, motion.skeleton, rotations=config.rotations)
 
@@ -320,8 +315,6 @@ def bone_length_deviation(joints: np.ndarray, skeleton: str | Skeleton = "humanm
     """How far a motion's bones stray from their own median length, joints (T, J, 3) metres:
     ``bone_std`` the mean over bones of each bone's length std (m), ``bone_worst`` the largest deviation of
     any bone in any frame from its median (m)."""
-    from .features import bone_lengths
-
     sk = get_skeleton(skeleton)
     lengths = bone_lengths(np.asarray(joints, dtype=np.float64), sk)[:, 1:]
     return {"bone_std": float(lengths.std(0).mean()),

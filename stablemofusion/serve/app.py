@@ -163,12 +163,6 @@ def create_app(pipe, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: in
 
 def _bvh_text(result) -> str:
     """The BVH file of a result's rigid body (as `smf generate` writes it)."""
-    from ..motion.files import save_bvh, save_rigid_bvh
+    from ..motion.files import rigid_bvh_text, rigid_pose
 
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "motion.bvh"
-        if result.motion is not None:
-            save_rigid_bvh(result.motion, path, result.fps)
-        else:
-            save_bvh(result.joints, path, fps=result.fps)
-        return path.read_text(encoding="utf-8")
+    return rigid_bvh_text(result.motion if result.motion is not None else rigid_pose(result.joints), result.fps)

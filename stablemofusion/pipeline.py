@@ -23,10 +23,15 @@ from .errors import SMFError
 from .motion.features import joints_from_features
 from .motion.rigid import DEFAULT_FIT, RigidFitConfig, RigidMotion, rigid_from_features, rigid_to_features
 from .motion.skeleton import get_skeleton
+from .text.known import ACTIONS_FILE, DomainCheck, KnownActions
 
 
 class LengthClampedWarning(UserWarning):
     """A requested length was outside what the model was trained on and was clamped."""
+
+
+class OutOfDomainWarning(UserWarning):
+    """A prompt is far from every action the model was trained on (it is generated anyway)."""
 
 
 @dataclass
@@ -41,6 +46,7 @@ class MotionResult:
     fps: float
     seed: int | None
     motion: RigidMotion | None = None
+    domain: DomainCheck | None = None  # similarity to the closest known action (models with actions.json)
 
 
 def default_model_path() -> Path | None:
@@ -76,6 +82,7 @@ class MotionPipeline:
         self.text_cache = LRUTextCache(_LazyEncoder(self._load_encoder), maxsize=text_cache_size)
         # the rigid final stage (docs/rigid.md); None only to measure what it changes
         self.rigid = rigid
+        self.known_actions: KnownActions | None = None  # set by from_pretrained when the folder has actions.json
 
     @classmethod
     def from_pretrained(cls, path: str | Path | None = None, *, device: str | torch.device | None = None,
@@ -90,7 +97,10 @@ class MotionPipeline:
         if dtype is None:
             dtype = torch.float16 if device.type == "cuda" else torch.float32
         ck = load_checkpoint(path)
-        return cls(ck.model, ck.mean, ck.std, ck.config, device=device, dtype=dtype, **kwargs)
+        pipe = cls(ck.model, ck.mean, ck.std, ck.config, device=device, dtype=dtype, **kwargs)
+        if (ck.path / ACTIONS_FILE).is_file():
+            pipe.known_actions = KnownActions.load(ck.path / ACTIONS_FILE, pipe.text_cache)
+        return pipe
 
     def encode_text(self, prompts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
         """Frozen token embeddings for ``prompts`` through the LRU cache: (B, L, C), (B, L)."""
@@ -141,6 +151,12 @@ class MotionPipeline:
             raise SMFError(f"give one seed for all prompts or one per prompt: {len(seed)} seeds for {n} prompts")
         make_sampler(sampler, self.schedule)  # fail early on an unknown name
         _check_footskate(footskate)
+        domains: list[DomainCheck | None] = [None] * n
+        if self.known_actions is not None:
+            domains = list(self.known_actions.check_many(prompts))
+            for p, d in dict(zip(prompts, domains)).items():
+                if d.out_of_domain:
+                    warnings.warn(d.message(p), OutOfDomainWarning, stacklevel=2)
         results: list[MotionResult] = []
         starts = range(0, n, batch_size)
         for k, start in enumerate(tqdm(starts, desc="generate", unit="batch", disable=not progress)):
@@ -152,7 +168,8 @@ class MotionPipeline:
             for j, i in enumerate(idx):
                 f, motion = self.finish(raw[j, :lengths[i]].numpy(), footskate, footskate_options)
                 joints = joints_from_features(f, self.skeleton) if motion is None else motion.joints()
-                results.append(MotionResult(prompts[i], f, joints, self.fps, seed[i] if per_item else batch_seed, motion))
+                results.append(MotionResult(prompts[i], f, joints, self.fps, seed[i] if per_item else batch_seed, motion,
+                                            domains[i]))
         return results
 
     def finish(self, features: np.ndarray, footskate: str = "off",

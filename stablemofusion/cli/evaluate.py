@@ -44,6 +44,15 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--checkpoint", type=Path, default=None,
                    help="checkpoint or run folder (default: the shipped model; 'none' = real motion only)")
     add_eval_args(p)
+    p.add_argument("--classifier", type=Path, default=None,
+                   help="motion classifier folder (`smf train-classifier`): adds label accuracy of the test captions' "
+                        "motions, and of --prompts")
+    p.add_argument("--prompts", type=Path, default=None,
+                   help="JSON-lines prompt file with labels (e.g. benchmarks/prompts_freeform.jsonl): label accuracy "
+                        "of generated motions; needs --classifier")
+    p.add_argument("--prompt-samples", type=int, default=3, help="motions per prompt of --prompts (default 3)")
+    p.add_argument("--prompt-seconds", type=float, default=4.0, help="length of the --prompts motions (default 4)")
+    p.add_argument("--prompts-only", action="store_true", help="only the --prompts accuracy, not the T2M protocol")
     p.add_argument("--out", type=Path, default=None, help="JSON results file (a .md table is written beside it)")
     p.set_defaults(func=run)
 
@@ -105,6 +114,25 @@ def skate_fn(skeleton):
     return lambda joints: mean_metrics(joints, skeleton.fps)
 
 
+def label_fn(classifier: Path, data: Path):
+    """(motion ids, features) -> label accuracy per dataset of the corpus, each motion judged by its own labels."""
+    from ..eval.classifier import corpus_labels, dataset_labels, label_accuracy, load_classifier
+
+    model, labels = load_classifier(classifier), corpus_labels(data)
+
+    def metrics(ids: list[str], feats: list) -> dict[str, float]:
+        pred = model.predict(feats, [dataset_labels(labels, labels[i].dataset) for i in ids])
+        out = {}
+        for d in sorted({labels[i].dataset for i in ids}):
+            sel = [k for k, i in enumerate(ids) if labels[i].dataset == d]
+            acc = label_accuracy([pred[k] for k in sel], [((labels[ids[k]].content,), (labels[ids[k]].style,))
+                                                          for k in sel])
+            out[f"content_acc_d{d}"], out[f"style_acc_d{d}"] = acc["content_acc"], acc["style_acc"]
+        return out
+
+    return metrics
+
+
 def rigid_config(args: argparse.Namespace):
     """The pipeline's rigid stage from --rigid/--rigid-rotations (None for 'off')."""
     from ..motion.rigid import RigidFitConfig
@@ -116,12 +144,17 @@ def write_results(result: dict, out: Path | None, title: str) -> str:
     from ..eval.protocol import markdown_table
     from ..io import write_text
 
-    table = markdown_table(result)
-    extra = [f"items per replication: {result['items_per_replication']}, replications: "
-             f"{result['config']['replications']}"]
-    if "aits_seconds" in result:
-        extra.append(f"AITS: {result['aits_seconds'] * 1000:.1f} ms per sentence")
-    text = f"## {title}\n\n{table}\n\n" + "; ".join(extra) + "\n"
+    from ..eval.prompts import format_prompt_accuracy
+
+    text = f"## {title}\n\n"
+    if "rows" in result:
+        extra = [f"items per replication: {result['items_per_replication']}, replications: "
+                 f"{result['config']['replications']}"]
+        if "aits_seconds" in result:
+            extra.append(f"AITS: {result['aits_seconds'] * 1000:.1f} ms per sentence")
+        text += f"{markdown_table(result)}\n\n" + "; ".join(extra) + "\n"
+    if "prompts" in result:
+        text += f"\nPrompt following ({result['prompts']['file']}):\n\n{format_prompt_accuracy(result['prompts'])}\n"
     if out is not None:
         write_text(out, json.dumps(result, indent=2, default=float) + "\n")
         write_text(out.with_suffix(".md"), text)
@@ -139,12 +172,32 @@ def run(args: argparse.Namespace) -> None:
     real_only = args.checkpoint is not None and str(args.checkpoint).lower() == "none"
     pipe = None if real_only else MotionPipeline.from_pretrained(args.checkpoint, device=args.device,
                                                                  rigid=rigid_config(args))
-    embedder = load_embedder(args, pipe)
     from ..motion.skeleton import get_skeleton
 
     sk = pipe.skeleton if pipe else get_skeleton("humanml3d")
-    result = evaluate(pipe, embedder, args.data, cfg, progress=not args.no_progress, skate_metrics=skate_fn(sk),
-                      body=True)
     name = "real motion only" if real_only else str(args.checkpoint or "the shipped default model")
-    result["checkpoint"] = name
+    prompt_result = None
+    if args.prompts is not None:
+        if args.classifier is None or pipe is None:
+            raise SMFError("--prompts needs --classifier DIR and a checkpoint")
+        if args.prompt_samples < 1 or not args.prompt_seconds > 0:
+            raise SMFError("--prompt-samples must be >= 1 and --prompt-seconds positive")
+        from ..eval.classifier import corpus_labels, load_classifier
+        from ..eval.prompts import load_prompts, prompt_accuracy
+
+        prompt_result = prompt_accuracy(pipe, load_classifier(args.classifier), load_prompts(args.prompts),
+                                        corpus_labels(args.data), samples=args.prompt_samples,
+                                        seconds=args.prompt_seconds, seed=args.seed)
+        prompt_result["file"] = str(args.prompts)
+    if args.prompts_only:
+        if prompt_result is None:
+            raise SMFError("--prompts-only needs --prompts FILE")
+        result = {"checkpoint": name, "prompts": prompt_result}
+    else:
+        embedder = load_embedder(args, pipe)
+        result = evaluate(pipe, embedder, args.data, cfg, progress=not args.no_progress, skate_metrics=skate_fn(sk),
+                          body=True, label_metrics=label_fn(args.classifier, args.data) if args.classifier else None)
+        result["checkpoint"] = name
+        if prompt_result is not None:
+            result["prompts"] = prompt_result
     print(write_results(result, args.out, f"Evaluation of {name}"))

@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> None:
 
     from ..io import save_npy, write_text
     from ..motion.files import save_bvh, save_rigid_bvh
-    from ..pipeline import LengthClampedWarning, MotionPipeline
+    from ..pipeline import LengthClampedWarning, MotionPipeline, OutOfDomainWarning
 
     options = footskate_options_from_args(args) if args.footskate != "off" else None
     pipe = MotionPipeline.from_pretrained(args.checkpoint, device=args.device)
@@ -97,7 +97,8 @@ def run(args: argparse.Namespace) -> None:
         results = pipe(prompts, seconds=args.seconds, guidance_scale=args.guidance, steps=args.steps,
                        sampler=args.sampler, seed=args.seed, batch_size=args.batch_size, progress=len(prompts) > 1,
                        footskate=args.footskate, footskate_options=options)
-    for w in {str(c.message) for c in caught if issubclass(c.category, LengthClampedWarning)}:
+    shown = (LengthClampedWarning, OutOfDomainWarning)
+    for w in dict.fromkeys(str(c.message) for c in caught if issubclass(c.category, shown)):
         print(f"smf: warning: {w}")
     if any(f in formats for f in ("mp4", "gif")):
         from ..render import render_video
@@ -117,5 +118,6 @@ def run(args: argparse.Namespace) -> None:
         if "json" in formats:
             write_text(stem.with_suffix(".json"), json.dumps({
                 "prompt": r.prompt, "fps": r.fps, "frames": len(r.joints), "seed": r.seed, "sampler": args.sampler,
-                "steps": args.steps, "guidance": args.guidance, "joints": r.joints.round(5).tolist()}) + "\n")
+                "steps": args.steps, "guidance": args.guidance, **(r.domain.to_dict(r.prompt) if r.domain else {}),
+                "joints": r.joints.round(5).tolist()}) + "\n")
         print(f"wrote {stem}.* ({len(r.joints)} frames)")

@@ -20,6 +20,7 @@ COMMANDS = {
     "bench": "bench",
     "footskate": "footskate",
     "train-evaluator": "train_evaluator",
+    "train-classifier": "train_classifier",
     "evaluate": "evaluate",
     "export": "export",
     "ablate": "ablate",

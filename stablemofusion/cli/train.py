@@ -17,7 +17,10 @@ _FLAGS = {  # TrainConfig field -> help
     "checkpoint_every": "steps between checkpoints", "max_frames": "longest training crop (frames)",
     "min_frames": "shortest motion used (frames; default 40 at 20 fps)", "feat_bias": "root/contact std divisor",
     "bucket": "group similar lengths: sort runs of BUCKET batches by length (0 = off)",
+    "text_augment": "probability that a training caption is perturbed (word dropout, synonym swap, typos, case)",
+    "init_from": "start from the weights of this checkpoint, run or exported folder (fine-tuning)",
 }
+_TYPES = {"init_from": str}
 
 
 def add_parser(sub, name: str) -> None:
@@ -33,7 +36,7 @@ def add_parser(sub, name: str) -> None:
     for f in fields(TrainConfig):
         if f.name in _FLAGS:
             default = getattr(defaults, f.name)
-            kind = type(default) if default is not None else int
+            kind = _TYPES.get(f.name) or (type(default) if default is not None else int)
             p.add_argument("--" + f.name.replace("_", "-"), type=kind, default=default, help=_FLAGS[f.name])
     p.add_argument("--stop-after", type=int, default=None, help=argparse.SUPPRESS)  # simulate a kill (tests)
     p.set_defaults(func=run)

@@ -260,6 +260,7 @@ def corpus_stats(records: list[dict], splits: dict[str, list[str]]) -> dict:
             speed[r["content"]].append(r["mean_root_speed_m_s"])
     bone_std = [r["bone_length_std_cm"] for r in records]
     return {
+        "lexicon": "bandai",  # captions come from assets/lexicons/bandai.json (training augmentation reads it)
         "clips": len(records),
         "motions": len(segs),
         "motions_with_mirrors": 2 * len(segs),

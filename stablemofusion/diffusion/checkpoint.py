@@ -87,15 +87,23 @@ def read_config(path: str | Path) -> dict:
     return config
 
 
+def load_weights(path: str | Path, *, ema: bool = True) -> dict[str, torch.Tensor]:
+    """The (EMA) weights of a checkpoint, run or exported folder as float32 tensors."""
+    path = resolve(path)
+    read_config(path)
+    weights = path / (EMA if ema and (path / EMA).is_file() else MODEL)
+    if not weights.is_file():
+        raise SMFError(f"checkpoint has no weights file {weights}")
+    return {k: v.float() if v.is_floating_point() else v for k, v in load_file(weights).items()}
+
+
 def load_checkpoint(path: str | Path, *, ema: bool = True, device: str | torch.device = "cpu") -> Checkpoint:
     """Rebuild the denoiser of a checkpoint folder and load its (EMA) weights, in float32, eval mode."""
     path = resolve(path)
     config = read_config(path)
     model = build_denoiser(ModelConfig.from_dict(config["model"]))
     weights = path / (EMA if ema and (path / EMA).is_file() else MODEL)
-    if not weights.is_file():
-        raise SMFError(f"checkpoint has no weights file {weights}")
-    state = {k: v.float() if v.is_floating_point() else v for k, v in load_file(weights).items()}
+    state = load_weights(path, ema=ema)
     missing, unexpected = model.load_state_dict(state, strict=False)
     if missing or unexpected:
         raise SMFError(f"{weights}: weights do not fit the config (missing {missing[:3]}, unexpected {unexpected[:3]})")

@@ -49,6 +49,8 @@ class TrainConfig:
     min_frames: int | None = None
     feat_bias: float = 5.0
     bucket: int = 0  # >0: sort each run of bucket*batch_size items by length (less padding, faster)
+    text_augment: float = 0.0  # probability that a caption is perturbed (data/augment.py) before encoding
+    init_from: str | None = None  # start from these weights (a checkpoint, run or exported model folder)
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
 
 
@@ -123,6 +125,8 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     model_cfg = get_preset(cfg.preset, motion_dim=int(ds.mean.shape[0]), text_dim=encoder.dim)
     torch.manual_seed(cfg.seed)  # initial weights
     model = build_denoiser(model_cfg)
+    if cfg.init_from and not resume:
+        _init_weights(model, cfg.init_from)
     optimizer = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     lr_sched = torch.optim.lr_scheduler.StepLR(optimizer, step_size=cfg.lr_decay_every, gamma=cfg.lr_decay)
     ema = EMAModel(model.parameters(), decay=cfg.ema_decay)
@@ -144,6 +148,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     config = {"model": model_cfg.to_dict(), "train": _json(asdict(cfg)), "text_encoder": encoder.name,
               "skeleton": ds.skeleton.name if hasattr(ds, "skeleton") else "humanml3d", "fps": 20.0,
               "max_frames": cfg.max_frames, "min_frames": ds.min_frames if hasattr(ds, "min_frames") else 40}
+    synonyms = _synonyms(data) if cfg.text_augment > 0 else None
     log_path = out / "log.csv"
     out.mkdir(parents=True, exist_ok=True)
     if not resume or not log_path.exists():
@@ -161,7 +166,12 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
             sl = slice(rank * cfg.batch_size, (rank + 1) * cfg.batch_size)
             x0 = batch["motion"][sl].to(accelerator.device)
             mask = batch["mask"][sl].to(accelerator.device)
-            tokens, tmask = cache.get_or_compute(batch["caption"][sl], device=accelerator.device)
+            captions = batch["caption"][sl]
+            if cfg.text_augment > 0:
+                tokens, tmask = _augmented_text(captions, cache, encoder, cfg, synonyms, _mix(cfg.seed, step, rank, 2),
+                                                accelerator.device)
+            else:
+                tokens, tmask = cache.get_or_compute(captions, device=accelerator.device)
             g = torch.Generator().manual_seed(_mix(cfg.seed, step, rank))
             t = torch.randint(0, T, (x0.shape[0],), generator=g).to(accelerator.device)
             noise = torch.randn(x0.shape, generator=g).to(accelerator.device)
@@ -195,6 +205,58 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
                 accelerator.wait_for_everyone()
     cache.close()
     return losses
+
+
+def _synonyms(data: str | Path) -> dict[str, tuple[str, ...]]:
+    """Synonym groups for caption augmentation: the style words of the corpus's lexicon (its stats.json names
+    it), or none for a corpus without one."""
+    import json
+
+    from ..data.augment import synonym_groups
+    from ..data.lexicon import STYLE_KINDS, load_lexicon
+
+    stats = Path(data) / "stats.json"
+    name = json.loads(stats.read_text()).get("lexicon") if stats.is_file() else None
+    if not name:
+        return {}
+    lex = load_lexicon(name)
+    return synonym_groups(sw.kind(k).train for sw in lex.styles.values() for k in STYLE_KINDS if k != "personas")
+
+
+def _augmented_text(captions: list[str], cache, encoder, cfg: TrainConfig, synonyms, seed: int, device):
+    """Frozen tokens of a batch where each caption is perturbed with probability ``cfg.text_augment``:
+    unchanged captions come from the cache, perturbed ones are encoded afresh (they are not cached)."""
+    import random
+
+    from ..data.augment import augment_caption
+    from ..text.cache import pad_rows
+
+    rng = random.Random(seed)
+    texts = [augment_caption(c, rng, synonyms) if rng.random() < cfg.text_augment else c for c in captions]
+    fresh = [i for i, (a, b) in enumerate(zip(texts, captions)) if a != b]
+    tokens, mask = cache.get_or_compute(captions, device=device)
+    if not fresh:
+        return tokens, mask
+    rows = [tokens[i, :int(mask[i].sum())] for i in range(len(captions))]
+    with torch.no_grad():
+        new_tokens, new_mask = encoder.encode([texts[i] for i in fresh])
+    for j, i in enumerate(fresh):
+        rows[i] = new_tokens[j, :int(new_mask[j].sum())]
+    return pad_rows(rows, tokens.shape[-1], device)
+
+
+def _init_weights(model: torch.nn.Module, source: str) -> None:
+    """Load every weight of ``source`` into ``model``; parameters the model adds (e.g. a zero-initialised
+    sentence conditioning map) keep their initial values. Every source weight must fit the model."""
+    from ..diffusion.checkpoint import load_weights
+
+    state = load_weights(source)
+    own = model.state_dict()
+    misfit = [k for k, v in state.items() if k not in own or own[k].shape != v.shape]
+    if misfit:
+        raise SMFError(f"--init-from {source}: {len(misfit)} of its weights do not fit this model "
+                       f"(e.g. {misfit[0]}); fine-tuning needs the same architecture")
+    model.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()}, strict=False)
 
 
 def _json(d: dict) -> dict:

@@ -63,6 +63,7 @@ class Items:
     lengths: list[int]
     real: list[np.ndarray]
     tokens: list[list[str]]
+    ids: list[str] = field(default_factory=list)
 
 
 def items_per_draw(n: int, batch_size: int, max_items: int | None) -> int:
@@ -77,15 +78,16 @@ def draw_items(ds: MotionTextDataset, epoch: int, seed: int, batch_size: int, ma
     n = items_per_draw(len(ds), batch_size, max_items)
     if n == 0:
         raise SMFError(f"the {ds.split} split has {len(ds)} usable items: fewer than one batch of {batch_size}")
-    caps, lens, real, toks = [], [], [], []
+    caps, lens, real, toks, ids = [], [], [], [], []
     for i in order[:n]:
         it = ds[int(i)]
         k = it["length"]
+        ids.append(it["id"])
         caps.append(it["caption"])
         toks.append(it["tokens"])
         lens.append(k)
         real.append(ds.denormalize(it["motion"][:k].numpy()))
-    return Items(caps, lens, real, toks)
+    return Items(caps, lens, real, toks, ids)
 
 
 def _pad(feats: list[np.ndarray]) -> torch.Tensor:
@@ -190,12 +192,14 @@ def row_metrics(emb_text: np.ndarray, emb_motion: np.ndarray, ref: tuple[np.ndar
 
 
 def evaluate(pipe, embedder: EmbeddingModel, data: str | Path, cfg: EvalConfig, *, progress: bool = True,
-             skate_metrics: Callable[[list[np.ndarray]], dict[str, float]] | None = None, body: bool = False) -> dict:
+             skate_metrics: Callable[[list[np.ndarray]], dict[str, float]] | None = None, body: bool = False,
+             label_metrics: Callable[[list[str], list[np.ndarray]], dict[str, float]] | None = None) -> dict:
     """Run the protocol; returns {"config", "rows": {"Real motion": {...}, "Generated": {...}}, "runs"}.
 
     Each row maps a metric to (mean, 95% half-interval); ``runs`` keeps the per-replication values.
     ``skate_metrics`` (list of joints (n, J, 3) -> dict) adds footskate figures to both rows when given; with
-    ``body`` both rows also get :func:`body_metrics` (bone lengths, joints .npy vs BVH)."""
+    ``body`` both rows also get :func:`body_metrics` (bone lengths, joints .npy vs BVH); ``label_metrics``
+    (motion ids, features -> dict) adds the label accuracy of a motion classifier to both rows."""
     if pipe is not None and cfg.mm_repeats <= cfg.mm_times:
         raise SMFError(f"mm_repeats ({cfg.mm_repeats}) must exceed mm_times ({cfg.mm_times})")
     ds = MotionTextDataset(data, cfg.split, seed=cfg.seed, max_frames=pipe.max_frames if pipe else 196,
@@ -217,6 +221,8 @@ def evaluate(pipe, embedder: EmbeddingModel, data: str | Path, cfg: EvalConfig, 
             real_joints = [joints_from_features(f.astype(np.float64), ds.skeleton) for f in items.real]
         if skate_metrics:
             real_row.update(skate_metrics(real_joints))
+        if label_metrics:
+            real_row.update(label_metrics(items.ids, items.real))
         if body:
             real_row.update(body_metrics(real_joints, None, ds.skeleton, ds.skeleton.fps))
         runs["Real motion"].append(real_row)
@@ -229,6 +235,8 @@ def evaluate(pipe, embedder: EmbeddingModel, data: str | Path, cfg: EvalConfig, 
         row = row_metrics(text, embedder.motions([g.features for g in gen]), ref, cfg, rng)
         if skate_metrics:
             row.update(skate_metrics([g.joints for g in gen]))
+        if label_metrics:
+            row.update(label_metrics(items.ids, [g.features for g in gen]))
         if body:
             row.update(body_metrics([g.joints for g in gen], [g.motion for g in gen], pipe.skeleton, pipe.fps))
         # the same seeds without cleanup: how much did cleanup move the joints? (and everything after the

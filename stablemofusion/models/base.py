@@ -9,6 +9,7 @@ import torch
 from torch import nn
 
 from ..errors import SMFError
+from ..text.frozen import sentence_embedding
 from ..text.transformer import TextTransformer
 
 
@@ -23,6 +24,10 @@ class TextConfig:
     ff: int = 1024
     dropout: float = 0.1
     max_tokens: int = 77
+    # The frozen encoder's sentence embedding (mean of its valid token states, L2-normalised: what
+    # sentence-transformers computes for MiniLM) as a global condition added to the timestep embedding,
+    # beside the token cross-attention. Paraphrases land close together there. Off in the paper's design.
+    sentence: bool = False
 
 
 class Denoiser(nn.Module):
@@ -38,8 +43,27 @@ class Denoiser(nn.Module):
 
     def __init__(self, text: TextConfig):
         super().__init__()
+        self.text_config = text
+        self.sentence_proj: nn.Linear | None = None
         self.text = TextTransformer(text.in_dim, text.latent, text.layers, text.heads, text.ff, text.dropout,
                                     text.max_tokens)
+
+    def init_sentence_condition(self, out_dim: int) -> None:
+        """Create the zero-initialised map from the sentence embedding to a ``out_dim`` conditioning vector
+        (when the text config asks for it); a model trained without it therefore starts unchanged."""
+        self.sentence_proj = None
+        if self.text_config.sentence:
+            self.sentence_proj = nn.Linear(self.text_config.in_dim, out_dim)
+            nn.init.zeros_(self.sentence_proj.weight)
+            nn.init.zeros_(self.sentence_proj.bias)
+
+    def sentence_condition(self, tokens: torch.Tensor, mask: torch.Tensor,
+                           drop_cond: torch.Tensor | None) -> torch.Tensor | None:
+        """(B, L, C) frozen tokens, (B, L) mask -> (B, out_dim) sentence conditioning, zero where ``drop_cond``;
+        None for a model without it."""
+        if self.sentence_proj is None:
+            return None
+        return self.sentence_proj(sentence_embedding(tokens, mask, drop_cond).to(self.sentence_proj.weight.dtype))
 
     def encode_text(self, tokens: torch.Tensor, mask: torch.Tensor, drop_cond: torch.Tensor | None) -> torch.Tensor:
         """(B, L, C) frozen tokens -> (B, L, latent) text features, zeroed where ``drop_cond``.

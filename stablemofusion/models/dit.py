@@ -121,6 +121,7 @@ class DiT(Denoiser):
         self.in_proj = nn.Linear(motion_dim, d)
         self.pos = nn.Parameter(sinusoidal_embedding(torch.arange(config.max_frames), d)[None].clone())
         self.time = TimestepEmbedding(d, config.time_dim)
+        self.init_sentence_condition(config.time_dim)
         self.text_proj = nn.Linear(text.latent, d)
         self.blocks = nn.ModuleList(DiTBlock(config) for _ in range(config.layers))
         self.final_norm = nn.LayerNorm(d, elementwise_affine=False, eps=1e-6)
@@ -137,6 +138,9 @@ class DiT(Denoiser):
         txt = self.text_proj(self.encode_text(text_tokens, text_mask, drop_cond))
         tmask = text_mask if drop_cond is None else text_mask & ~drop_cond[:, None]
         c = self.time(t)
+        sent = self.sentence_condition(text_tokens, text_mask, drop_cond)
+        if sent is not None:
+            c = c + sent.to(c.dtype)
         h = self.in_proj(x_t) + self.pos[:, :T]
         if self.config.cross_attention:
             seq, mask = h, motion_mask

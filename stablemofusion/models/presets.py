@@ -12,12 +12,15 @@ from .unet1d import UNetConfig
 
 _SMALL_UNET = dict(base_dim=64, dim_mults=(1, 2, 2, 2), blocks_per_level=1, attn_heads=4, time_dim=128)
 _SMALL_TEXT = TextConfig(latent=256, layers=4, heads=4, ff=512)
+_SMALL_SENTENCE_TEXT = TextConfig(latent=256, layers=4, heads=4, ff=512, sentence=True)
 
 # name -> (architecture, architecture options, text options, what it is)
 PRESETS: dict[str, tuple[str, object, TextConfig, str]] = {
     "paper": ("unet", UNetConfig(base_dim=512, dim_mults=(2, 2, 2, 2)), TextConfig(),
               "CondUNet1D as in the paper (base 512, multipliers 2,2,2,2)"),
     "small": ("unet", UNetConfig(**_SMALL_UNET), _SMALL_TEXT, "CondUNet1D sized for CPU training and sampling"),
+    "small-sentence": ("unet", UNetConfig(**_SMALL_UNET), _SMALL_SENTENCE_TEXT,
+                       "small + the frozen encoder's sentence embedding as a global condition"),
     # architecture ablation at a size that trains on a CPU (paper Table 4 at our scale)
     "unet-baseline": ("unet", UNetConfig(**_SMALL_UNET, cross_attention=False, groupnorm_tweak=False,
                                          mask_padding=False), _SMALL_TEXT, "UNet baseline: pooled text added to time"),

@@ -115,6 +115,7 @@ class RetNet(Denoiser):
         self.in_proj = nn.Linear(motion_dim, d)
         self.time = TimestepEmbedding(d, config.time_dim)
         self.time_proj = nn.Linear(config.time_dim, d)
+        self.init_sentence_condition(config.time_dim)
         self.text_proj = nn.Linear(text.latent, d)
         self.blocks = nn.ModuleList(RetNetBlock(config) for _ in range(config.layers))
         self.norm = nn.LayerNorm(d)
@@ -139,7 +140,11 @@ class RetNet(Denoiser):
             motion_mask = torch.ones(B, T, dtype=torch.bool, device=dev)
         txt = self.text_proj(self.encode_text(text_tokens, text_mask, drop_cond))
         tmask = text_mask if drop_cond is None else text_mask & ~drop_cond[:, None]
-        parts = [self.in_proj(x_t), self.time_proj(self.time(t))[:, None]]
+        c = self.time(t)
+        sent = self.sentence_condition(text_tokens, text_mask, drop_cond)
+        if sent is not None:
+            c = c + sent.to(c.dtype)
+        parts = [self.in_proj(x_t), self.time_proj(c)[:, None]]
         masks = [motion_mask, torch.ones(B, 1, dtype=torch.bool, device=dev)]
         if not self.config.cross_attention:
             parts.append(txt)

@@ -181,6 +181,7 @@ class CondUNet1D(Denoiser):
         dims = cfg.widths()
 
         self.time_embed = TimestepEmbedding(cfg.time_dim, cfg.time_dim)
+        self.init_sentence_condition(cfg.time_dim)
         # The baseline without cross-attention: a pooled text vector is added to the time embedding.
         self.text_pool = None if cfg.cross_attention else nn.Linear(text.latent, cfg.time_dim)
         self.input_proj = nn.Conv1d(motion_dim, dims[0], 1)
@@ -217,6 +218,9 @@ class CondUNet1D(Denoiser):
             m = text_mask[..., None].to(text.dtype)
             pooled = (text * m).sum(1) / m.sum(1).clamp(min=1.0)
             temb = temb + self.text_pool(pooled)
+        sent = self.sentence_condition(text_tokens, text_mask, drop_cond)
+        if sent is not None:
+            temb = temb + sent.to(temb.dtype)
 
         pad = (-T) % cfg.pad_multiple
         x = F.pad(x_t.transpose(1, 2), (0, pad))

@@ -130,6 +130,7 @@ def create_app(pipe, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: in
         # JSONResponse serialises with json.dumps (C); FastAPI's own encoder walks every float in Python and,
         # on the event loop, starved the batching of requests arriving meanwhile
         return JSONResponse({"prompt": r.prompt, "fps": r.fps, "frames": len(r.joints), "seed": seed,
+                             **(r.domain.to_dict(r.prompt) if r.domain else {}),
                              "joints": np.round(r.joints, 5).tolist()})
 
     @app.post("/v1/convert")

@@ -76,6 +76,17 @@ def _check_loaded(info: dict[str, Any], what: str, folder: Path) -> None:
                        f"{' ...' if len(missing) + len(mismatched) > 5 else ''}")
 
 
+def sentence_embedding(tokens: torch.Tensor, mask: torch.Tensor, drop_cond: torch.Tensor | None = None) -> torch.Tensor:
+    """Frozen token states (B, L, C), mask (B, L) bool -> (B, C) unit sentence embeddings (mean over valid
+    tokens, L2-normalised); rows where ``drop_cond`` (B,) is True are zero (the unconditional branch)."""
+    m = mask[..., None].to(tokens.dtype)
+    pooled = (tokens * m).sum(1) / m.sum(1).clamp(min=1.0)
+    pooled = pooled / pooled.norm(dim=-1, keepdim=True).clamp(min=1e-8)
+    if drop_cond is not None:
+        pooled = pooled * (~drop_cond.bool()).to(pooled.dtype)[:, None]
+    return pooled
+
+
 class FrozenTextEncoder(nn.Module):
     """A frozen Hugging Face text model + tokenizer: ``encode(texts) -> (tokens (B, L, dim), mask (B, L))``.
 

@@ -10,6 +10,7 @@ from stablemofusion.cli.main import main
 from stablemofusion.data.corpus_bandai import build_corpus
 from stablemofusion.diffusion.checkpoint import load_checkpoint
 from stablemofusion.diffusion.train import TrainConfig, batch_indices, masked_mse, train
+from stablemofusion.errors import SMFError
 
 
 @pytest.fixture(scope="module")
@@ -90,3 +91,44 @@ def test_masked_mse_ignores_padding():
     target[0, 2:] = 100.0
     mask = torch.tensor([[True, True, False, False]])
     assert masked_mse(pred, target, mask).item() == pytest.approx(1.0)
+
+
+def test_init_from_starts_from_those_weights(corpus, text_cache, tmp_path):
+    base = TrainConfig(preset="tiny", steps=3, batch_size=4, checkpoint_every=3, min_frames=16)
+    train(corpus, tmp_path / "base", base, progress=False, text_cache=text_cache)
+    # lr 0: the fine-tuned model's weights stay exactly the ones it started from
+    tuned = TrainConfig(preset="tiny", steps=1, batch_size=4, checkpoint_every=1, min_frames=16, lr=0.0,
+                        init_from=str(tmp_path / "base"))
+    train(corpus, tmp_path / "tuned", tuned, progress=False, text_cache=text_cache)
+    a = load_checkpoint(tmp_path / "base").model.state_dict()  # EMA weights of the base run
+    b = load_checkpoint(tmp_path / "tuned", ema=False).model.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    bad = TrainConfig(preset="dit", steps=1, batch_size=4, min_frames=16, init_from=str(tmp_path / "base"))
+    with pytest.raises(SMFError, match="do not fit this model"):
+        train(corpus, tmp_path / "bad", bad, progress=False, text_cache=text_cache)
+
+
+def test_text_augmentation_encodes_perturbed_captions_afresh(corpus, text_cache, tmp_path):
+    import random
+
+    from stablemofusion.data.augment import augment_caption
+    from stablemofusion.diffusion.train import _augmented_text, _synonyms
+    from stablemofusion.text.cache import TextEmbeddingCache
+    from stablemofusion.text.frozen import load_text_encoder
+
+    synonyms = _synonyms(corpus)  # the corpus names its lexicon in stats.json
+    assert synonyms["tired"] and "weary" in synonyms["tired"]
+    encoder = load_text_encoder("minilm")
+    cache = TextEmbeddingCache(text_cache, encoder)
+    captions = ["A tired man walks forward slowly.", "Someone waves the left hand happily."]
+    cfg = TrainConfig(text_augment=1.0)
+    tokens, mask = _augmented_text(captions, cache, encoder, cfg, synonyms, seed=5, device="cpu")
+    rng = random.Random(5)
+    texts = [augment_caption(c, rng, synonyms) if rng.random() < 1.0 else c for c in captions]
+    assert texts != captions
+    want, want_mask = encoder.encode(texts)
+    assert torch.equal(mask, want_mask) and torch.allclose(tokens, want, atol=1e-5)
+    losses = train(corpus, tmp_path / "aug", TrainConfig(preset="tiny", steps=2, batch_size=4, checkpoint_every=2,
+                                                         min_frames=16, text_augment=0.5),
+                   progress=False, text_cache=text_cache)
+    assert len(losses) == 2 and all(np.isfinite(losses))

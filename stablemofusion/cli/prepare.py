@@ -19,7 +19,7 @@ def add_parser(sub, name: str) -> None:
     b.add_argument("--cache", type=Path, default=None, help="where to unpack the archive (default OUT/.source)")
     b.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     b.add_argument("--limit", type=int, default=None, help="only this many clips, spread over the labels")
-    b.add_argument("--captions", type=int, default=6, help="captions per motion (default 6)")
+    b.add_argument("--captions", type=int, default=16, help="captions per motion (default 16)")
     b.add_argument("--first-frame", default="official", choices=("official", "consistent"),
                    help="frame 0's body frame: HumanML3D's (official, default) or the one every other frame uses "
                         "(consistent: no yaw jump at frame 0; docs/rigid.md)")

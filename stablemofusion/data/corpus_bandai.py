@@ -161,7 +161,7 @@ def assign_splits(records: list[dict], seed: int = 0) -> dict[str, list[str]]:
 
 
 def build_corpus(source: Path, out: Path, *, cache: Path | None = None, workers: int = 2, limit: int | None = None,
-                 n_captions: int = 6, seed: int = 0, first_frame: str = "official") -> dict:
+                 n_captions: int = 16, seed: int = 0, first_frame: str = "official") -> dict:
     """Build the corpus at ``out`` from the archive (or an unpacked folder holding ``dataset/``).
 
     Idempotent: clips whose record exists in ``out/.work`` are not processed again. Returns the stats.

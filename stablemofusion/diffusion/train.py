@@ -54,6 +54,10 @@ class TrainConfig:
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
 
 
+# settings a resumed run may change: it can be extended (more steps) and checkpoint at another rate
+EXTENDABLE = frozenset({"steps", "checkpoint_every"})
+
+
 def _mix(*ints: int) -> int:
     """A 63-bit seed from integers (stable across runs and machines)."""
     return int(np.random.SeedSequence(list(ints)).generate_state(1, dtype=np.uint64)[0] >> 1)
@@ -133,8 +137,11 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     start = 0
     if resume:
         state = load_training_state(out / CHECKPOINT_DIR)
-        if read_config(out / CHECKPOINT_DIR)["train"] != _json(asdict(cfg)):
-            raise SMFError(f"cannot resume {out}: its training config differs from this run's")
+        saved = read_config(out / CHECKPOINT_DIR)["train"]
+        differ = sorted(k for k in set(saved) | set(_json(asdict(cfg))) if k not in EXTENDABLE
+                        and saved.get(k) != _json(asdict(cfg)).get(k))
+        if differ:
+            raise SMFError(f"cannot resume {out}: its training config differs from this run's in {', '.join(differ)}")
         from safetensors.torch import load_file
 
         model.load_state_dict(load_file(out / CHECKPOINT_DIR / MODEL))

@@ -55,10 +55,10 @@ def test_save_load_roundtrip(tmp_path):
 
 def test_training_on_real_clips_separates_them(eval_corpus, eval_text_cache, tmp_path):
     torch.set_num_threads(1)
-    cfg = EvaluatorTrainConfig(steps=80, batch_size=8, lr=2e-3, eval_every=1000)
+    cfg = EvaluatorTrainConfig(steps=160, batch_size=8, lr=2e-3, eval_every=1000)
     meta = train_evaluator(eval_corpus, tmp_path / "ev", cfg, progress=False, text_cache=eval_text_cache,
                            model_cfg=EvaluatorConfig(conv_dim=48, motion_hidden=48, text_hidden=48, out_dim=32))
-    assert np.isfinite(meta["final_loss"]) and meta["steps"] == 80
+    assert np.isfinite(meta["final_loss"]) and meta["steps"] == 160
     ev, _ = load_evaluator(tmp_path / "ev")
     ds = MotionTextDataset(eval_corpus, "test", seed=1, feat_bias=1.0)
     with TextEmbeddingCache(eval_text_cache, "minilm") as cache:

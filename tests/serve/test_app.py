@@ -168,3 +168,21 @@ def test_viewer_page_and_convert(pipe, tmp_path):
     assert txt.status_code == 415 and "only .bvh and .npy" in txt.json()["error"]
     for r in (pick, junk):  # never unpickled; one-line error naming the file
         assert r.status_code == 422 and "\n" not in r.json()["error"] and ".npy" in r.json()["error"]
+
+
+def test_generate_reports_the_out_of_domain_check(checkpoint, tmp_path):
+    import json as _json
+    import shutil
+
+    from stablemofusion.data.lexicon import known_actions, load_lexicon
+
+    folder = tmp_path / "ck"
+    shutil.copytree(checkpoint, folder)
+    (folder / "actions.json").write_text(_json.dumps(known_actions(load_lexicon("bandai"), 0.56)))
+    app = create_app(MotionPipeline.from_pretrained(folder, device="cpu"))
+    ood, ok = call(app, ("POST", "/v1/generate", {"prompt": "does a backflip", "seconds": 2, "seed": 0, "steps": 2}),
+                   ("POST", "/v1/generate", {"prompt": "a person walks forward", "seconds": 2, "seed": 0, "steps": 2}))
+    a, b = ood.json(), ok.json()
+    assert ood.status_code == 200 and a["out_of_domain"] is True and "backflip" in a["warning"]
+    assert b["out_of_domain"] is False and "warning" not in b and b["closest_actions"][0][0] == "walk"
+    assert 0 < a["similarity"] < 0.56 <= b["similarity"]

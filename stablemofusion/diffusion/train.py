@@ -153,7 +153,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     noise_sched = make_train_scheduler(cfg.schedule)
     T = cfg.schedule.num_train_timesteps
     config = {"model": model_cfg.to_dict(), "train": _json(asdict(cfg)), "text_encoder": encoder.name,
-              "skeleton": ds.skeleton.name if hasattr(ds, "skeleton") else "humanml3d", "fps": 20.0,
+              "skeleton": ds.skeleton.name, "fps": float(ds.skeleton.fps),
               "max_frames": cfg.max_frames, "min_frames": ds.min_frames if hasattr(ds, "min_frames") else 40}
     synonyms = _synonyms(data) if cfg.text_augment > 0 else None
     log_path = out / "log.csv"

@@ -10,14 +10,13 @@ distributions and the threshold with the best balanced accuracy. The free-form d
 from __future__ import annotations
 
 import argparse
-import re
 from pathlib import Path
 
 import numpy as np
 
 
 def main() -> None:
-    from stablemofusion.data.lexicon import known_actions, load_lexicon, verb_forms
+    from stablemofusion.data.lexicon import known_actions, load_lexicon, person_sentence
     from stablemofusion.text.cache import LRUTextCache
     from stablemofusion.text.frozen import load_text_encoder
     from stablemofusion.text.known import KnownActions
@@ -28,8 +27,7 @@ def main() -> None:
     lex = load_lexicon(args.lexicon)
     cache = LRUTextCache(load_text_encoder("minilm"), maxsize=10_000)
     known = KnownActions(known_actions(lex, 0.0)["actions"], 0.0, cache)
-    inside = ["a person " + re.sub(r"<([^<>]+)>", lambda m: verb_forms(m.group(1))[1], p).replace("{pos}", "their")
-              for w in lex.contents.values() for p in w.heldout]
+    inside = [person_sentence(p) for w in lex.contents.values() for p in w.heldout]
     path = Path(__file__).with_name("ood_calibration.txt")
     outside = [line.strip() for line in path.read_text().splitlines() if line.strip() and not line.startswith("#")]
     s_in = np.array([d.similarity for d in known.check_many(inside)])

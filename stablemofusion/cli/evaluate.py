@@ -119,9 +119,10 @@ def label_fn(classifier: Path, data: Path):
     from ..eval.classifier import corpus_labels, dataset_labels, label_accuracy, load_classifier
 
     model, labels = load_classifier(classifier), corpus_labels(data)
+    by_dataset = {d: dataset_labels(labels, d) for d in {v.dataset for v in labels.values()}}
 
     def metrics(ids: list[str], feats: list) -> dict[str, float]:
-        pred = model.predict(feats, [dataset_labels(labels, labels[i].dataset) for i in ids])
+        pred = model.predict(feats, [by_dataset[labels[i].dataset] for i in ids])
         out = {}
         for d in sorted({labels[i].dataset for i in ids}):
             sel = [k for k, i in enumerate(ids) if labels[i].dataset == d]

@@ -22,7 +22,7 @@ from typing import Sequence
 
 from ..errors import SMFError
 from .augment import AugmentConfig, augment_caption
-from .lexicon import Lexicon, load_lexicon, marked_verbs
+from .lexicon import Lexicon, load_lexicon, marked_verbs, verb_forms
 
 POS_TAGS = frozenset(
     "NOUN VERB ADJ ADV DET ADP PRON PROPN AUX CCONJ PART NUM SCONJ PUNCT INTJ".split()
@@ -134,7 +134,7 @@ def _fill(structure: str, lex: Lexicon, content: str, style: str, rng: random.Ra
         possessive = "their"
 
     def verb_phrase(form: int) -> str:
-        out = re.sub(r"<([^<>]+)>", lambda m: _forms(m.group(1))[form], phrase)
+        out = re.sub(r"<([^<>]+)>", lambda m: verb_forms(m.group(1))[form], phrase)
         return out.replace("{pos}", possessive)
 
     def pick(kind: str) -> str:
@@ -152,11 +152,6 @@ def _fill(structure: str, lex: Lexicon, content: str, style: str, rng: random.Ra
     text = re.sub(r"\s+", " ", text).strip()
     text = re.sub(r"(^|[.:] )([a-z])", lambda m: m.group(1) + m.group(2).upper(), text)  # sentence starts
     return text
-
-
-def _forms(marker: str) -> tuple[str, str, str]:
-    (forms,) = marked_verbs(f"<{marker}>")
-    return forms
 
 
 def structures_for(lex: Lexicon, style: str, heldout: bool = False) -> list[str]:

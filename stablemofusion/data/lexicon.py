@@ -186,18 +186,20 @@ def verb_forms(marker: str) -> tuple[str, str, str]:
     return lemma, third, ing
 
 
+def person_sentence(phrase: str) -> str:
+    """A phrasing as a third-person sentence: ``<walk> forward`` -> "a person walks forward"."""
+    return "a person " + re.sub(r"<([^<>]+)>", lambda m: verb_forms(m.group(1))[1], phrase).replace("{pos}", "their")
+
+
 def known_actions(lex: Lexicon, threshold: float) -> dict:
     """The ``actions.json`` content of a model trained on this lexicon's corpus (see
     :mod:`stablemofusion.text.known`): each content label with "a person ..." sentences made from its
     training phrasings."""
-    actions = {}
-    for label, words in lex.contents.items():
-        actions[label] = ["a person " + re.sub(r"<([^<>]+)>", lambda m: verb_forms(m.group(1))[1], p).replace("{pos}", "their")
-                          for p in words.train]
+    actions = {label: [person_sentence(p) for p in words.train] for label, words in lex.contents.items()}
     return {"about": f"example sentences per action from the {lex.name} lexicon's training phrasings; a prompt whose "
                      "best cosine similarity to them is below threshold is out of domain",
             "threshold": threshold, "actions": actions}
 
 
 __all__ = ["known_actions", "Lexicon", "StyleWords", "Words", "STYLE_KINDS", "load_lexicon", "parse_lexicon", "marked_verbs",
-           "verb_forms"]
+           "verb_forms", "person_sentence"]

@@ -91,7 +91,8 @@ def prompt_accuracy(pipe, classifier: MotionClassifier, items: Sequence[PromptIt
     for a in range(0, len(prompts), batch):
         res = pipe(prompts[a:a + batch], seconds=seconds, seed=seeds[a:a + batch])
         feats.extend(r.features for r in res)
-    allowed = [dataset_labels(labels, it.dataset) if it.dataset is not None else ((), ()) for it in rep]
+    by_dataset = {d: dataset_labels(labels, d) for d in {it.dataset for it in rep} if d is not None}
+    allowed = [by_dataset.get(it.dataset, ((), ())) for it in rep]
     pred = classifier.predict(feats, allowed)
     want = [(it.contents, it.styles) for it in rep]
     out: dict = {"samples_per_prompt": samples, "seconds": seconds, "prompts": len(inside)}

@@ -52,7 +52,7 @@ class KnownActions:
             raise SMFError("actions.json: every action needs at least one example sentence")
         self.actions, self.threshold, self.text_cache, self.top = actions, float(threshold), text_cache, top
         self._emb: torch.Tensor | None = None
-        self._owner = [label for label, examples in actions.items() for _ in examples]
+        self._owner = torch.tensor([i for i, examples in enumerate(actions.values()) for _ in examples])
 
     @classmethod
     def load(cls, path: str | Path, text_cache) -> "KnownActions":
@@ -75,10 +75,8 @@ class KnownActions:
         if self._emb is None:
             self._emb = self.embed([e for examples in self.actions.values() for e in examples])
         sims = self.embed(list(prompts)) @ self._emb.T  # (B, E)
-        labels = list(self.actions)
-        owner = torch.tensor([labels.index(o) for o in self._owner])
-        best = torch.full((len(prompts), len(labels)), -1.0)
-        return best.scatter_reduce(1, owner.expand(len(prompts), -1), sims, reduce="amax")
+        best = torch.full((len(prompts), len(self.actions)), -1.0)
+        return best.scatter_reduce(1, self._owner.expand(len(prompts), -1), sims, reduce="amax")
 
     def check_many(self, prompts: list[str]) -> list[DomainCheck]:
         sims = self.similarities(prompts)

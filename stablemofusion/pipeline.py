@@ -7,7 +7,6 @@ sampler (SDE DPM-Solver++ 2M with Karras sigmas, 10 steps, by default).
 
 from __future__ import annotations
 
-import inspect
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,9 +16,14 @@ import torch
 from tqdm import tqdm
 
 from .diffusion.checkpoint import load_checkpoint
-from .diffusion.samplers import DEFAULT_SAMPLER, make_sampler, model_output_for
-from .diffusion.schedule import ScheduleConfig
+from .diffusion.config import CheckpointConfig
+from .diffusion.engine import SolverEngine, check_engine, default_engine
+from .diffusion.samplers import DEFAULT_SAMPLER, make_sampler, sampler_spec
+from .diffusion.sampling import (DenoiserFn, Noise, Step, X0Hook, cfg_batched, cfg_two_pass, model_denoiser,
+                                 run_diffusers, run_solver, with_x0_hook)
+from .diffusion.solvers import SolverTable, solver_table
 from .errors import SMFError
+from .models.base import TextCondition
 from .motion.features import joints_from_features
 from .motion.rigid import DEFAULT_FIT, RigidFitConfig, RigidMotion, rigid_from_features, rigid_to_features
 from .motion.skeleton import get_skeleton
@@ -60,9 +64,9 @@ def default_model_path() -> Path | None:
 class MotionPipeline:
     """Generate motions from text with a denoiser checkpoint. Build with :meth:`from_pretrained`."""
 
-    def __init__(self, model, mean: np.ndarray, std: np.ndarray, config: dict, *, device: str | torch.device = "cpu",
-                 dtype: torch.dtype = torch.float32, text_cache_size: int = 1024,
-                 rigid: RigidFitConfig | None = DEFAULT_FIT):
+    def __init__(self, model, mean: np.ndarray, std: np.ndarray, config: CheckpointConfig, *,
+                 device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32, text_cache_size: int = 1024,
+                 rigid: RigidFitConfig | None = DEFAULT_FIT, engine: str = "auto"):
         from .text.cache import LRUTextCache
         from .text.frozen import load_text_encoder
 
@@ -70,14 +74,17 @@ class MotionPipeline:
         self.dtype = dtype
         self.model = model.to(self.device, dtype).eval()
         self.config = config
-        self.skeleton = get_skeleton(config.get("skeleton", "humanml3d"))
-        self.fps = float(config.get("fps", self.skeleton.fps))
-        self.max_frames = int(config.get("max_frames", 196))
-        self.min_frames = int(config.get("min_frames") or 40)
+        self.skeleton = get_skeleton(config.skeleton)
+        self.fps = config.fps
+        self.min_frames, self.max_frames = config.min_frames, config.max_frames
         self.mean = torch.as_tensor(mean, dtype=torch.float32)
         self.std = torch.as_tensor(std, dtype=torch.float32)
-        self.schedule = ScheduleConfig(**config.get("train", {}).get("schedule", {}))
-        self.text_encoder_name = config.get("text_encoder", "minilm")
+        self.schedule = config.schedule
+        self.text_encoder_name = config.text_encoder
+        check_engine(engine, self.device)
+        self.engine = engine  # 'auto': the fastest that works here (diffusion/engine.py)
+        self._tables: dict[tuple[str, int], SolverTable] = {}
+        self._engines: dict[str, SolverEngine] = {}
         self._load_encoder = lambda: load_text_encoder(self.text_encoder_name).to(self.device)
         self.text_cache = LRUTextCache(_LazyEncoder(self._load_encoder), maxsize=text_cache_size)
         # the rigid final stage (docs/rigid.md); None only to measure what it changes
@@ -127,12 +134,14 @@ class MotionPipeline:
     def __call__(self, prompts: str | list[str], *, seconds: float | list[float] | None = None,
                  frames: int | list[int] | None = None, guidance_scale: float = 2.5, steps: int = 10,
                  sampler: str = DEFAULT_SAMPLER, seed: int | list[int] | None = None, batch_size: int = 32,
-                 progress: bool = False, footskate: str = "off", footskate_options=None) -> list[MotionResult]:
+                 progress: bool = False, footskate: str = "off", footskate_options=None,
+                 engine: str | None = None) -> list[MotionResult]:
         """Generate one motion per prompt. ``seconds``/``frames`` may be one value or one per prompt.
         The same seed gives the same motions; one seed per prompt makes each motion independent of the others
         it is generated with. ``footskate``: 'off', 'post' (clean up each result) or 'loop'
         (clean up the predicted x0 in the last denoising steps, StableMoFusion*); ``footskate_options`` a
-        :class:`stablemofusion.footskate.FootskateOptions`."""
+        :class:`stablemofusion.footskate.FootskateOptions`. ``engine``: 'auto', 'eager', 'fast', 'compiled' or
+        'graph' (:mod:`stablemofusion.diffusion.engine`; default: the pipeline's)."""
         prompts = [prompts] if isinstance(prompts, str) else list(prompts)
         if not prompts or any(not isinstance(p, str) or not p.strip() for p in prompts):
             raise SMFError("every prompt must be a non-empty text")
@@ -149,7 +158,7 @@ class MotionPipeline:
         per_item = isinstance(seed, (list, tuple))
         if per_item and len(seed) != n:
             raise SMFError(f"give one seed for all prompts or one per prompt: {len(seed)} seeds for {n} prompts")
-        make_sampler(sampler, self.schedule)  # fail early on an unknown name
+        self.engine_for(sampler, engine)  # fail early on an unknown sampler or engine
         _check_footskate(footskate)
         domains: list[DomainCheck | None] = [None] * n
         if self.known_actions is not None:
@@ -164,7 +173,7 @@ class MotionPipeline:
             batch_seed = [seed[i] for i in idx] if per_item else None if seed is None else seed + k
             raw = self.denoise([prompts[i] for i in idx], [lengths[i] for i in idx], guidance_scale=guidance_scale,
                                steps=steps, sampler=sampler, seed=batch_seed, footskate=footskate,
-                               footskate_options=footskate_options)
+                               footskate_options=footskate_options, engine=engine)
             for j, i in enumerate(idx):
                 f, motion = self.finish(raw[j, :lengths[i]].numpy(), footskate, footskate_options)
                 joints = joints_from_features(f, self.skeleton) if motion is None else motion.joints()
@@ -196,83 +205,116 @@ class MotionPipeline:
 
     def sample(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = 2.5, steps: int = 10,
                sampler: str = DEFAULT_SAMPLER, seed: int | list[int] | None = None, batched_cfg: bool = True,
-               footskate: str = "off", footskate_options=None) -> torch.Tensor:
+               footskate: str = "off", footskate_options=None, engine: str | None = None) -> torch.Tensor:
         """Generate a batch: features (B, max(lengths), D) in dataset units (CPU, float32) of the final motions
         (:meth:`denoise`, then :meth:`finish` on each; frames past an item's length are zero).
         ``footskate`` 'off' | 'post' | 'loop' (see :meth:`__call__`)."""
         raw = self.denoise(prompts, lengths, guidance_scale=guidance_scale, steps=steps, sampler=sampler, seed=seed,
-                           batched_cfg=batched_cfg, footskate=footskate, footskate_options=footskate_options)
+                           batched_cfg=batched_cfg, footskate=footskate, footskate_options=footskate_options,
+                           engine=engine)
         out = torch.zeros_like(raw)
         for i, n in enumerate(lengths):
             out[i, :n] = torch.from_numpy(self.finish(raw[i, :n].numpy(), footskate, footskate_options)[0])
         return out
 
+    def text_condition(self, prompts: list[str]) -> tuple[TextCondition, TextCondition]:
+        """The model's text condition for ``prompts`` and for the dropped text (classifier-free guidance), in
+        the model's dtype on its device: computed once per call, outside the denoising loop."""
+        tokens, tmask = self.encode_text(prompts)
+        tokens = tokens.to(self.dtype)
+        B = len(prompts)
+        cond = self.model.condition(tokens, tmask, torch.zeros(B, dtype=torch.bool, device=self.device))
+        uncond = self.model.condition(tokens, tmask, torch.ones(B, dtype=torch.bool, device=self.device))
+        return cond, uncond
+
+    def solver(self, sampler: str, steps: int) -> SolverTable:
+        """The precomputed coefficient table of a fast sampler, cached per (sampler, steps)."""
+        key = (sampler, steps)
+        if key not in self._tables:
+            self._tables[key] = solver_table(sampler, steps, self.schedule).to(self.device, self.dtype)
+        return self._tables[key]
+
+    def engine_for(self, sampler: str, engine: str | None = None) -> str:
+        """The engine a call runs with: ``engine`` (default: this pipeline's) resolved for the sampler."""
+        name = engine or self.engine
+        check_engine(name, self.device)
+        fast = sampler_spec(sampler).fast
+        if name == "auto":
+            return default_engine(self.device, fast)
+        if name != "eager" and not fast:
+            raise SMFError(f"sampler {sampler!r} runs only with the eager engine (no precomputed form)")
+        return name
+
     @torch.no_grad()
     def denoise(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = 2.5, steps: int = 10,
                 sampler: str = DEFAULT_SAMPLER, seed: int | list[int] | None = None, batched_cfg: bool = True,
-                footskate: str = "off", footskate_options=None) -> torch.Tensor:
+                footskate: str = "off", footskate_options=None, engine: str | None = None) -> torch.Tensor:
         """Denoise a batch: the model's raw features (B, max(lengths), D) in dataset units (CPU, float32), before
         the final stage; in 'loop' mode the last predicted x0 are cleaned (rigid body) inside the loop.
         ``seed``: one seed for the batch, or one per item: then an item's result does not depend on the other
-        items it is batched with, for deterministic samplers and those whose step takes its noise
-        (``variance_noise``: SDE DPM-Solver++, the default); others draw an item's step noise for the batch's
-        length."""
+        items it is batched with (for samplers whose step takes its noise: all but ddpm).
+        ``engine``: see :mod:`stablemofusion.diffusion.engine` (default: the pipeline's)."""
         _check_footskate(footskate)
         if footskate != "off" and self.rigid is None:
             raise SMFError("the footskate cleanup works on the rigid body: it needs the rigid stage")
-        if footskate != "off":
-            from .footskate import FootskateOptions
-
-            footskate_options = footskate_options or FootskateOptions()
+        if steps < 1:
+            raise SMFError(f"steps must be at least 1, got {steps}")
+        engine = self.engine_for(sampler, engine)
         B, T, D = len(prompts), max(lengths), int(self.mean.shape[0])
-        sched = make_sampler(sampler, self.schedule)
-        sched.set_timesteps(steps, device=self.device)
-        per_item = isinstance(seed, (list, tuple))
-        if per_item:  # one generator per item: an item's noise depends on its own seed and length only
-            if len(seed) != B:
-                raise SMFError(f"give one seed per prompt: {len(seed)} seeds for {B} prompts")
-            gens = [torch.Generator().manual_seed(int(s)) for s in seed]
-            x = _item_noise(gens, lengths, T, D) * sched.init_noise_sigma
-        else:
-            gen = torch.Generator().manual_seed(seed if seed is not None else int(torch.seed() % 2**63))
-            x = torch.randn(B, T, D, generator=gen) * sched.init_noise_sigma
-        x = x.to(self.device, self.dtype)
+        noise = Noise(seed, lengths, D, self.device)
         mask = (torch.arange(T)[None] < torch.tensor(lengths)[:, None]).to(self.device)
-        tokens, tmask = self.encode_text(prompts)
-        tokens = tokens.to(self.dtype)
+        cond, uncond = self.text_condition(prompts)
         use_cfg = guidance_scale != 1.0
-        if use_cfg and batched_cfg:  # built once, so the denoiser encodes the text once per call
-            drop = torch.cat([torch.zeros(B, dtype=torch.bool), torch.ones(B, dtype=torch.bool)]).to(self.device)
-            tokens2, tmask2, mask2 = torch.cat([tokens, tokens]), torch.cat([tmask, tmask]), torch.cat([mask, mask])
-        stochastic = "generator" in inspect.signature(sched.step).parameters
-        n_steps = len(sched.timesteps)
-        for k, t in enumerate(sched.timesteps):
-            x_in = sched.scale_model_input(x, t)
-            tt = torch.full((B,), int(t), device=self.device, dtype=torch.long)
-            if use_cfg and batched_cfg:
-                out = self.model(torch.cat([x_in, x_in]), torch.cat([tt, tt]), tokens2, tmask2, drop, mask2)
-                x0 = out[B:] + guidance_scale * (out[:B] - out[B:])
-            elif use_cfg:
-                x0 = self._guided(x_in, tt, tokens, tmask, mask, guidance_scale)
+        if footskate == "loop":  # a hook on x0: eager loops only (it leaves the device)
+            engine = "eager" if engine == "eager" else "fast"
+        if engine in ("compiled", "graph") and batched_cfg:
+            table = self.solver(sampler, steps)
+            x = noise.draw() * table.init_sigma
+            step_noise = noise.draw(steps) if table.stochastic else None
+            x = self._engine(engine).run(cond, uncond if use_cfg else None, mask, guidance_scale, table,
+                                         x.to(self.dtype), None if step_noise is None else step_noise.to(self.dtype))
+        else:
+            denoiser = self.guided(cond, uncond, mask, guidance_scale, batched_cfg)
+            if footskate == "loop":
+                denoiser = with_x0_hook(denoiser, self._footskate_hook(lengths, footskate_options))
+            if engine == "eager":
+                sched = make_sampler(sampler, self.schedule)
+                sched.set_timesteps(steps, device=self.device)
+                x = run_diffusers(denoiser, sched, sampler_spec(sampler), noise, self.dtype, B)
             else:
-                x0 = self.model(x_in, tt, tokens, tmask, None, mask)
-            if footskate == "loop" and footskate_options.in_loop(k, n_steps):
-                x0 = self._clean_normalised(x0, lengths, footskate_options)
-            out = model_output_for(sched, x0, x, int(t))
-            if stochastic and per_item and "variance_noise" in inspect.signature(sched.step).parameters:
-                noise = _item_noise(gens, lengths, T, D).to(self.device, torch.float32)
-                x = sched.step(out, t, x, variance_noise=noise).prev_sample
-            elif stochastic and per_item:
-                step_gens = [torch.Generator(device=self.device).manual_seed(int(torch.randint(0, 2**62, (1,), generator=g)))
-                             for g in gens]
-                x = sched.step(out, t, x, generator=step_gens).prev_sample
-            elif stochastic:  # per-step noise from the call's seed, drawn on the model's device
-                step_seed = int(torch.randint(0, 2**62, (1,), generator=gen))
-                x = sched.step(out, t, x, generator=torch.Generator(device=self.device).manual_seed(step_seed)).prev_sample
-            else:
-                x = sched.step(out, t, x).prev_sample
-        x = x.float().cpu()
-        return x * self.std + self.mean
+                table = self.solver(sampler, steps)
+                x0 = (noise.draw() * table.init_sigma).to(self.dtype)
+                step_noise = noise.draw(steps).to(self.dtype) if table.stochastic else None
+                x = run_solver(denoiser, table, x0, step_noise)
+        return x.float().cpu() * self.std + self.mean
+
+    def guided(self, cond: TextCondition, uncond: TextCondition, mask: torch.Tensor, scale: float,
+               batched: bool = True) -> DenoiserFn:
+        """The denoiser of a call: the model under the text condition, with classifier-free guidance in x0
+        space (``u + scale * (c - u)``, both passes in one batch, or two) unless ``scale`` is 1."""
+        if scale == 1.0:
+            return model_denoiser(self.model, cond, mask)
+        if batched:
+            return cfg_batched(self.model, cond, uncond, mask, scale)
+        return cfg_two_pass(model_denoiser(self.model, cond, mask), model_denoiser(self.model, uncond, mask), scale)
+
+    def _engine(self, name: str) -> SolverEngine:
+        if name not in self._engines:
+            self._engines[name] = SolverEngine(self.model, name)
+        return self._engines[name]
+
+    def _footskate_hook(self, lengths: list[int], options) -> X0Hook:
+        """The in-loop footskate cleanup as an x0 hook: on the steps ``options.in_loop`` selects."""
+        from .footskate import FootskateOptions
+
+        options = options or FootskateOptions()
+
+        def hook(x0: torch.Tensor, step: Step) -> torch.Tensor:
+            if not options.in_loop(step.index, step.count):
+                return x0
+            return self._clean_normalised(x0, lengths, options)
+
+        return hook
 
     def _clean_normalised(self, x0: torch.Tensor, lengths: list[int], options) -> torch.Tensor:
         """Footskate cleanup (on the rigid body) of each item's first ``lengths[i]`` frames of a normalised
@@ -286,22 +328,6 @@ class MotionPipeline:
                                     fps=self.fps, rigid=self.rigid)
             clean[i, :n] = torch.from_numpy(f).float()
         return ((clean - self.mean) / self.std).to(x0.device, x0.dtype)
-
-    def _guided(self, x, t, tokens, tmask, mask, scale: float) -> torch.Tensor:
-        """Classifier-free guidance in x0 space, u + scale * (c - u), as two separate forward passes."""
-        B = x.shape[0]
-        cond = self.model(x, t, tokens, tmask, torch.zeros(B, dtype=torch.bool, device=x.device), mask)
-        uncond = self.model(x, t, tokens, tmask, torch.ones(B, dtype=torch.bool, device=x.device), mask)
-        return uncond + scale * (cond - uncond)
-
-
-def _item_noise(gens: list[torch.Generator], lengths: list[int], T: int, D: int) -> torch.Tensor:
-    """(B, T, D) standard normal noise, item i drawn from ``gens[i]`` for its own ``lengths[i]`` frames (zeros
-    after), so it does not depend on the other items of the batch."""
-    out = torch.zeros(len(gens), T, D)
-    for i, (g, n) in enumerate(zip(gens, lengths)):
-        out[i, :n] = torch.randn(n, D, generator=g)
-    return out
 
 
 FOOTSKATE_MODES = ("off", "post", "loop")

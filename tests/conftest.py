@@ -67,6 +67,7 @@ def _save_tiny_checkpoint(path: Path, mean: np.ndarray, std: np.ndarray) -> Path
     import torch
 
     from stablemofusion.diffusion.checkpoint import save_checkpoint
+    from stablemofusion.diffusion.config import CheckpointConfig
     from stablemofusion.models.base import build_denoiser
     from stablemofusion.models.presets import get_preset
 
@@ -79,6 +80,5 @@ def _save_tiny_checkpoint(path: Path, mean: np.ndarray, std: np.ndarray) -> Path
             if p.abs().sum() == 0:
                 p.normal_(0, 0.02)
     save_checkpoint(path, model=model, mean=mean, std=std, ema_state=model.state_dict(),
-                    config={"model": cfg.to_dict(), "text_encoder": "minilm", "skeleton": "humanml3d", "fps": 20.0,
-                            "max_frames": 196, "min_frames": 40, "train": {}})
+                    config=CheckpointConfig.for_skeleton(cfg, "humanml3d"))
     return path

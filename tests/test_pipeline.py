@@ -99,7 +99,10 @@ def test_mixed_lengths_and_clamping(pipe):
     (dict(prompts=""), "non-empty"),
     (dict(prompts="x", seconds=-1.0), "positive"),
     (dict(prompts="x", seconds=0.0), "positive"),
-    (dict(prompts="x", sampler="euler"), "unknown sampler"),
+    (dict(prompts="x", sampler="magic"), "unknown sampler"),
+    (dict(prompts="x", sampler="pndm", engine="fast"), "only with the eager engine"),
+    (dict(prompts="x", engine="warp"), "engine must be"),
+    (dict(prompts="x", engine="graph"), "needs a CUDA device"),
     (dict(prompts="x", sampler="ddim-karras"), "no Karras"),
     (dict(prompts="x", steps=0), "steps"),
 ])

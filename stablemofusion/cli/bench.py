@@ -33,15 +33,16 @@ def _pipeline(args):
 
     if args.preset is None:
         return MotionPipeline.from_pretrained(args.checkpoint, device=args.device)
+    import numpy as np
+
+    from ..diffusion.config import CheckpointConfig
     from ..models.base import build_denoiser
     from ..models.presets import get_preset
-
-    import numpy as np
 
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     cfg = get_preset(args.preset)
     model = build_denoiser(cfg)
-    config = {"model": cfg.to_dict(), "text_encoder": "minilm", "max_frames": 196, "min_frames": 40}
+    config = CheckpointConfig.for_skeleton(cfg)
     dtype = torch.float16 if device.type == "cuda" else torch.float32
     return MotionPipeline(model, np.zeros(263), np.ones(263), config, device=device, dtype=dtype)
 

@@ -21,8 +21,9 @@ def run(args: argparse.Namespace) -> None:
         from ..diffusion.checkpoint import load_checkpoint
 
         ck = load_checkpoint(args.checkpoint)
-        print(f"{ck.path}: {ck.config['model']['arch']}, {ck.model.num_parameters():,} parameters, "
-              f"text encoder {ck.text_encoder}, step {ck.config.get('step', '?')}")
+        c = ck.config
+        print(f"{ck.path}: {c.model.arch}, {ck.model.num_parameters():,} parameters, text encoder {c.text_encoder}, "
+              f"{c.skeleton} at {c.fps:g} fps, {c.min_frames}-{c.max_frames} frames, step {c.step or '?'}")
         return
     names = args.preset or list(PRESETS)
     print(f"{'preset':<15} {'arch':<7} {'parameters':>13} {'text part':>11}  description")

@@ -28,11 +28,12 @@ from ..errors import SMFError
 from ..io import save_npy, write_text
 from ..motion.features import bone_lengths, features_from_joints, joints_from_features, mirror_joints
 from ..motion.retarget import JointMap, retarget_bvh
+from ..motion.skeleton import HUMANML3D
 from .captions import captions_for, mirror_caption, mirror_tokens
 from .layout import CaptionLine, format_text_line, mean_std
 
-MAX_FRAMES = 196  # feature frames per motion (official max length)
-MIN_FRAMES = 40
+MAX_FRAMES = HUMANML3D.max_frames  # feature frames per motion (official max length)
+MIN_FRAMES = HUMANML3D.min_frames
 DATASET_DIRS = {1: "Bandai-Namco-Research-Motiondataset-1", 2: "Bandai-Namco-Research-Motiondataset-2"}
 
 

@@ -16,7 +16,6 @@ from ..motion.skeleton import Skeleton
 from .layout import CaptionLine, MotionLayout
 
 MAX_SOURCE_FRAMES = 200  # official upper bound: clips (and sub-clips) with >= 200 frames are dropped
-MIN_FRAMES = {"humanml3d": 40, "kit": 24}  # official lower bounds (2 s at 20 fps, ~2 s at 12.5 fps)
 
 
 @dataclass(frozen=True)
@@ -52,15 +51,16 @@ class MotionTextDataset(Dataset):
     """
 
     def __init__(self, root: str | os.PathLike | MotionLayout, split: str = "train", *,
-                 skeleton: str | Skeleton | None = None, min_frames: int | None = None, max_frames: int = 196,
+                 skeleton: str | Skeleton | None = None, min_frames: int | None = None, max_frames: int | None = None,
                  unit_length: int = 4, feat_bias: float = 5.0, seed: int | None = None,
                  ids: Sequence[str] | None = None):
         self.layout = root if isinstance(root, MotionLayout) else MotionLayout(root, skeleton)
         self.layout.validate()
         sk = self.skeleton = self.layout.skeleton
         self.split = split
-        self.min_frames = MIN_FRAMES.get(sk.name, 40) if min_frames is None else int(min_frames)
-        self.max_frames, self.unit_length, self.feat_bias = int(max_frames), int(unit_length), float(feat_bias)
+        self.min_frames = sk.min_frames if min_frames is None else int(min_frames)
+        self.max_frames = sk.max_frames if max_frames is None else int(max_frames)
+        self.unit_length, self.feat_bias = int(unit_length), float(feat_bias)
         if self.unit_length < 1 or self.max_frames < self.unit_length or self.min_frames < self.unit_length:
             raise SMFError(f"need 1 <= unit_length ({unit_length}) <= min_frames ({self.min_frames}) and "
                            f"<= max_frames ({max_frames})")

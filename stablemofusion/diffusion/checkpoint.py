@@ -1,14 +1,14 @@
 """Checkpoint folders: model + EMA weights (safetensors), config JSON, Mean/Std, optional training state.
 
-A folder alone rebuilds its pipeline: ``config.json`` holds the model, schedule, training and text-encoder
-settings; ``Mean.npy``/``Std.npy`` the normalisation (Std already divided by the feature bias).
+A folder alone rebuilds its pipeline: ``config.json`` is a :class:`CheckpointConfig` (model, schedule, text
+encoder, skeleton, frame rate and length range, training settings); ``Mean.npy``/``Std.npy`` the normalisation (Std already divided by the feature bias).
 Folders are written to a temporary sibling and renamed into place, so a crash never leaves a half folder.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +16,8 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from ..errors import SMFError
-from ..models.base import Denoiser, ModelConfig, build_denoiser
+from ..models.base import Denoiser, build_denoiser
+from .config import CheckpointConfig, ExportInfo
 
 CONFIG = "config.json"
 MODEL = "model.safetensors"
@@ -30,14 +31,10 @@ class Checkpoint:
     """A loaded checkpoint: the denoiser (EMA weights unless asked otherwise) and its metadata."""
 
     model: Denoiser
-    config: dict
+    config: CheckpointConfig
     mean: np.ndarray
     std: np.ndarray
     path: Path
-
-    @property
-    def text_encoder(self) -> str:
-        return self.config.get("text_encoder", "minilm")
 
 
 def _contiguous(sd: dict[str, torch.Tensor], dtype: torch.dtype | None = None) -> dict[str, torch.Tensor]:
@@ -45,7 +42,7 @@ def _contiguous(sd: dict[str, torch.Tensor], dtype: torch.dtype | None = None) -
             for k, v in sd.items()}
 
 
-def save_checkpoint(path: str | Path, *, model: Denoiser, config: dict, mean: np.ndarray, std: np.ndarray,
+def save_checkpoint(path: str | Path, *, model: Denoiser, config: CheckpointConfig, mean: np.ndarray, std: np.ndarray,
                     ema_state: dict[str, torch.Tensor] | None = None, training_state: dict | None = None,
                     dtype: torch.dtype | None = None, extra_files: dict[str, str] | None = None) -> Path:
     """Write a checkpoint folder atomically (replacing ``path`` if it exists); ``extra_files``: name -> text."""
@@ -55,7 +52,7 @@ def save_checkpoint(path: str | Path, *, model: Denoiser, config: dict, mean: np
         save_file(_contiguous(model.state_dict(), dtype), tmp / MODEL)
         if ema_state is not None:
             save_file(_contiguous(ema_state, dtype), tmp / EMA)
-        (tmp / CONFIG).write_text(json.dumps(config, indent=2) + "\n")
+        (tmp / CONFIG).write_text(json.dumps(config.to_dict(), indent=2) + "\n")
         np.save(tmp / "Mean.npy", np.asarray(mean, dtype=np.float32))
         np.save(tmp / "Std.npy", np.asarray(std, dtype=np.float32))
         if training_state is not None:
@@ -73,7 +70,8 @@ def resolve(path: str | Path) -> Path:
     return path
 
 
-def read_config(path: str | Path) -> dict:
+def read_config(path: str | Path) -> CheckpointConfig:
+    """The config of a checkpoint, run or exported folder."""
     path = resolve(path)
     if not (path / CONFIG).is_file():
         raise SMFError(f"not a checkpoint folder (no {CONFIG}): {path}")
@@ -81,10 +79,7 @@ def read_config(path: str | Path) -> dict:
         config = json.loads((path / CONFIG).read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise SMFError(f"{path / CONFIG}: invalid JSON ({e})") from None
-    model = config.get("model") if isinstance(config, dict) else None
-    if not isinstance(model, dict) or not isinstance(model.get("arch"), str) or not isinstance(model.get("options", {}), dict):
-        raise SMFError(f"{path / CONFIG}: not a checkpoint config (needs an object 'model' with a string 'arch')")
-    return config
+    return CheckpointConfig.from_dict(config, where=str(path / CONFIG))
 
 
 def load_weights(path: str | Path, *, ema: bool = True) -> dict[str, torch.Tensor]:
@@ -101,7 +96,7 @@ def load_checkpoint(path: str | Path, *, ema: bool = True, device: str | torch.d
     """Rebuild the denoiser of a checkpoint folder and load its (EMA) weights, in float32, eval mode."""
     path = resolve(path)
     config = read_config(path)
-    model = build_denoiser(ModelConfig.from_dict(config["model"]))
+    model = build_denoiser(config.model)
     weights = path / (EMA if ema and (path / EMA).is_file() else MODEL)
     state = load_weights(path, ema=ema)
     missing, unexpected = model.load_state_dict(state, strict=False)
@@ -126,7 +121,6 @@ def export_checkpoint(src: str | Path, dst: str | Path, *, dtype: torch.dtype = 
     """Write a release folder from a checkpoint: the EMA weights only (as ``model.safetensors`` in ``dtype``),
     config.json, Mean/Std and ``extra_files`` (name -> text, e.g. a model card). No optimiser state."""
     ck = load_checkpoint(src, ema=True)
-    config = dict(ck.config)
-    config["export"] = {"from_step": config.get("step"), "dtype": str(dtype).replace("torch.", "")}
+    config = replace(ck.config, export=ExportInfo(from_step=ck.config.step, dtype=str(dtype).replace("torch.", "")))
     return save_checkpoint(dst, model=ck.model, config=config, mean=ck.mean, std=ck.std, dtype=dtype,
                            extra_files=extra_files)

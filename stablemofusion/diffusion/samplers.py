@@ -1,37 +1,74 @@
-"""Sampler registry: diffusers schedulers by name, set up for an x0-predicting model.
+"""Sampler registry: diffusers schedulers by name, set up for an x0-predicting model, with their facts.
 
-Names: ``ddpm``, ``ddim``, ``pndm``, ``deis``, ``dpmsolver++`` (ODE), ``sde-dpmsolver++``; append
-``-karras`` for Karras sigmas where the scheduler supports them (deis and the DPM-Solvers).
+Names: ``ddpm``, ``ddim``, ``pndm``, ``deis``, ``euler``, ``dpmsolver++`` (ODE), ``sde-dpmsolver++``; append
+``-karras`` for Karras sigmas where the scheduler supports them. Each name's facts (stochastic or not, whether
+its step takes its noise as a tensor, whether the fast engine has it) live in :data:`SAMPLERS`.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import torch
-from diffusers import (DDIMScheduler, DDPMScheduler, DEISMultistepScheduler, DPMSolverMultistepScheduler,
-                       PNDMScheduler)
 
 from ..errors import SMFError
 from .schedule import ScheduleConfig
 
-_BASE = {
-    "ddpm": (DDPMScheduler, {"clip_sample": False}, False),
-    "ddim": (DDIMScheduler, {"clip_sample": False, "set_alpha_to_one": False}, False),
-    "pndm": (PNDMScheduler, {"skip_prk_steps": True, "set_alpha_to_one": False}, False),
-    "deis": (DEISMultistepScheduler, {}, True),
-    "dpmsolver++": (DPMSolverMultistepScheduler, {"algorithm_type": "dpmsolver++"}, True),
-    "sde-dpmsolver++": (DPMSolverMultistepScheduler, {"algorithm_type": "sde-dpmsolver++"}, True),
+
+@dataclass(frozen=True)
+class SamplerSpec:
+    """One base sampler: the diffusers scheduler class and options, and what the sampling loop must know.
+
+    ``stochastic``: it adds fresh noise at every step; ``step_noise``: its ``step`` takes that noise as a
+    tensor (``variance_noise``), so an item's noise can come from its own seed; ``karras``: it has a
+    ``-karras`` variant; ``fast``: :mod:`.solvers` has it as a precomputed-coefficient update (the engine)."""
+
+    scheduler: str
+    options: dict[str, Any] = field(default_factory=dict)
+    karras: bool = False
+    stochastic: bool = False
+    step_noise: bool = False
+    fast: bool = False
+
+
+SAMPLERS: dict[str, SamplerSpec] = {
+    "ddpm": SamplerSpec("DDPMScheduler", {"clip_sample": False}, stochastic=True),
+    "ddim": SamplerSpec("DDIMScheduler", {"clip_sample": False, "set_alpha_to_one": False}, fast=True),
+    "pndm": SamplerSpec("PNDMScheduler", {"skip_prk_steps": True, "set_alpha_to_one": False}),
+    "deis": SamplerSpec("DEISMultistepScheduler", karras=True),
+    "euler": SamplerSpec("EulerDiscreteScheduler", karras=True, fast=True),
+    "dpmsolver++": SamplerSpec("DPMSolverMultistepScheduler", {"algorithm_type": "dpmsolver++"}, karras=True,
+                               fast=True),
+    "sde-dpmsolver++": SamplerSpec("DPMSolverMultistepScheduler", {"algorithm_type": "sde-dpmsolver++"},
+                                   karras=True, stochastic=True, step_noise=True, fast=True),
 }
 DEFAULT_SAMPLER = "sde-dpmsolver++-karras"
+EPSILON_ONLY = frozenset({"PNDMScheduler"})  # schedulers without prediction_type='sample'
 
 
 def sampler_names() -> list[str]:
     """Every valid sampler name."""
     names = []
-    for name, (_, _, karras) in _BASE.items():
-        names += [name] + ([f"{name}-karras"] if karras else [])
+    for name, spec in SAMPLERS.items():
+        names += [name] + ([f"{name}-karras"] if spec.karras else [])
     return names
+
+
+def parse_sampler(name: str) -> tuple[str, SamplerSpec, bool]:
+    """(base name, its spec, Karras sigmas?) of a sampler name; SMFError for an unknown one."""
+    base, karras = (name[: -len("-karras")], True) if name.endswith("-karras") else (name, False)
+    if base not in SAMPLERS:
+        raise SMFError(f"unknown sampler {name!r}; known: {', '.join(sampler_names())}")
+    spec = SAMPLERS[base]
+    if karras and not spec.karras:
+        raise SMFError(f"sampler {base!r} has no Karras-sigma variant; use one of: "
+                       + ", ".join(n for n in sampler_names() if n.endswith("-karras")))
+    return base, spec, karras
+
+
+def sampler_spec(name: str) -> SamplerSpec:
+    return parse_sampler(name)[1]
 
 
 def make_sampler(name: str, schedule: ScheduleConfig | None = None):
@@ -40,18 +77,13 @@ def make_sampler(name: str, schedule: ScheduleConfig | None = None):
     Models predict x0; schedulers that accept ``prediction_type='sample'`` get it, PNDM (epsilon only) gets
     epsilon and :func:`model_output_for` converts.
     """
-    base, karras = (name[: -len("-karras")], True) if name.endswith("-karras") else (name, False)
-    if base not in _BASE:
-        raise SMFError(f"unknown sampler {name!r}; known: {', '.join(sampler_names())}")
-    cls, extra, supports_karras = _BASE[base]
-    if karras and not supports_karras:
-        raise SMFError(f"sampler {base!r} has no Karras-sigma variant; use one of: "
-                       + ", ".join(n for n in sampler_names() if n.endswith("-karras")))
+    import diffusers
+
+    _, spec, karras = parse_sampler(name)
     cfg = asdict(schedule or ScheduleConfig())
-    cfg["prediction_type"] = "epsilon" if cls is PNDMScheduler else "sample"
-    if karras:
-        extra = {**extra, "use_karras_sigmas": True}
-    return cls(**cfg, **extra)
+    cfg["prediction_type"] = "epsilon" if spec.scheduler in EPSILON_ONLY else "sample"
+    extra = {**spec.options, **({"use_karras_sigmas": True} if karras else {})}
+    return getattr(diffusers, spec.scheduler)(**cfg, **extra)
 
 
 def model_output_for(scheduler, x0: torch.Tensor, x_t: torch.Tensor, t: torch.Tensor | int) -> torch.Tensor:

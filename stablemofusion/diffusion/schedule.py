@@ -4,8 +4,6 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from diffusers import DDPMScheduler
-
 
 @dataclass
 class ScheduleConfig:
@@ -18,6 +16,8 @@ class ScheduleConfig:
     prediction_type: str = "sample"
 
 
-def make_train_scheduler(cfg: ScheduleConfig | None = None) -> DDPMScheduler:
-    """A DDPMScheduler for adding noise during training (``add_noise(x0, noise, t)``)."""
+def make_train_scheduler(cfg: ScheduleConfig | None = None):
+    """A diffusers DDPMScheduler for adding noise during training (``add_noise(x0, noise, t)``)."""
+    from diffusers import DDPMScheduler
+
     return DDPMScheduler(**asdict(cfg or ScheduleConfig()), clip_sample=False)

@@ -12,7 +12,7 @@ import csv
 import functools
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,38 +24,8 @@ from ..errors import SMFError
 from ..models.base import build_denoiser
 from ..models.presets import get_preset
 from .checkpoint import CHECKPOINT_DIR, MODEL, load_training_state, read_config, save_checkpoint
-from .schedule import ScheduleConfig, make_train_scheduler
-
-
-@dataclass
-class TrainConfig:
-    """Optimisation settings (saved in every checkpoint's config.json)."""
-
-    preset: str = "small"
-    steps: int = 50_000
-    batch_size: int = 64
-    lr: float = 2e-4
-    weight_decay: float = 0.01
-    lr_decay: float = 0.9
-    lr_decay_every: int = 5_000
-    grad_clip: float = 1.0
-    ema_decay: float = 0.9999
-    cond_drop: float = 0.1
-    seed: int = 0
-    mixed_precision: str = "no"  # no | fp16 | bf16
-    text_encoder: str = "minilm"
-    checkpoint_every: int = 1_000
-    max_frames: int = 196
-    min_frames: int | None = None
-    feat_bias: float = 5.0
-    bucket: int = 0  # >0: sort each run of bucket*batch_size items by length (less padding, faster)
-    text_augment: float = 0.0  # probability that a caption is perturbed (data/augment.py) before encoding
-    init_from: str | None = None  # start from these weights (a checkpoint, run or exported model folder)
-    schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
-
-
-# settings a resumed run may change: it can be extended (more steps) and checkpoint at another rate
-EXTENDABLE = frozenset({"steps", "checkpoint_every"})
+from .config import CheckpointConfig, TrainConfig
+from .schedule import make_train_scheduler
 
 
 def _mix(*ints: int) -> int:
@@ -135,13 +105,16 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     lr_sched = torch.optim.lr_scheduler.StepLR(optimizer, step_size=cfg.lr_decay_every, gamma=cfg.lr_decay)
     ema = EMAModel(model.parameters(), decay=cfg.ema_decay)
     start = 0
+    config = CheckpointConfig.for_skeleton(model_cfg, ds.skeleton.name, schedule=cfg.schedule,
+                                           text_encoder=encoder.name, min_frames=ds.min_frames,
+                                           max_frames=ds.max_frames, train=cfg)
     if resume:
         state = load_training_state(out / CHECKPOINT_DIR)
-        saved = read_config(out / CHECKPOINT_DIR)["train"]
-        differ = sorted(k for k in set(saved) | set(_json(asdict(cfg))) if k not in EXTENDABLE
-                        and saved.get(k) != _json(asdict(cfg)).get(k))
+        saved = read_config(out / CHECKPOINT_DIR)
+        differ = config.resume_mismatch(saved)
         if differ:
-            raise SMFError(f"cannot resume {out}: its training config differs from this run's in {', '.join(differ)}")
+            raise SMFError(f"cannot resume {out}: this run differs from the saved one in {', '.join(differ)} "
+                           "(a resumed run may change its steps and optimisation settings, not the model)")
         from safetensors.torch import load_file
 
         model.load_state_dict(load_file(out / CHECKPOINT_DIR / MODEL))
@@ -149,12 +122,13 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
         lr_sched.load_state_dict(state["lr_scheduler"])
         ema.load_state_dict(state["ema"])
         start = int(state["step"])
+        if saved.train is None or (saved.train.lr, saved.train.lr_decay, saved.train.lr_decay_every,
+                                   saved.train.weight_decay, saved.train.ema_decay) != (
+                cfg.lr, cfg.lr_decay, cfg.lr_decay_every, cfg.weight_decay, cfg.ema_decay):
+            _apply_optimisation_settings(optimizer, lr_sched, ema, cfg, start)
     model, optimizer = accelerator.prepare(model, optimizer)
     noise_sched = make_train_scheduler(cfg.schedule)
     T = cfg.schedule.num_train_timesteps
-    config = {"model": model_cfg.to_dict(), "train": _json(asdict(cfg)), "text_encoder": encoder.name,
-              "skeleton": ds.skeleton.name, "fps": float(ds.skeleton.fps),
-              "max_frames": cfg.max_frames, "min_frames": ds.min_frames if hasattr(ds, "min_frames") else 40}
     synonyms = _synonyms(data) if cfg.text_augment > 0 else None
     log_path = out / "log.csv"
     out.mkdir(parents=True, exist_ok=True)
@@ -252,6 +226,19 @@ def _augmented_text(captions: list[str], cache, encoder, cfg: TrainConfig, synon
     return pad_rows(rows, tokens.shape[-1], device)
 
 
+def _apply_optimisation_settings(optimizer, lr_sched, ema, cfg: TrainConfig, step: int) -> None:
+    """Make a resumed run use this run's learning-rate schedule, weight decay and EMA decay (the saved states
+    carry the old ones). Called only when they changed, so an unchanged run resumes bit for bit."""
+    lr_sched.base_lrs = [cfg.lr] * len(optimizer.param_groups)
+    lr_sched.step_size, lr_sched.gamma = cfg.lr_decay_every, cfg.lr_decay
+    for group in optimizer.param_groups:
+        group["initial_lr"] = cfg.lr
+        group["lr"] = cfg.lr * cfg.lr_decay ** (step // cfg.lr_decay_every)
+        group["weight_decay"] = cfg.weight_decay
+    lr_sched._last_lr = [g["lr"] for g in optimizer.param_groups]
+    ema.decay = cfg.ema_decay
+
+
 def _init_weights(model: torch.nn.Module, source: str) -> None:
     """Load every weight of ``source`` into ``model``; parameters the model adds (e.g. a zero-initialised
     sentence conditioning map) keep their initial values. Every source weight must fit the model."""
@@ -266,19 +253,13 @@ def _init_weights(model: torch.nn.Module, source: str) -> None:
     model.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()}, strict=False)
 
 
-def _json(d: dict) -> dict:
-    """Round-trip through JSON so tuples compare equal to the lists read back from config.json."""
-    import json
-
-    return json.loads(json.dumps(d))
-
-
-def _save(out: Path, model, ema, optimizer, lr_sched, step: int, config: dict, ds: MotionTextDataset) -> None:
+def _save(out: Path, model, ema, optimizer, lr_sched, step: int, config: CheckpointConfig,
+          ds: MotionTextDataset) -> None:
     ema_model_state = _ema_state(model, ema)
     training_state = {"optimizer": optimizer.state_dict(), "lr_scheduler": lr_sched.state_dict(),
                       "ema": ema.state_dict(), "step": step, "torch_rng": torch.get_rng_state(),
                       "numpy_rng": np.random.get_state()}
-    save_checkpoint(out / CHECKPOINT_DIR, model=model, config={**config, "step": step}, mean=ds.mean, std=ds.std,
+    save_checkpoint(out / CHECKPOINT_DIR, model=model, config=replace(config, step=step), mean=ds.mean, std=ds.std,
                     ema_state=ema_model_state, training_state=training_state)
 
 

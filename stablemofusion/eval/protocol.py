@@ -202,7 +202,7 @@ def evaluate(pipe, embedder: EmbeddingModel, data: str | Path, cfg: EvalConfig, 
     (motion ids, features -> dict) adds the label accuracy of a motion classifier to both rows."""
     if pipe is not None and cfg.mm_repeats <= cfg.mm_times:
         raise SMFError(f"mm_repeats ({cfg.mm_repeats}) must exceed mm_times ({cfg.mm_times})")
-    ds = MotionTextDataset(data, cfg.split, seed=cfg.seed, max_frames=pipe.max_frames if pipe else 196,
+    ds = MotionTextDataset(data, cfg.split, seed=cfg.seed, max_frames=pipe.max_frames if pipe else None,
                            feat_bias=1.0)
     ref_items = draw_items(ds, REFERENCE_EPOCH, cfg.seed, 1, None)
     ref = activation_stats(embedder.motions(ref_items.real))

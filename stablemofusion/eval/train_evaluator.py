@@ -34,7 +34,7 @@ class EvaluatorTrainConfig:
     grad_clip: float = 1.0
     seed: int = 0
     text_encoder: str = "minilm"
-    max_frames: int = 196
+    max_frames: int | None = None  # None: the corpus skeleton's
     bucket: int = 0
     eval_every: int = 500
 

@@ -30,6 +30,24 @@ class TextConfig:
     sentence: bool = False
 
 
+@dataclass
+class TextCondition:
+    """What a denoiser uses of the text, computed once per sampling call (:meth:`Denoiser.condition`) and
+    reused at every step: features (B, L, latent) of the text transformer, zero where the text is dropped;
+    mask (B, L) bool, True on real tokens; keep (B,) bool, False where the text is dropped (None: kept
+    everywhere); sentence (B, C) the sentence conditioning (None for models without it)."""
+
+    features: torch.Tensor
+    mask: torch.Tensor
+    keep: torch.Tensor | None
+    sentence: torch.Tensor | None
+
+    def repeat(self, n: int) -> "TextCondition":
+        """The batch repeated ``n`` times along dim 0 (for several samples per prompt)."""
+        rep = (lambda v: None if v is None else torch.cat([v] * n))
+        return TextCondition(rep(self.features), rep(self.mask), rep(self.keep), rep(self.sentence))
+
+
 class Denoiser(nn.Module):
     """Base class: ``forward(x_t, t, text_tokens, text_mask, drop_cond, motion_mask) -> x0``.
 
@@ -37,6 +55,9 @@ class Denoiser(nn.Module):
     language-model token embeddings; text_mask (B, L) bool, True on real tokens; drop_cond (B,) bool,
     True where the text is dropped (classifier-free guidance: the text features become zeros);
     motion_mask (B, T) bool, True on valid frames (None = all valid). Returns x0 (B, T, D).
+
+    ``forward`` is :meth:`condition` (the text part, once per call at inference) then :meth:`denoise` (the
+    motion part, once per step); samplers call the two separately.
     """
 
     config_class: ClassVar[type]
@@ -57,30 +78,41 @@ class Denoiser(nn.Module):
             nn.init.zeros_(self.sentence_proj.weight)
             nn.init.zeros_(self.sentence_proj.bias)
 
-    def sentence_condition(self, tokens: torch.Tensor, mask: torch.Tensor,
-                           drop_cond: torch.Tensor | None) -> torch.Tensor | None:
-        """(B, L, C) frozen tokens, (B, L) mask -> (B, out_dim) sentence conditioning, zero where ``drop_cond``;
-        None for a model without it."""
-        if self.sentence_proj is None:
-            return None
-        return self.sentence_proj(sentence_embedding(tokens, mask, drop_cond).to(self.sentence_proj.weight.dtype))
-
-    def encode_text(self, tokens: torch.Tensor, mask: torch.Tensor, drop_cond: torch.Tensor | None) -> torch.Tensor:
-        """(B, L, C) frozen tokens -> (B, L, latent) text features, zeroed where ``drop_cond``.
-
-        At inference (eval mode, no grad) the result for the very same input tensors is reused, so a sampler
-        that passes one set of text tensors to every step runs the text transformer once per call.
-        """
-        memo = not self.training and not torch.is_grad_enabled()
-        key = (tokens, mask, drop_cond)
-        if memo and getattr(self, "_text_memo", None) is not None and all(
-                a is b for a, b in zip(self._text_memo[0], key)):
-            return self._text_memo[1]
+    def condition(self, tokens: torch.Tensor, mask: torch.Tensor,
+                  drop_cond: torch.Tensor | None = None) -> TextCondition:
+        """(B, L, C) frozen tokens, (B, L) mask, (B,) drop flags -> the text condition of :meth:`denoise`."""
+        mask = mask.bool()
         h = self.text(tokens, mask)
-        if drop_cond is not None:
-            h = h * (~drop_cond).to(h.dtype)[:, None, None]
-        self._text_memo = (key, h) if memo else None
-        return h
+        keep = None if drop_cond is None else ~drop_cond.bool()
+        if keep is not None:
+            h = h * keep.to(h.dtype)[:, None, None]
+        sentence = None
+        if self.sentence_proj is not None:
+            emb = sentence_embedding(tokens, mask, drop_cond)
+            sentence = self.sentence_proj(emb.to(self.sentence_proj.weight.dtype))
+        return TextCondition(h, mask, keep, sentence)
+
+    def forward(self, x_t: torch.Tensor, t: torch.Tensor, text_tokens: torch.Tensor, text_mask: torch.Tensor,
+                drop_cond: torch.Tensor | None = None, motion_mask: torch.Tensor | None = None) -> torch.Tensor:
+        return self.denoise(x_t, t, self.condition(text_tokens, text_mask, drop_cond), motion_mask)
+
+    def denoise(self, x_t: torch.Tensor, t: torch.Tensor, cond: TextCondition,
+                motion_mask: torch.Tensor | None = None) -> torch.Tensor:
+        """x_t (B, T, D), t (B,), the text condition, motion_mask (B, T) bool or None -> x0 (B, T, D)."""
+        raise NotImplementedError
+
+    def frame_bucket(self, frames: int, multiple: int) -> int:
+        """The padded length to run ``frames`` frames at: ``frames`` rounded up to ``multiple`` when the
+        prediction on valid frames does not depend on padding (masked models) and the model takes that many
+        frames, else ``frames``."""
+        padded = -(-frames // multiple) * multiple
+        limit = getattr(getattr(self, "config", None), "max_frames", None)
+        return padded if self.padding_invariant and (limit is None or padded <= limit) else frames
+
+    @property
+    def padding_invariant(self) -> bool:
+        """Whether frames past the motion mask leave the prediction on valid frames unchanged."""
+        return True
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())

@@ -14,7 +14,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..errors import SMFError
-from .base import Denoiser, TextConfig, register
+from .base import Denoiser, TextCondition, TextConfig, register
 from .embeddings import TimestepEmbedding, sinusoidal_embedding
 
 
@@ -128,19 +128,18 @@ class DiT(Denoiser):
         self.final_ada = nn.Sequential(nn.SiLU(), zero_linear(config.time_dim, 2 * d))
         self.out = zero_linear(d, motion_dim)
 
-    def forward(self, x_t: torch.Tensor, t: torch.Tensor, text_tokens: torch.Tensor, text_mask: torch.Tensor,
-                drop_cond: torch.Tensor | None = None, motion_mask: torch.Tensor | None = None) -> torch.Tensor:
+    def denoise(self, x_t: torch.Tensor, t: torch.Tensor, cond: TextCondition,
+                motion_mask: torch.Tensor | None = None) -> torch.Tensor:
         B, T, _ = x_t.shape
         if T > self.config.max_frames:
             raise SMFError(f"motion has {T} frames, more than the {self.config.max_frames} this model takes")
         if motion_mask is None:
             motion_mask = torch.ones(B, T, dtype=torch.bool, device=x_t.device)
-        txt = self.text_proj(self.encode_text(text_tokens, text_mask, drop_cond))
-        tmask = text_mask if drop_cond is None else text_mask & ~drop_cond[:, None]
+        txt = self.text_proj(cond.features)
+        tmask = cond.mask if cond.keep is None else cond.mask & cond.keep[:, None]
         c = self.time(t)
-        sent = self.sentence_condition(text_tokens, text_mask, drop_cond)
-        if sent is not None:
-            c = c + sent.to(c.dtype)
+        if cond.sentence is not None:
+            c = c + cond.sentence.to(c.dtype)
         h = self.in_proj(x_t) + self.pos[:, :T]
         if self.config.cross_attention:
             seq, mask = h, motion_mask

@@ -15,7 +15,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..errors import SMFError
-from .base import Denoiser, TextConfig, register
+from .base import Denoiser, TextCondition, TextConfig, register
 from .dit import Attention
 from .embeddings import TimestepEmbedding
 
@@ -132,18 +132,17 @@ class RetNet(Denoiser):
         d = torch.exp(self.log_gamma[:, None, None] * dist)[None] * mask[:, None, None, :].to(dist.dtype)
         return d / d.sum(-1, keepdim=True).clamp(min=1e-6).sqrt()
 
-    def forward(self, x_t: torch.Tensor, t: torch.Tensor, text_tokens: torch.Tensor, text_mask: torch.Tensor,
-                drop_cond: torch.Tensor | None = None, motion_mask: torch.Tensor | None = None) -> torch.Tensor:
+    def denoise(self, x_t: torch.Tensor, t: torch.Tensor, cond: TextCondition,
+                motion_mask: torch.Tensor | None = None) -> torch.Tensor:
         B, T, _ = x_t.shape
         dev = x_t.device
         if motion_mask is None:
             motion_mask = torch.ones(B, T, dtype=torch.bool, device=dev)
-        txt = self.text_proj(self.encode_text(text_tokens, text_mask, drop_cond))
-        tmask = text_mask if drop_cond is None else text_mask & ~drop_cond[:, None]
+        txt = self.text_proj(cond.features)
+        tmask = cond.mask if cond.keep is None else cond.mask & cond.keep[:, None]
         c = self.time(t)
-        sent = self.sentence_condition(text_tokens, text_mask, drop_cond)
-        if sent is not None:
-            c = c + sent.to(c.dtype)
+        if cond.sentence is not None:
+            c = c + cond.sentence.to(c.dtype)
         parts = [self.in_proj(x_t), self.time_proj(c)[:, None]]
         masks = [motion_mask, torch.ones(B, 1, dtype=torch.bool, device=dev)]
         if not self.config.cross_attention:

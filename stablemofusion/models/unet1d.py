@@ -31,7 +31,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from .attention import ResidualCrossAttention
-from .base import Denoiser, TextConfig, register
+from .base import Denoiser, TextCondition, TextConfig, register
 from .embeddings import TimestepEmbedding, sinusoidal_embedding
 
 
@@ -205,22 +205,23 @@ class CondUNet1D(Denoiser):
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
 
-    def forward(self, x_t: torch.Tensor, t: torch.Tensor, text_tokens: torch.Tensor, text_mask: torch.Tensor,
-                drop_cond: torch.Tensor | None = None, motion_mask: torch.Tensor | None = None) -> torch.Tensor:
+    @property
+    def padding_invariant(self) -> bool:
+        return self.config.mask_padding
+
+    def denoise(self, x_t: torch.Tensor, t: torch.Tensor, cond: TextCondition,
+                motion_mask: torch.Tensor | None = None) -> torch.Tensor:
         cfg = self.config
         B, T, _ = x_t.shape
-        text_mask = text_mask.bool()
-        text = self.encode_text(text_tokens, text_mask, drop_cond)
-        keep = None if drop_cond is None else ~drop_cond.bool()
+        text, text_mask, keep = cond.features, cond.mask, cond.keep
         # (sinusoidal_embedding is always float32; cast so the model also runs in float64 / half precision)
         temb = self.time_embed.mlp(sinusoidal_embedding(t, self.time_embed.dim).to(x_t.dtype))
         if self.text_pool is not None:
             m = text_mask[..., None].to(text.dtype)
             pooled = (text * m).sum(1) / m.sum(1).clamp(min=1.0)
             temb = temb + self.text_pool(pooled)
-        sent = self.sentence_condition(text_tokens, text_mask, drop_cond)
-        if sent is not None:
-            temb = temb + sent.to(temb.dtype)
+        if cond.sentence is not None:
+            temb = temb + cond.sentence.to(temb.dtype)
 
         pad = (-T) % cfg.pad_multiple
         x = F.pad(x_t.transpose(1, 2), (0, pad))

@@ -34,6 +34,10 @@ class Skeleton:
     mirror_pairs: tuple[tuple[int, int], ...]
     bone_lengths: tuple[float, ...] | None = None
     foot_velocity_threshold: float = 0.002  # squared displacement per frame (units^2) for contacts
+    # motion lengths (feature frames) of the dataset convention: the official loaders keep clips of at least
+    # min_frames and crop to at most max_frames; models are trained and sampled in this range
+    min_frames: int = 40
+    max_frames: int = 196
 
     @property
     def num_joints(self) -> int:
@@ -112,6 +116,7 @@ KIT = Skeleton(
         (-1, 0, 0), (0, -1, 0), (0, -1, 0), (0, 0, 1), (0, 0, 1),
     ),
     fps=12.5,
+    min_frames=24,
     feature_dim=251,
     face_joints=(11, 16, 5, 8),
     foot_left=(19, 20),  # KIT's right side lies towards +X (official raw offsets)

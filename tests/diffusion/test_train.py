@@ -31,7 +31,7 @@ def test_tiny_model_lowers_its_loss(corpus, text_cache, tmp_path):
     assert len(losses) == 60
     assert np.mean(losses[-10:]) < 0.9 * np.mean(losses[:10])  # 1.95 -> 1.59 when written
     ck = load_checkpoint(tmp_path / "run")  # the run folder resolves to its checkpoint/
-    assert ck.config["step"] == 60 and ck.config["model"]["arch"] == "unet" and ck.text_encoder == "minilm"
+    assert ck.config.step == 60 and ck.config.model.arch == "unet" and ck.config.text_encoder == "minilm"
     log = (tmp_path / "run" / "log.csv").read_text().splitlines()
     assert log[0] == "step,loss,lr,seconds" and len(log) == 61
 

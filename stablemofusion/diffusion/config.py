@@ -1,0 +1,140 @@
+"""The typed configuration of a checkpoint: written by training, read by the pipeline, evaluation and bench.
+
+``config.json`` of a checkpoint folder is ``CheckpointConfig.to_dict()``; :meth:`CheckpointConfig.from_dict`
+is the one place that reads it (and fills what configs written before a field existed lack, from the
+skeleton). ``from_dict(to_dict(c)) == c``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+from ..errors import SMFError
+from ..models.base import ModelConfig
+from ..motion.skeleton import get_skeleton
+from .schedule import ScheduleConfig
+
+
+@dataclass
+class TrainConfig:
+    """Optimisation settings of a training run (saved in its checkpoints)."""
+
+    preset: str = "small"
+    steps: int = 50_000
+    batch_size: int = 64
+    lr: float = 2e-4
+    weight_decay: float = 0.01
+    lr_decay: float = 0.9
+    lr_decay_every: int = 5_000
+    grad_clip: float = 1.0
+    ema_decay: float = 0.9999
+    cond_drop: float = 0.1
+    seed: int = 0
+    mixed_precision: str = "no"  # no | fp16 | bf16
+    text_encoder: str = "minilm"
+    checkpoint_every: int = 1_000
+    max_frames: int | None = None  # None: the corpus skeleton's
+    min_frames: int | None = None  # None: the corpus skeleton's
+    feat_bias: float = 5.0
+    bucket: int = 0  # >0: sort each run of bucket*batch_size items by length (less padding, faster)
+    text_augment: float = 0.0  # probability that a caption is perturbed (data/augment.py) before encoding
+    init_from: str | None = None  # start from these weights (a checkpoint, run or exported model folder)
+    schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict) -> "TrainConfig":
+        d = dict(d)
+        schedule = ScheduleConfig(**d.pop("schedule", {}))
+        _check_keys("train", d, TrainConfig, exclude={"schedule"})
+        return TrainConfig(**d, schedule=schedule)
+
+
+@dataclass
+class ExportInfo:
+    """Where an exported (release) folder comes from."""
+
+    from_step: int | None
+    dtype: str
+
+
+@dataclass
+class CheckpointConfig:
+    """Everything a checkpoint needs besides its weights and Mean/Std.
+
+    ``fps`` is the motion frame rate; ``min_frames``/``max_frames`` the length range (feature frames) the
+    model was trained on; ``train`` the run's optimisation settings (None for a model built outside training).
+    """
+
+    model: ModelConfig
+    schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
+    text_encoder: str = "minilm"
+    skeleton: str = "humanml3d"
+    fps: float = 20.0
+    min_frames: int = 40
+    max_frames: int = 196
+    train: TrainConfig | None = None
+    step: int | None = None
+    export: ExportInfo | None = None
+
+    @staticmethod
+    def for_skeleton(model: ModelConfig, skeleton: str = "humanml3d", **kw) -> "CheckpointConfig":
+        """A config whose frame rate and length range are the skeleton's (unless given in ``kw``)."""
+        sk = get_skeleton(skeleton)
+        base = {"fps": float(sk.fps), "min_frames": sk.min_frames, "max_frames": sk.max_frames}
+        return CheckpointConfig(model=model, skeleton=sk.name, **{**base, **kw})
+
+    def to_dict(self) -> dict:
+        return {"model": self.model.to_dict(), "schedule": asdict(self.schedule), "text_encoder": self.text_encoder,
+                "skeleton": self.skeleton, "fps": self.fps, "min_frames": self.min_frames,
+                "max_frames": self.max_frames, "train": None if self.train is None else self.train.to_dict(),
+                "step": self.step, "export": None if self.export is None else asdict(self.export)}
+
+    @staticmethod
+    def from_dict(d: dict[str, Any], where: str = "config") -> "CheckpointConfig":
+        """Read a config.json object; raises SMFError naming ``where`` and the problem."""
+        if not isinstance(d, dict):
+            raise SMFError(f"{where}: not a checkpoint config (a JSON object)")
+        model = d.get("model")
+        if not isinstance(model, dict) or not isinstance(model.get("arch"), str) or not isinstance(
+                model.get("options", {}), dict):
+            raise SMFError(f"{where}: not a checkpoint config (needs an object 'model' with a string 'arch')")
+        try:
+            _check_keys(where, d, CheckpointConfig)
+            train = TrainConfig.from_dict(d["train"]) if d.get("train") else None
+            # configs written before the schedule had its own entry kept it in the training settings
+            schedule = ScheduleConfig(**(d.get("schedule") or (d.get("train") or {}).get("schedule") or {}))
+            sk = get_skeleton(d.get("skeleton", "humanml3d"))
+            export = ExportInfo(**d["export"]) if d.get("export") else None
+            return CheckpointConfig(
+                model=ModelConfig.from_dict(model), schedule=schedule, text_encoder=str(d.get("text_encoder", "minilm")),
+                skeleton=sk.name, fps=float(d.get("fps") or sk.fps), min_frames=int(d.get("min_frames") or sk.min_frames),
+                max_frames=int(d.get("max_frames") or sk.max_frames), train=train, step=d.get("step"), export=export)
+        except TypeError as e:
+            raise SMFError(f"{where}: bad checkpoint config ({e})") from None
+
+    def resume_mismatch(self, other: "CheckpointConfig") -> list[str]:
+        """What differs between this run's config and a saved one in what a resumed run must keep: the
+        architecture, the noise schedule, the text encoder, the skeleton and the feature normalisation.
+        Everything else (steps, learning rate, checkpoint rate, ...) may change when a run is extended."""
+        mine, theirs = _json(self.to_dict()), _json(other.to_dict())
+        out = [k for k in ("model", "schedule", "text_encoder", "skeleton") if mine[k] != theirs[k]]
+        if self.train and other.train and self.train.feat_bias != other.train.feat_bias:
+            out.append("feat_bias")
+        return out
+
+
+def _json(d: dict) -> dict:
+    """Round-trip through JSON, so tuples compare equal to the lists read back from config.json."""
+    return json.loads(json.dumps(d))
+
+
+def _check_keys(where: str, d: dict, cls: type, exclude: set[str] = frozenset()) -> None:
+    known = {f.name for f in fields(cls)} - set(exclude)
+    unknown = sorted(set(d) - known - set(exclude))
+    if unknown:
+        raise SMFError(f"{where}: unknown config field(s) {', '.join(unknown)}")

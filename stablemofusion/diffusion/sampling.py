@@ -1,0 +1,167 @@
+"""The sampling loop as small pieces (k-diffusion style).
+
+- a *denoiser* is a callable ``(x_t, step) -> x0``: x_t (B, T, D) the model input of step ``step``, x0 the
+  clean-motion prediction (B, T, D); :func:`model_denoiser` makes one from a model and its text condition;
+- guidance is a wrapper that builds a denoiser: :func:`cfg_batched` (conditional and unconditional passes in
+  one batch) or :func:`cfg_two_pass`;
+- x0 hooks (footskate cleanup in the loop, editing constraints) wrap a denoiser: :func:`with_x0_hook`;
+- the loops: :func:`run_diffusers` (any diffusers scheduler of the registry, the reference) and
+  :func:`run_solver` (a precomputed coefficient table, :mod:`.solvers`: static shapes, no host syncs).
+- :class:`Noise` draws the initial and per-step noise of a call from one seed or one seed per item.
+"""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import dataclass
+from typing import Callable, Protocol
+
+import torch
+
+from ..errors import SMFError
+from ..models.base import TextCondition
+from .samplers import SamplerSpec, model_output_for
+from .solvers import SolverTable
+
+
+@dataclass(frozen=True)
+class Step:
+    """Where a denoiser call is in the loop: step ``index`` of ``count``, model timesteps ``t`` (B,)."""
+
+    index: int
+    count: int
+    t: torch.Tensor
+
+
+class DenoiserFn(Protocol):
+    def __call__(self, x: torch.Tensor, step: Step) -> torch.Tensor: ...
+
+
+X0Hook = Callable[[torch.Tensor, Step], torch.Tensor]  # (x0 (B, T, D), step) -> x0
+
+
+def model_denoiser(model, cond: TextCondition, motion_mask: torch.Tensor | None) -> DenoiserFn:
+    """The model's x0 prediction under a fixed text condition (batch B)."""
+    return lambda x, step: model.denoise(x, step.t.to(x.dtype), cond, motion_mask)
+
+
+def cfg_batched(model, cond: TextCondition, uncond: TextCondition, motion_mask: torch.Tensor | None,
+                scale: float) -> DenoiserFn:
+    """Classifier-free guidance ``u + scale * (c - u)`` with both passes in one forward of batch 2B; the
+    pair's condition and mask are built once here, not at every step."""
+    pair = TextCondition(torch.cat([cond.features, uncond.features]), torch.cat([cond.mask, uncond.mask]),
+                         _cat_opt(cond.keep, uncond.keep, cond.features), _cat_opt(cond.sentence, uncond.sentence))
+    mask2 = None if motion_mask is None else torch.cat([motion_mask, motion_mask])
+
+    def denoise(x: torch.Tensor, step: Step) -> torch.Tensor:
+        t = step.t.to(x.dtype)
+        c, u = model.denoise(torch.cat([x, x]), torch.cat([t, t]), pair, mask2).chunk(2)
+        return u + scale * (c - u)
+
+    return denoise
+
+
+def cfg_two_pass(cond: DenoiserFn, uncond: DenoiserFn, scale: float) -> DenoiserFn:
+    """Classifier-free guidance as two separate passes (less memory, twice the launches)."""
+
+    def denoise(x: torch.Tensor, step: Step) -> torch.Tensor:
+        u = uncond(x, step)
+        return u + scale * (cond(x, step) - u)
+
+    return denoise
+
+
+def with_x0_hook(denoiser: DenoiserFn, hook: X0Hook) -> DenoiserFn:
+    """A denoiser whose prediction passes through ``hook(x0, step)`` (e.g. a cleanup or a constraint)."""
+    return lambda x, step: hook(denoiser(x, step), step)
+
+
+def _cat_opt(a: torch.Tensor | None, b: torch.Tensor | None, like: torch.Tensor | None = None) -> torch.Tensor | None:
+    """Concatenate two optional per-item tensors; a missing ``keep`` means all True."""
+    if a is None and b is None:
+        return None
+    if like is not None:
+        n = like.shape[0]
+        a = torch.ones(n, dtype=torch.bool, device=like.device) if a is None else a
+        b = torch.ones(n, dtype=torch.bool, device=like.device) if b is None else b
+    return torch.cat([a, b])
+
+
+class Noise:
+    """The noise of one sampling call: (B, T, D) standard normal draws.
+
+    ``seed`` an int: everything from one generator on ``device``. A list (one per item): item i's draws
+    come from its own CPU generator over its own ``lengths[i]`` frames (zeros after), so an item's result
+    does not depend on the others it is batched with."""
+
+    def __init__(self, seed: int | list[int] | None, lengths: list[int], dim: int, device: torch.device):
+        self.lengths, self.dim, self.device = list(lengths), int(dim), torch.device(device)
+        self.frames = max(self.lengths)
+        self.per_item = isinstance(seed, (list, tuple))
+        if self.per_item:
+            if len(seed) != len(self.lengths):
+                raise SMFError(f"give one seed per prompt: {len(seed)} seeds for {len(self.lengths)} prompts")
+            self.gens = [torch.Generator().manual_seed(int(s)) for s in seed]
+        else:
+            s = int(torch.seed() % 2**63) if seed is None else int(seed)
+            self.gen = torch.Generator(device=self.device).manual_seed(s)
+
+    def draw(self, count: int | None = None) -> torch.Tensor:
+        """``count`` draws stacked (count, B, T, D), or one (B, T, D) when ``count`` is None; float32 on
+        the device."""
+        n = 1 if count is None else count
+        B, T, D = len(self.lengths), self.frames, self.dim
+        if self.per_item:
+            out = torch.zeros(n, B, T, D)
+            for i, (g, L) in enumerate(zip(self.gens, self.lengths)):
+                out[:, i, :L] = torch.randn(n, L, D, generator=g)
+            out = out.to(self.device)
+        else:
+            out = torch.randn(n, B, T, D, generator=self.gen, device=self.device)
+        return out[0] if count is None else out
+
+    def generator(self) -> torch.Generator | list[torch.Generator]:
+        """A generator for schedulers that draw their own step noise (no ``variance_noise``)."""
+        seed = lambda g: int(torch.randint(0, 2**62, (1,), generator=g))  # noqa: E731
+        if self.per_item:
+            return [torch.Generator(device=self.device).manual_seed(seed(g)) for g in self.gens]
+        return torch.Generator(device=self.device).manual_seed(seed(self.gen))
+
+
+def run_diffusers(denoiser: DenoiserFn, scheduler, spec: SamplerSpec, noise: Noise, dtype: torch.dtype,
+                  batch: int) -> torch.Tensor:
+    """The reference loop over a diffusers scheduler (``set_timesteps`` already called): returns the final
+    sample (B, T, D) in ``dtype`` on the noise's device."""
+    x = (noise.draw() * scheduler.init_noise_sigma).to(dtype)
+    count = len(scheduler.timesteps)
+    steps_noise = noise.draw(count) if spec.step_noise else None
+    takes_noise = "variance_noise" in inspect.signature(scheduler.step).parameters
+    if spec.step_noise and not takes_noise:  # the registry's fact must hold for the installed diffusers
+        raise SMFError(f"{spec.scheduler}.step takes no variance_noise in this diffusers version")
+    for k, t in enumerate(scheduler.timesteps):
+        step = Step(k, count, t.expand(batch).to(x.device))
+        x0 = denoiser(scheduler.scale_model_input(x, t), step)
+        out = model_output_for(scheduler, x0, x, t)
+        if spec.step_noise:
+            x = scheduler.step(out, t, x, variance_noise=steps_noise[k].to(x.dtype)).prev_sample
+        elif spec.stochastic:
+            x = scheduler.step(out, t, x, generator=noise.generator()).prev_sample
+        else:
+            x = scheduler.step(out, t, x).prev_sample
+    return x
+
+
+def run_solver(denoiser: DenoiserFn, table: SolverTable, x: torch.Tensor,
+               step_noise: torch.Tensor | None) -> torch.Tensor:
+    """The loop of a precomputed coefficient table: ``x`` (B, T, D) the initial noise already scaled by
+    ``table.init_sigma``, ``step_noise`` (K, B, T, D) for stochastic tables. Only tensor arithmetic on the
+    table's device: capturable as one CUDA graph. Returns the final sample (B, T, D)."""
+    K, B = table.steps, x.shape[0]
+    prev = torch.zeros_like(x)
+    for k in range(K):
+        x0 = denoiser(x * table.c_in[k], Step(k, K, table.t[k].expand(B)))
+        nxt = table.a[k] * x + table.b[k] * x0 + table.c[k] * prev
+        if table.stochastic:
+            nxt = nxt + table.d[k] * step_noise[k]
+        x, prev = nxt, x0
+    return x

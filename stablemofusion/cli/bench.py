@@ -1,4 +1,7 @@
-"""`smf bench`: average inference time per sentence (AITS) for samplers and step counts; JSON output."""
+"""`smf bench`: average inference time per sentence (AITS) per engine, sampler and step count; JSON output.
+
+AITS is the time of the denoising loop (text already cached, after a warm-up); the final stage (rigid fit)
+is timed once per row and reported beside it."""
 
 from __future__ import annotations
 
@@ -17,6 +20,9 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--preset", default=None, help="time an untrained preset instead of a checkpoint")
     p.add_argument("--sampler", action="append", default=None, help=f"repeatable (default {DEFAULT_SAMPLER})")
     p.add_argument("--steps", type=int, action="append", default=None, help="repeatable (default 10)")
+    p.add_argument("--engine", action="append", default=None,
+                   help="eager, fast, compiled, graph or auto; repeatable (default: eager and auto); the speed-up is "
+                        "over eager")
     p.add_argument("--frames", type=int, default=196)
     p.add_argument("--batch-sizes", default="1,32")
     p.add_argument("--repeats", type=int, default=5)
@@ -61,29 +67,48 @@ def run(args: argparse.Namespace) -> None:
         batches = [int(b) for b in args.batch_sizes.split(",")]
     except ValueError:
         raise SMFError(f"--batch-sizes must be a comma list of integers, not {args.batch_sizes!r}") from None
+    from ..diffusion.engine import check_engine
+
+    engines = args.engine or ["eager", "auto"]
+    for e in engines:
+        check_engine(e, pipe.device)
     prompt = "a person walks forward and waves with the right hand"
     rows = []
     for sampler in samplers:
         for steps in steps_list:
             for b in batches:
                 prompts = [f"{prompt} {i}" for i in range(b)]
-                pipe.sample(prompts, [args.frames] * b, guidance_scale=args.guidance, steps=steps, sampler=sampler,
-                            seed=0)  # warm-up; fills the text cache, so timing excludes the language model
-                times = []
-                for r in range(args.repeats):
-                    if pipe.device.type == "cuda":
-                        torch.cuda.synchronize()
+                lengths = [args.frames] * b
+                eager = None
+                for engine in engines:
+                    name = pipe.engine_for(sampler, engine)
+                    t0 = time.perf_counter()  # warm-up: fills the text cache, compiles or captures
+                    raw = pipe.denoise(prompts, lengths, guidance_scale=args.guidance, steps=steps, sampler=sampler,
+                                       seed=0, engine=name)
+                    warmup = time.perf_counter() - t0
+                    times = []
+                    for r in range(args.repeats):
+                        _sync(pipe)
+                        t0 = time.perf_counter()
+                        pipe.denoise(prompts, lengths, guidance_scale=args.guidance, steps=steps, sampler=sampler,
+                                     seed=r, engine=name)
+                        _sync(pipe)
+                        times.append(time.perf_counter() - t0)
+                    mean = sum(times) / len(times)
                     t0 = time.perf_counter()
-                    pipe.sample(prompts, [args.frames] * b, guidance_scale=args.guidance, steps=steps,
-                                sampler=sampler, seed=r)
-                    if pipe.device.type == "cuda":
-                        torch.cuda.synchronize()
-                    times.append(time.perf_counter() - t0)
-                mean = sum(times) / len(times)
-                rows.append({"sampler": sampler, "steps": steps, "batch_size": b, "frames": args.frames,
-                             "seconds_per_batch": mean, "aits": mean / b})
-                print(f"{sampler:<24} steps {steps:>4}  batch {b:>3}  AITS {mean / b * 1000:9.2f} ms", flush=True)
-    report = {"device": str(pipe.device), "dtype": str(pipe.dtype).replace("torch.", ""),
+                    pipe.finish(raw[0].numpy())
+                    finish = time.perf_counter() - t0
+                    eager = mean if name == "eager" else eager
+                    row = {"engine": name, "sampler": sampler, "steps": steps, "batch_size": b, "frames": args.frames,
+                           "seconds_per_batch": mean, "aits": mean / b, "warmup_seconds": warmup,
+                           "speedup_over_eager": None if eager is None else eager / mean,
+                           "final_stage_seconds_per_motion": finish}
+                    rows.append(row)
+                    speed = "" if eager is None else f"  x{eager / mean:5.2f} vs eager"
+                    print(f"{name:<9} {sampler:<24} steps {steps:>4}  batch {b:>3}  AITS {mean / b * 1000:9.2f} ms"
+                          f"{speed}  (warm-up {warmup:.1f} s; rigid final stage {finish * 1000:.0f} ms/motion)",
+                          flush=True)
+    report = {"device": str(pipe.device), "frames": args.frames, "dtype": str(pipe.dtype).replace("torch.", ""),
               "device_name": torch.cuda.get_device_name() if pipe.device.type == "cuda" else platform.processor()
               or platform.machine(), "threads": torch.get_num_threads(),
               "parameters": pipe.model.num_parameters(), "guidance": args.guidance, "results": rows}
@@ -91,3 +116,10 @@ def run(args: argparse.Namespace) -> None:
     print(text)
     if args.out is not None:
         write_text(args.out, text + "\n")
+
+
+def _sync(pipe) -> None:
+    import torch
+
+    if pipe.device.type == "cuda":
+        torch.cuda.synchronize()

@@ -9,7 +9,6 @@ from a checkpoint reproduces the uninterrupted run exactly on CPU.
 from __future__ import annotations
 
 import csv
-import functools
 import math
 import time
 from dataclasses import replace
@@ -19,7 +18,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ..data.dataset import MotionTextDataset, collate
+from ..data.batches import get_batch
+from ..data.dataset import MotionTextDataset
 from ..errors import SMFError
 from ..models.base import build_denoiser
 from ..models.presets import get_preset
@@ -31,45 +31,6 @@ from .schedule import make_train_scheduler
 def _mix(*ints: int) -> int:
     """A 63-bit seed from integers (stable across runs and machines)."""
     return int(np.random.SeedSequence(list(ints)).generate_state(1, dtype=np.uint64)[0] >> 1)
-
-
-@functools.lru_cache(maxsize=4)
-def _epoch_order(seed: int, epoch: int, n: int, chunk: int, lengths: tuple[int, ...] | None) -> np.ndarray:
-    """Item order of one epoch: a seeded permutation; with ``lengths``, each run of ``chunk`` items is
-    sorted by length, so batches hold similar lengths. Cached: every step of an epoch reads it."""
-    order = np.random.default_rng([seed, epoch]).permutation(n)
-    if lengths is None:
-        return order
-    lens = np.asarray(lengths)
-    return np.concatenate([part[np.argsort(lens[part], kind="stable")]
-                           for part in (order[a:a + chunk] for a in range(0, n, chunk))])
-
-
-def batch_indices(step: int, batch_size: int, n: int, seed: int, *, lengths: tuple[int, ...] | None = None,
-                  bucket: int = 0) -> list[tuple[int, int]]:
-    """(epoch, item) pairs of step ``step``: consecutive slices of a per-epoch order of ``n`` items.
-
-    With ``bucket > 0`` and the items' ``lengths``, the order groups similar lengths (see ``_epoch_order``)."""
-    lens = tuple(lengths) if bucket > 0 and lengths is not None else None
-    chunk = batch_size * max(bucket, 1)
-    out = []
-    for g in range(step * batch_size, (step + 1) * batch_size):
-        epoch, k = divmod(g, n)
-        out.append((epoch, int(_epoch_order(seed, epoch, n, chunk, lens)[k])))
-    return out
-
-
-def get_batch(ds: MotionTextDataset, step: int, batch_size: int, seed: int, bucket: int = 0) -> dict:
-    """Batch of step ``step``, trimmed to its longest item (padding beyond it is never needed)."""
-    lengths = tuple(e.end - e.start for e in ds.entries) if bucket > 0 else None
-    items = []
-    for epoch, i in batch_indices(step, batch_size, len(ds), seed, lengths=lengths, bucket=bucket):
-        ds.set_epoch(epoch)
-        items.append(ds[i])
-    batch = collate(items)
-    T = int(batch["length"].max())
-    batch["motion"], batch["mask"] = batch["motion"][:, :T], batch["mask"][:, :T]
-    return batch
 
 
 def masked_mse(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -272,4 +233,4 @@ def _ema_state(model, ema) -> dict[str, torch.Tensor]:
     return state
 
 
-__all__ = ["TrainConfig", "train", "masked_mse", "batch_indices"]
+__all__ = ["TrainConfig", "train", "masked_mse"]

@@ -16,7 +16,7 @@ import torch
 from tqdm import tqdm
 
 from ..data.dataset import MotionTextDataset
-from ..diffusion.train import get_batch
+from ..data.batches import get_batch
 from ..errors import SMFError
 from .evaluator import Evaluator, EvaluatorConfig, save_evaluator
 from .metrics import r_precision

@@ -9,7 +9,7 @@ import torch
 from stablemofusion.cli.main import main
 from stablemofusion.data.corpus_bandai import build_corpus
 from stablemofusion.diffusion.checkpoint import load_checkpoint
-from stablemofusion.diffusion.train import TrainConfig, batch_indices, masked_mse, train
+from stablemofusion.diffusion.train import TrainConfig, masked_mse, train
 from stablemofusion.errors import SMFError
 
 
@@ -56,34 +56,26 @@ def test_killed_run_resumes_exactly(corpus, text_cache, tmp_path):
     assert all(torch.equal(a[k], b[k]) for k in a)
 
 
+def test_a_resumed_run_can_be_extended_with_new_optimisation_settings(corpus, text_cache, tmp_path, capsys):
+    out = tmp_path / "run"
+    base = ["train", "--data", str(corpus), "--out", str(out), "--preset", "tiny", "--batch-size", "4",
+            "--min-frames", "16", "--text-cache", str(text_cache), "--no-progress"]
+    assert main(base + ["--steps", "4", "--checkpoint-every", "2"]) == 0
+    assert main(base + ["--steps", "6", "--checkpoint-every", "3", "--lr", "1e-3", "--resume"]) == 0
+    log = (out / "log.csv").read_text().splitlines()[1:]
+    assert [int(r.split(",")[0]) for r in log] == [1, 2, 3, 4, 5, 6]
+    assert float(log[3].split(",")[2]) == pytest.approx(2e-4) and float(log[5].split(",")[2]) == pytest.approx(1e-3)
+    ck = load_checkpoint(out)
+    assert ck.config.step == 6 and ck.config.train.lr == 1e-3 and ck.config.train.steps == 6
+    # the architecture must match
+    assert main(base + ["--steps", "8", "--preset", "small", "--resume"]) == 2
+    assert "differs from the saved one in model" in capsys.readouterr().err
+
+
 def test_resume_needs_a_checkpoint(tmp_path, corpus, capsys):
     code = main(["train", "--data", str(corpus), "--out", str(tmp_path / "none"), "--preset", "tiny", "--resume",
                  "--no-progress"])
     assert code == 2 and "cannot resume" in capsys.readouterr().err
-
-
-def test_batches_are_a_function_of_the_step():
-    assert batch_indices(3, 4, 10, 0) == batch_indices(3, 4, 10, 0)
-    seen = [i for s in range(5) for _, i in batch_indices(s, 2, 10, 0)]
-    assert sorted(seen) == list(range(10))  # one epoch visits every item once
-
-
-def test_bucketed_batches_group_lengths_and_still_cover_the_epoch():
-    lengths = tuple(int(x) for x in np.random.default_rng(0).integers(40, 196, 64))
-    plain = [[lengths[i] for _, i in batch_indices(s, 8, 64, 0)] for s in range(8)]
-    bucketed = [[lengths[i] for _, i in batch_indices(s, 8, 64, 0, lengths=lengths, bucket=8)] for s in range(8)]
-    assert sorted(sum(bucketed, [])) == sorted(lengths)  # every item once per epoch
-    spread = lambda batches: np.mean([max(b) - min(b) for b in batches])  # noqa: E731
-    assert spread(bucketed) < 0.5 * spread(plain)
-
-
-def test_get_batch_is_trimmed_to_its_longest_item(corpus):
-    from stablemofusion.data.dataset import MotionTextDataset
-    from stablemofusion.diffusion.train import get_batch
-
-    ds = MotionTextDataset(corpus, "train", seed=0, min_frames=16)
-    batch = get_batch(ds, 0, 4, 0, bucket=1)
-    assert batch["motion"].shape[1] == int(batch["length"].max()) == batch["mask"].shape[1]
 
 
 def test_masked_mse_ignores_padding():

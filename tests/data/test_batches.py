@@ -1,0 +1,36 @@
+"""Training batches: a pure function of (seed, step), bucketed by length on request, trimmed to their longest item."""
+
+import numpy as np
+import pytest
+
+from stablemofusion.data.batches import batch_indices, get_batch
+from stablemofusion.data.corpus_bandai import build_corpus
+from stablemofusion.data.dataset import MotionTextDataset
+
+
+@pytest.fixture(scope="module")
+def corpus(bandai_mini_source, tmp_path_factory):
+    out = tmp_path_factory.mktemp("batch-corpus")
+    build_corpus(bandai_mini_source, out, workers=1)
+    return out
+
+
+def test_batches_are_a_function_of_the_step():
+    assert batch_indices(3, 4, 10, 0) == batch_indices(3, 4, 10, 0)
+    seen = [i for s in range(5) for _, i in batch_indices(s, 2, 10, 0)]
+    assert sorted(seen) == list(range(10))  # one epoch visits every item once
+
+
+def test_bucketed_batches_group_lengths_and_still_cover_the_epoch():
+    lengths = tuple(int(x) for x in np.random.default_rng(0).integers(40, 196, 64))
+    plain = [[lengths[i] for _, i in batch_indices(s, 8, 64, 0)] for s in range(8)]
+    bucketed = [[lengths[i] for _, i in batch_indices(s, 8, 64, 0, lengths=lengths, bucket=8)] for s in range(8)]
+    assert sorted(sum(bucketed, [])) == sorted(lengths)  # every item once per epoch
+    spread = lambda batches: np.mean([max(b) - min(b) for b in batches])  # noqa: E731
+    assert spread(bucketed) < 0.5 * spread(plain)
+
+
+def test_get_batch_is_trimmed_to_its_longest_item(corpus):
+    ds = MotionTextDataset(corpus, "train", seed=0, min_frames=16)
+    batch = get_batch(ds, 0, 4, 0, bucket=1)
+    assert batch["motion"].shape[1] == int(batch["length"].max()) == batch["mask"].shape[1]

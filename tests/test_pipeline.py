@@ -166,8 +166,11 @@ def test_bench_prints_json(checkpoint, tmp_path, capsys):
     assert main(["bench", "--checkpoint", str(checkpoint), "--steps", "2", "--batch-sizes", "1,2", "--repeats", "1",
                  "--frames", "40", "--sampler", "ddim", "--out", str(out)]) == 0
     report = json.loads(out.read_text())
-    assert [r["batch_size"] for r in report["results"]] == [1, 2]
-    assert all(r["aits"] > 0 for r in report["results"])
+    rows = report["results"]
+    assert [(r["batch_size"], r["engine"]) for r in rows] == [(1, "eager"), (1, "fast"), (2, "eager"), (2, "fast")]
+    assert all(r["aits"] > 0 and r["speedup_over_eager"] > 0 and r["warmup_seconds"] > 0 for r in rows)
+    assert rows[0]["speedup_over_eager"] == 1.0
+    assert main(["bench", "--checkpoint", str(checkpoint), "--engine", "graph"]) == 2 or torch.cuda.is_available()
 
 
 def test_pipeline_is_importable_from_the_package_top():

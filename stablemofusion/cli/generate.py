@@ -28,6 +28,9 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--batch-size", type=int, default=32)
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
+    p.add_argument("--engine", default="auto", choices=("auto", "eager", "fast", "compiled", "graph"),
+                   help="denoising engine (default auto: CUDA graphs on a GPU, the precomputed solver loop on a CPU; "
+                        "docs/inference.md)")
     add_footskate_arguments(p)
     p.set_defaults(func=run)
 
@@ -91,7 +94,7 @@ def run(args: argparse.Namespace) -> None:
     from ..pipeline import LengthClampedWarning, MotionPipeline, OutOfDomainWarning
 
     options = footskate_options_from_args(args) if args.footskate != "off" else None
-    pipe = MotionPipeline.from_pretrained(args.checkpoint, device=args.device)
+    pipe = MotionPipeline.from_pretrained(args.checkpoint, device=args.device, engine=args.engine)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         results = pipe(prompts, seconds=args.seconds, guidance_scale=args.guidance, steps=args.steps,

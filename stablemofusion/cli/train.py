@@ -19,6 +19,7 @@ _FLAGS = {  # TrainConfig field -> help
     "bucket": "group similar lengths: sort runs of BUCKET batches by length (0 = off)",
     "text_augment": "probability that a training caption is perturbed (word dropout, synonym swap, typos, case)",
     "init_from": "start from the weights of this checkpoint, run or exported folder (fine-tuning)",
+    "compile": "torch.compile the training forward (pays on a GPU)",
 }
 _TYPES = {"init_from": str}
 
@@ -37,7 +38,10 @@ def add_parser(sub, name: str) -> None:
         if f.name in _FLAGS:
             default = getattr(defaults, f.name)
             kind = _TYPES.get(f.name) or (type(default) if default is not None else int)
-            p.add_argument("--" + f.name.replace("_", "-"), type=kind, default=default, help=_FLAGS[f.name])
+            if isinstance(default, bool):
+                p.add_argument("--" + f.name.replace("_", "-"), action="store_true", help=_FLAGS[f.name])
+            else:
+                p.add_argument("--" + f.name.replace("_", "-"), type=kind, default=default, help=_FLAGS[f.name])
     p.add_argument("--stop-after", type=int, default=None, help=argparse.SUPPRESS)  # simulate a kill (tests)
     p.set_defaults(func=run)
 

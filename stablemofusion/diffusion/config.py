@@ -41,6 +41,7 @@ class TrainConfig:
     bucket: int = 0  # >0: sort each run of bucket*batch_size items by length (less padding, faster)
     text_augment: float = 0.0  # probability that a caption is perturbed (data/augment.py) before encoding
     init_from: str | None = None  # start from these weights (a checkpoint, run or exported model folder)
+    compile: bool = False  # torch.compile the training forward (pays on a GPU; same numerics up to rounding)
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
 
     def to_dict(self) -> dict:

@@ -50,24 +50,25 @@ def generate_jobs(pipe, jobs: list[Job], max_batch: int) -> list:
 _WORKER_PIPE = None  # the pipeline of a worker process
 
 
-def _worker_init(checkpoint: str | None, device: str | None, threads: int) -> None:
+def _worker_init(checkpoint: str | None, device: str | None, threads: int, engine: str = "auto") -> None:
     global _WORKER_PIPE
     import torch
 
     from ..pipeline import MotionPipeline
 
     torch.set_num_threads(threads)
-    _WORKER_PIPE = MotionPipeline.from_pretrained(checkpoint, device=device)
+    _WORKER_PIPE = MotionPipeline.from_pretrained(checkpoint, device=device, engine=engine)
 
 
 def _worker_run(jobs: list[Job], max_batch: int) -> list:
     return generate_jobs(_WORKER_PIPE, jobs, max_batch)
 
 
-def process_executor(checkpoint: str | None, device: str | None = None, threads: int = 2) -> Executor:
+def process_executor(checkpoint: str | None, device: str | None = None, threads: int = 2,
+                     engine: str = "auto") -> Executor:
     """One worker process that loads the checkpoint itself (spawned: no forked torch threads)."""
     return ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_worker_init, initargs=(checkpoint, device, threads))
+                               initializer=_worker_init, initargs=(checkpoint, device, threads, engine))
 
 
 class DynamicBatcher:

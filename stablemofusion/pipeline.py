@@ -27,7 +27,13 @@ from .models.base import TextCondition
 from .motion.features import joints_from_features
 from .motion.rigid import DEFAULT_FIT, RigidFitConfig, RigidMotion, rigid_from_features, rigid_to_features
 from .motion.skeleton import get_skeleton
+from .text.frozen import sentence_embedding
 from .text.known import ACTIONS_FILE, DomainCheck, KnownActions
+from .text.length import WEIGHTS as LENGTH_WEIGHTS
+from .text.length import LengthEstimator
+
+
+DEFAULT_SECONDS = 4.0  # length of a motion when none is given and the model has no length estimator
 
 
 class LengthClampedWarning(UserWarning):
@@ -90,6 +96,7 @@ class MotionPipeline:
         # the rigid final stage (docs/rigid.md); None only to measure what it changes
         self.rigid = rigid
         self.known_actions: KnownActions | None = None  # set by from_pretrained when the folder has actions.json
+        self.length_estimator: LengthEstimator | None = None  # set by from_pretrained (length.safetensors)
 
     @classmethod
     def from_pretrained(cls, path: str | Path | None = None, *, device: str | torch.device | None = None,
@@ -107,7 +114,21 @@ class MotionPipeline:
         pipe = cls(ck.model, ck.mean, ck.std, ck.config, device=device, dtype=dtype, **kwargs)
         if (ck.path / ACTIONS_FILE).is_file():
             pipe.known_actions = KnownActions.load(ck.path / ACTIONS_FILE, pipe.text_cache)
+        if (ck.path / LENGTH_WEIGHTS).is_file():
+            pipe.length_estimator = LengthEstimator.load(ck.path)
         return pipe
+
+    def predict_seconds(self, prompts: str | list[str]) -> list[float]:
+        """The length each prompt's motion is expected to have (seconds), from the model's length estimator
+        (``smf train-length``); SMFError for a model without one."""
+        prompts = [prompts] if isinstance(prompts, str) else list(prompts)
+        if self.length_estimator is None:
+            raise SMFError("this model has no length estimator (length.safetensors); give the length, or train one "
+                           "with `smf train-length`")
+        tokens, mask = self.encode_text(prompts)
+        sentence = sentence_embedding(tokens.float().cpu(), mask.bool().cpu())
+        frames = self.length_estimator.predict_frames(sentence)
+        return [int(f) / self.fps for f in frames]
 
     def encode_text(self, prompts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
         """Frozen token embeddings for ``prompts`` through the LRU cache: (B, L, C), (B, L)."""
@@ -117,7 +138,7 @@ class MotionPipeline:
         """Clamp a requested duration to what the model was trained on (multiple of 4), warning if changed."""
         if frames is None:
             if seconds is None:
-                seconds = 4.0
+                seconds = DEFAULT_SECONDS
             if not np.isfinite(seconds) or seconds <= 0:
                 raise SMFError(f"seconds must be a positive number, got {seconds}")
             frames = int(round(seconds * self.fps))
@@ -136,7 +157,9 @@ class MotionPipeline:
                  sampler: str = DEFAULT_SAMPLER, seed: int | list[int] | None = None, batch_size: int = 32,
                  progress: bool = False, footskate: str = "off", footskate_options=None,
                  engine: str | None = None) -> list[MotionResult]:
-        """Generate one motion per prompt. ``seconds``/``frames`` may be one value or one per prompt.
+        """Generate one motion per prompt. ``seconds``/``frames`` may be one value or one per prompt; with
+        neither, the length comes from the model's length estimator (:meth:`predict_seconds`), or is
+        ``DEFAULT_SECONDS`` for a model without one.
         The same seed gives the same motions; one seed per prompt makes each motion independent of the others
         it is generated with. ``footskate``: 'off', 'post' (clean up each result) or 'loop'
         (clean up the predicted x0 in the last denoising steps, StableMoFusion*); ``footskate_options`` a
@@ -150,10 +173,14 @@ class MotionPipeline:
         if batch_size < 1:
             raise SMFError(f"batch_size must be at least 1, got {batch_size}")
         n = len(prompts)
-        secs = seconds if isinstance(seconds, (list, tuple)) else [seconds] * n
-        frs = frames if isinstance(frames, (list, tuple)) else [frames] * n
+        secs = list(seconds) if isinstance(seconds, (list, tuple)) else [seconds] * n
+        frs = list(frames) if isinstance(frames, (list, tuple)) else [frames] * n
         if len(secs) != n or len(frs) != n:
             raise SMFError("give one length for all prompts or one per prompt")
+        unknown = [i for i in range(n) if secs[i] is None and frs[i] is None]
+        if unknown and self.length_estimator is not None:  # no length given: the model's estimate from the text
+            for i, s in zip(unknown, self.predict_seconds([prompts[i] for i in unknown])):
+                secs[i] = s
         lengths = [self.frames_for(s, f) for s, f in zip(secs, frs)]
         per_item = isinstance(seed, (list, tuple))
         if per_item and len(seed) != n:

@@ -18,7 +18,9 @@ def add_parser(sub, name: str) -> None:
                        description="Generate one motion per prompt and write joints/features .npy, video and BVH.")
     p.add_argument("text", nargs="?", default=None, help="the prompt (or use --prompts FILE)")
     p.add_argument("--prompts", type=Path, default=None, help="file with one prompt per line")
-    p.add_argument("--seconds", type=float, default=4.0, help="length of each motion (default 4)")
+    p.add_argument("--seconds", type=float, default=None,
+                   help="length of each motion (default: predicted from the text by the model's length estimator; "
+                        "4 s for a model without one)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--format", default="npy,mp4,bvh", help=f"comma list of {','.join(FORMATS)} (default npy,mp4,bvh)")
     p.add_argument("--guidance", type=float, default=2.5, help="classifier-free guidance scale (default 2.5)")
@@ -86,7 +88,7 @@ def run(args: argparse.Namespace) -> None:
         prompts = [args.text]
     if any(not p.strip() for p in prompts):
         raise SMFError("the prompt is empty")
-    if not args.seconds > 0:
+    if args.seconds is not None and not args.seconds > 0:
         raise SMFError(f"--seconds must be positive, got {args.seconds}")
 
     from ..io import save_npy, write_text
@@ -123,4 +125,4 @@ def run(args: argparse.Namespace) -> None:
                 "prompt": r.prompt, "fps": r.fps, "frames": len(r.joints), "seed": r.seed, "sampler": args.sampler,
                 "steps": args.steps, "guidance": args.guidance, **(r.domain.to_dict(r.prompt) if r.domain else {}),
                 "joints": r.joints.round(5).tolist()}) + "\n")
-        print(f"wrote {stem}.* ({len(r.joints)} frames)")
+        print(f"wrote {stem}.* ({len(r.joints)} frames, {len(r.joints) / r.fps:.1f} s)")

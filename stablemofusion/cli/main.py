@@ -21,6 +21,7 @@ COMMANDS = {
     "footskate": "footskate",
     "train-evaluator": "train_evaluator",
     "train-classifier": "train_classifier",
+    "train-length": "train_length",
     "evaluate": "evaluate",
     "export": "export",
     "ablate": "ablate",

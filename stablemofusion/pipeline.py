@@ -19,12 +19,14 @@ from .diffusion.checkpoint import load_checkpoint
 from .diffusion.config import CheckpointConfig
 from .diffusion.engine import SolverEngine, check_engine, default_engine
 from .diffusion.samplers import DEFAULT_SAMPLER, make_sampler, sampler_spec
-from .diffusion.sampling import (DenoiserFn, Noise, Step, X0Hook, cfg_batched, cfg_two_pass, model_denoiser,
-                                 run_diffusers, run_solver, with_x0_hook)
+from .diffusion.sampling import (DenoiserFn, Noise, Step, X0Hook, cfg_batched, cfg_two_pass, impute_xt,
+                                 model_denoiser, replace_x0, run_diffusers, run_solver, with_x0_hook)
 from .diffusion.solvers import SolverTable, solver_table
+from .edit import IMPOSE, EditPlan, plan_edit, splice_rigid
 from .errors import SMFError
 from .models.base import TextCondition
 from .motion.features import joints_from_features
+from .motion.root import headings, place_like, place_rigid_like, root_xz
 from .motion.rigid import DEFAULT_FIT, RigidFitConfig, RigidMotion, rigid_from_features, rigid_to_features
 from .motion.skeleton import get_skeleton
 from .text.frozen import sentence_embedding
@@ -208,6 +210,44 @@ class MotionPipeline:
                                             domains[i]))
         return results
 
+    @torch.no_grad()
+    def edit(self, prompt: str, source: np.ndarray, mode: str, *, keep_start: float = 0.0, keep_end: float = 0.0,
+             seconds: float | None = None, path: np.ndarray | None = None, guidance_scale: float = 2.5,
+             steps: int = 10, sampler: str = DEFAULT_SAMPLER, seed: int | None = None, impose: str = "x0",
+             footskate: str = "off", footskate_options=None) -> MotionResult:
+        """Edit ``source`` features (Ts, D) (dataset units; :func:`stablemofusion.edit.source_features` converts
+        joints and BVH) with ``prompt``: ``mode`` one of :data:`stablemofusion.edit.EDIT_MODES`; ``keep_start``
+        / ``keep_end`` in seconds; ``seconds`` the output length (default the source's); ``path`` (T, 2) metres
+        for 'trajectory' (default the source's root path). The known part is imposed at every step
+        (``impose`` 'x0' or 'xt'). Returns the edited motion in the source's canonical frame."""
+        if not isinstance(prompt, str) or not prompt.strip():
+            raise SMFError("the prompt must be a non-empty text")
+        plan = plan_edit(mode, source, self.skeleton, keep_start=int(round(keep_start * self.fps)),
+                         keep_end=int(round(keep_end * self.fps)),
+                         frames=None if seconds is None else int(round(seconds * self.fps)), path=path)
+        if plan.frames > self.max_frames:
+            raise SMFError(f"an edit of {plan.frames} frames is longer than the {self.max_frames} this model "
+                           "generates at once")
+        raw = self.denoise([prompt], [plan.frames], guidance_scale=guidance_scale, steps=steps, sampler=sampler,
+                           seed=[0 if seed is None else seed], footskate=footskate, footskate_options=footskate_options,
+                           edit=plan, impose=impose)
+        f, motion = self.finish(raw[0].numpy(), footskate, footskate_options)
+        src = np.asarray(source, dtype=np.float64)
+        st, ft = torch.from_numpy(src), torch.from_numpy(f)
+        anchor = None
+        if plan.anchor is not None:  # the output is placed so that its kept end is where the source has it
+            a, b = plan.anchor
+            anchor = (a, headings(ft)[a], root_xz(ft)[a], headings(st)[b], root_xz(st)[b])
+        if motion is None:
+            joints = joints_from_features(f, self.skeleton)
+            joints = joints if anchor is None else place_like(torch.from_numpy(joints), *anchor).numpy()
+        else:
+            motion = motion if anchor is None else place_rigid_like(motion, *anchor)
+            motion = splice_rigid(motion, self.finish(src)[1], plan)
+            joints = motion.joints()
+            f = rigid_to_features(motion, f, self.rigid)[1]
+        return MotionResult(prompt, f, joints, self.fps, seed, motion)
+
     def finish(self, features: np.ndarray, footskate: str = "off",
                footskate_options=None) -> tuple[np.ndarray, RigidMotion | None]:
         """The final stage of one motion's raw features (T, D): the rigid fit, the footskate cleanup in 'post'
@@ -275,12 +315,15 @@ class MotionPipeline:
     @torch.no_grad()
     def denoise(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = 2.5, steps: int = 10,
                 sampler: str = DEFAULT_SAMPLER, seed: int | list[int] | None = None, batched_cfg: bool = True,
-                footskate: str = "off", footskate_options=None, engine: str | None = None) -> torch.Tensor:
+                footskate: str = "off", footskate_options=None, engine: str | None = None,
+                edit: EditPlan | None = None, impose: str = "x0") -> torch.Tensor:
         """Denoise a batch: the model's raw features (B, max(lengths), D) in dataset units (CPU, float32), before
         the final stage; in 'loop' mode the last predicted x0 are cleaned (rigid body) inside the loop.
         ``seed``: one seed for the batch, or one per item: then an item's result does not depend on the other
         items it is batched with (for samplers whose step takes its noise: all but ddpm).
-        ``engine``: see :mod:`stablemofusion.diffusion.engine` (default: the pipeline's)."""
+        ``engine``: see :mod:`stablemofusion.diffusion.engine` (default: the pipeline's).
+        ``edit``: a known part every item keeps (:mod:`stablemofusion.edit`), imposed in x0 or in x_t
+        (``impose``); its length must be every item's length."""
         _check_footskate(footskate)
         if footskate != "off" and self.rigid is None:
             raise SMFError("the footskate cleanup works on the rigid body: it needs the rigid stage")
@@ -292,6 +335,14 @@ class MotionPipeline:
         mask = (torch.arange(T)[None] < torch.tensor(lengths)[:, None]).to(self.device)
         cond, uncond = self.text_condition(prompts)
         use_cfg = guidance_scale != 1.0
+        if edit is not None:
+            if impose not in IMPOSE:
+                raise SMFError(f"impose must be one of {', '.join(IMPOSE)}, got {impose!r}")
+            if set(lengths) != {edit.frames}:
+                raise SMFError(f"an edit of {edit.frames} frames needs every length to be {edit.frames}, got {lengths}")
+            if not sampler_spec(sampler).fast:
+                raise SMFError(f"editing needs a sampler with a precomputed form, not {sampler!r}")
+            engine = "fast"
         if footskate == "loop":  # a hook on x0: eager loops only (it leaves the device)
             engine = "eager" if engine == "eager" else "fast"
         if engine in ("compiled", "graph") and batched_cfg:
@@ -310,10 +361,39 @@ class MotionPipeline:
                 x = run_diffusers(denoiser, sched, sampler_spec(sampler), noise, self.dtype, B)
             else:
                 table = self.solver(sampler, steps)
-                x0 = (noise.draw() * table.init_sigma).to(self.dtype)
+                eps = noise.draw().to(self.dtype)
                 step_noise = noise.draw(steps).to(self.dtype) if table.stochastic else None
-                x = run_solver(denoiser, table, x0, step_noise)
-        return x.float().cpu() * self.std + self.mean
+                x_hook = None
+                if edit is not None:
+                    known = self.normalise(torch.from_numpy(edit.known)).expand(B, -1, -1)
+                    kmask = torch.from_numpy(edit.mask).to(self.device).expand(B, -1, -1)
+                    project = self._normalised_projection(edit)
+                    if impose == "x0":
+                        denoiser = with_x0_hook(denoiser, replace_x0(known, kmask, project))
+                    else:
+                        x_hook = impute_xt(known, kmask, eps, table)
+                        if project is not None:
+                            denoiser = with_x0_hook(denoiser, lambda x0, step: project(x0))
+                x = run_solver(denoiser, table, eps * table.init_sigma, step_noise, x_hook)
+        out = x.float().cpu() * self.std + self.mean
+        if edit is not None:  # exact on the known part (the last step already is, up to rounding)
+            out = torch.stack([edit.project(o.double()).float() for o in out])
+        return out
+
+    def normalise(self, features: torch.Tensor) -> torch.Tensor:
+        """Features (..., D) in dataset units -> the model's normalised space, dtype and device."""
+        return ((features.float() - self.mean) / self.std).to(self.device, self.dtype)
+
+    def _normalised_projection(self, edit: EditPlan):
+        """The edit's root constraints as a function of normalised x0 (B, T, D), or None when it has none."""
+        if edit.land is None and edit.path is None:
+            return None
+
+        def project(x0: torch.Tensor) -> torch.Tensor:
+            feats = x0.double().cpu() * self.std.double() + self.mean.double()
+            return self.normalise(torch.stack([edit.project(f) for f in feats]))
+
+        return project
 
     def guided(self, cond: TextCondition, uncond: TextCondition, mask: torch.Tensor, scale: float,
                batched: bool = True) -> DenoiserFn:

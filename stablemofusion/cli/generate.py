@@ -65,13 +65,48 @@ def _slug(text: str, i: int) -> str:
     return f"{i:03d}_{words or 'motion'}"
 
 
+def parse_formats(text: str) -> list[str]:
+    from ..errors import SMFError
+
+    formats = [f.strip().lower() for f in text.split(",") if f.strip()]
+    bad = [f for f in formats if f not in FORMATS]
+    if bad or not formats:
+        raise SMFError(f"unknown format(s) {bad or text!r}; choose from {', '.join(FORMATS)}")
+    return formats
+
+
+def write_results(results, out: Path, formats: list[str], skeleton, meta: dict) -> None:
+    """Write each MotionResult as joints/features .npy, BVH, video and JSON (``meta`` added to the JSON),
+    named from its prompt; prints one line per motion."""
+    from ..io import save_npy, write_text
+    from ..motion.files import save_bvh, save_rigid_bvh
+
+    if any(f in formats for f in ("mp4", "gif")):
+        from ..render import render_video
+    for i, r in enumerate(results):
+        stem = out / _slug(r.prompt, i)
+        if "npy" in formats:
+            save_npy(stem.with_name(stem.name + "_joints.npy"), r.joints.astype("float32"))
+            save_npy(stem.with_name(stem.name + "_features.npy"), r.features.astype("float32"))
+        if "bvh" in formats:
+            if r.motion is not None:  # the rigid body the joints come from, so the BVH is the same motion
+                save_rigid_bvh(r.motion, stem.with_suffix(".bvh"), r.fps)
+            else:
+                save_bvh(r.joints, stem.with_suffix(".bvh"), skeleton, r.fps)
+        for fmt in ("mp4", "gif"):
+            if fmt in formats:
+                render_video(r.joints, stem.with_suffix("." + fmt), skeleton=skeleton, fps=r.fps, title=r.prompt)
+        if "json" in formats:
+            write_text(stem.with_suffix(".json"), json.dumps({
+                "prompt": r.prompt, "fps": r.fps, "frames": len(r.joints), "seed": r.seed, **meta,
+                **(r.domain.to_dict(r.prompt) if r.domain else {}), "joints": r.joints.round(5).tolist()}) + "\n")
+        print(f"wrote {stem}.* ({len(r.joints)} frames, {len(r.joints) / r.fps:.1f} s)")
+
+
 def run(args: argparse.Namespace) -> None:
     from ..errors import SMFError
 
-    formats = [f.strip().lower() for f in args.format.split(",") if f.strip()]
-    bad = [f for f in formats if f not in FORMATS]
-    if bad or not formats:
-        raise SMFError(f"unknown format(s) {bad or args.format!r}; choose from {', '.join(FORMATS)}")
+    formats = parse_formats(args.format)
     if (args.text is None) == (args.prompts is None):
         raise SMFError("give either a prompt text or --prompts FILE")
     if args.prompts is not None:
@@ -91,8 +126,6 @@ def run(args: argparse.Namespace) -> None:
     if args.seconds is not None and not args.seconds > 0:
         raise SMFError(f"--seconds must be positive, got {args.seconds}")
 
-    from ..io import save_npy, write_text
-    from ..motion.files import save_bvh, save_rigid_bvh
     from ..pipeline import LengthClampedWarning, MotionPipeline, OutOfDomainWarning
 
     options = footskate_options_from_args(args) if args.footskate != "off" else None
@@ -105,24 +138,5 @@ def run(args: argparse.Namespace) -> None:
     shown = (LengthClampedWarning, OutOfDomainWarning)
     for w in dict.fromkeys(str(c.message) for c in caught if issubclass(c.category, shown)):
         print(f"smf: warning: {w}")
-    if any(f in formats for f in ("mp4", "gif")):
-        from ..render import render_video
-    for i, r in enumerate(results):
-        stem = args.out / _slug(r.prompt, i)
-        if "npy" in formats:
-            save_npy(stem.with_name(stem.name + "_joints.npy"), r.joints.astype("float32"))
-            save_npy(stem.with_name(stem.name + "_features.npy"), r.features.astype("float32"))
-        if "bvh" in formats:
-            if r.motion is not None:  # the rigid body the joints come from, so the BVH is the same motion
-                save_rigid_bvh(r.motion, stem.with_suffix(".bvh"), r.fps)
-            else:
-                save_bvh(r.joints, stem.with_suffix(".bvh"), pipe.skeleton, r.fps)
-        for fmt in ("mp4", "gif"):
-            if fmt in formats:
-                render_video(r.joints, stem.with_suffix("." + fmt), skeleton=pipe.skeleton, fps=r.fps, title=r.prompt)
-        if "json" in formats:
-            write_text(stem.with_suffix(".json"), json.dumps({
-                "prompt": r.prompt, "fps": r.fps, "frames": len(r.joints), "seed": r.seed, "sampler": args.sampler,
-                "steps": args.steps, "guidance": args.guidance, **(r.domain.to_dict(r.prompt) if r.domain else {}),
-                "joints": r.joints.round(5).tolist()}) + "\n")
-        print(f"wrote {stem}.* ({len(r.joints)} frames, {len(r.joints) / r.fps:.1f} s)")
+    write_results(results, args.out, formats, pipe.skeleton,
+                  {"sampler": args.sampler, "steps": args.steps, "guidance": args.guidance})

@@ -17,6 +17,7 @@ COMMANDS = {
     "train": "train",
     "info": "info",
     "generate": "generate",
+    "edit": "edit",
     "bench": "bench",
     "footskate": "footskate",
     "train-evaluator": "train_evaluator",

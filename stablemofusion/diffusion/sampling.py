@@ -38,6 +38,7 @@ class DenoiserFn(Protocol):
 
 
 X0Hook = Callable[[torch.Tensor, Step], torch.Tensor]  # (x0 (B, T, D), step) -> x0
+XHook = Callable[[torch.Tensor, Step], torch.Tensor]  # (x after step `step`, step) -> x
 
 
 def model_denoiser(model, cond: TextCondition, motion_mask: torch.Tensor | None) -> DenoiserFn:
@@ -74,6 +75,30 @@ def cfg_two_pass(cond: DenoiserFn, uncond: DenoiserFn, scale: float) -> Denoiser
 def with_x0_hook(denoiser: DenoiserFn, hook: X0Hook) -> DenoiserFn:
     """A denoiser whose prediction passes through ``hook(x0, step)`` (e.g. a cleanup or a constraint)."""
     return lambda x, step: hook(denoiser(x, step), step)
+
+
+def replace_x0(known: torch.Tensor, mask: torch.Tensor,
+               project: Callable[[torch.Tensor], torch.Tensor] | None = None) -> X0Hook:
+    """An x0 hook imposing a known part: x0 takes ``known`` (B, T, D) where ``mask`` (B, T, D) is True (then
+    ``project``, e.g. a root-path constraint that is not a fixed set of entries, if given)."""
+
+    def hook(x0: torch.Tensor, step: Step) -> torch.Tensor:
+        x0 = torch.where(mask, known.to(x0.dtype), x0)
+        return x0 if project is None else project(x0)
+
+    return hook
+
+
+def impute_xt(known: torch.Tensor, mask: torch.Tensor, eps: torch.Tensor, table: SolverTable) -> XHook:
+    """An x hook imposing a known part in x_t (imputation): after step k the known entries are ``known``
+    noised to that step's level with the fixed noise ``eps`` (B, T, D); after the last step they are exact."""
+
+    def hook(x: torch.Tensor, step: Step) -> torch.Tensor:
+        k = step.index
+        noised = table.level_x0[k] * known + table.level_eps[k] * eps
+        return torch.where(mask, noised.to(x.dtype), x)
+
+    return hook
 
 
 def _cat_opt(a: torch.Tensor | None, b: torch.Tensor | None, like: torch.Tensor | None = None) -> torch.Tensor | None:
@@ -151,17 +176,21 @@ def run_diffusers(denoiser: DenoiserFn, scheduler, spec: SamplerSpec, noise: Noi
     return x
 
 
-def run_solver(denoiser: DenoiserFn, table: SolverTable, x: torch.Tensor,
-               step_noise: torch.Tensor | None) -> torch.Tensor:
+def run_solver(denoiser: DenoiserFn, table: SolverTable, x: torch.Tensor, step_noise: torch.Tensor | None,
+               x_hook: XHook | None = None) -> torch.Tensor:
     """The loop of a precomputed coefficient table: ``x`` (B, T, D) the initial noise already scaled by
-    ``table.init_sigma``, ``step_noise`` (K, B, T, D) for stochastic tables. Only tensor arithmetic on the
-    table's device: capturable as one CUDA graph. Returns the final sample (B, T, D)."""
+    ``table.init_sigma``, ``step_noise`` (K, B, T, D) for stochastic tables; ``x_hook`` applied to the sample
+    after each step (e.g. :func:`impute_xt`). Only tensor arithmetic on the table's device: capturable as one
+    CUDA graph. Returns the final sample (B, T, D)."""
     K, B = table.steps, x.shape[0]
     prev = torch.zeros_like(x)
     for k in range(K):
-        x0 = denoiser(x * table.c_in[k], Step(k, K, table.t[k].expand(B)))
+        step = Step(k, K, table.t[k].expand(B))
+        x0 = denoiser(x * table.c_in[k], step)
         nxt = table.a[k] * x + table.b[k] * x0 + table.c[k] * prev
         if table.stochastic:
             nxt = nxt + table.d[k] * step_noise[k]
         x, prev = nxt, x0
+        if x_hook is not None:
+            x = x_hook(x, step)
     return x

@@ -42,6 +42,9 @@ class SolverTable:
     d: torch.Tensor
     init_sigma: float  # initial noise scale
     stochastic: bool
+    # the noise level of x after step k: x = level_x0[k] * x0 + level_eps[k] * eps (for imputing known parts)
+    level_x0: torch.Tensor
+    level_eps: torch.Tensor
 
     @property
     def steps(self) -> int:
@@ -49,8 +52,9 @@ class SolverTable:
 
     def to(self, device: torch.device | str, dtype: torch.dtype = torch.float32) -> "SolverTable":
         conv = (lambda v: v.to(device=device, dtype=dtype))
-        return SolverTable(self.name, self.t.to(device=device, dtype=torch.float32), conv(self.c_in), conv(self.a), conv(self.b),
-                           conv(self.c), conv(self.d), self.init_sigma, self.stochastic)
+        return SolverTable(self.name, self.t.to(device=device, dtype=torch.float32), conv(self.c_in), conv(self.a),
+                           conv(self.b), conv(self.c), conv(self.d), self.init_sigma, self.stochastic,
+                           conv(self.level_x0), conv(self.level_eps))
 
 
 def solver_table(name: str, steps: int, schedule: ScheduleConfig | None = None) -> SolverTable:
@@ -66,9 +70,23 @@ def solver_table(name: str, steps: int, schedule: ScheduleConfig | None = None) 
     sched.set_timesteps(steps, device="cpu")
     t = sched.timesteps.double().numpy()
     build = {"ddim": _ddim, "euler": _euler, "dpmsolver++": _dpmpp_2m, "sde-dpmsolver++": _dpmpp_2m_sde}[base]
-    c_in, a, b, c, d = build(sched, t)
+    (c_in, a, b, c, d), (lx, le) = build(sched, t), _levels(base, sched, t)
     f = (lambda v: torch.from_numpy(np.asarray(v, dtype=np.float64)))
-    return SolverTable(name, f(t).float(), f(c_in), f(a), f(b), f(c), f(d), float(sched.init_noise_sigma), spec.stochastic)
+    return SolverTable(name, f(t).float(), f(c_in), f(a), f(b), f(c), f(d), float(sched.init_noise_sigma), spec.stochastic,
+                       f(lx), f(le))
+
+
+def _levels(base: str, sched, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(K,) scales of x0 and of the noise in the sample after each step, in the sampler's own space."""
+    if base == "ddim":
+        ac = sched.alphas_cumprod.double().numpy()
+        prev = t.astype(int) - sched.config.num_train_timesteps // sched.num_inference_steps
+        ab = np.where(prev >= 0, ac[np.clip(prev, 0, None)], float(sched.final_alpha_cumprod))
+        return np.sqrt(ab), np.sqrt(1 - ab)
+    s = sched.sigmas.double().numpy()[1:len(t) + 1]
+    if base == "euler":  # x = x0 + s * eps
+        return np.ones_like(s), s
+    return 1 / np.sqrt(s ** 2 + 1), s / np.sqrt(s ** 2 + 1)
 
 
 def _fast_names() -> list[str]:

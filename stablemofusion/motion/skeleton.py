@@ -38,6 +38,7 @@ class Skeleton:
     # min_frames and crop to at most max_frames; models are trained and sampled in this range
     min_frames: int = 40
     max_frames: int = 196
+    lower_body: tuple[int, ...] = ()  # root, legs and feet (editing keeps or regenerates this half)
 
     @property
     def num_joints(self) -> int:
@@ -74,6 +75,7 @@ class Skeleton:
 
 HUMANML3D = Skeleton(
     name="humanml3d",
+    lower_body=(0, 1, 2, 4, 5, 7, 8, 10, 11),
     joint_names=(
         "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
         "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar",
@@ -105,6 +107,7 @@ HUMANML3D = Skeleton(
 
 KIT = Skeleton(
     name="kit",
+    lower_body=(0, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20),
     joint_names=(
         "root", "BP", "BT", "BLN", "BUN", "RS", "RE", "RW", "LS", "LE", "LW", "RH", "RK", "RA", "RMrot",
         "RF", "LH", "LK", "LA", "LMrot", "LF",

@@ -1,0 +1,217 @@
+"""Editing a given motion with text: keep a part of it (frames, half of the body, or the root path) and let
+the model generate the rest, the known part imposed at every denoising step.
+
+Two ways to impose it (``impose``): ``x0`` replaces the known entries of the model's clean-motion prediction
+at every step (and projects the root onto the constraint); ``xt`` replaces them in the noisy sample after
+every step, noised to that step's level (imputation). Both end exactly on the known part.
+
+Modes (``EDIT_MODES``), on a source motion of Ts frames and an output of T frames:
+
+- ``prefix``: keep the first ``keep_start`` frames, generate the rest (a continuation);
+- ``suffix``: keep the last ``keep_end`` frames at the end of the output; the output is placed in the world so
+  that those frames are where the source has them;
+- ``inbetween``: keep both; the generated middle lands the end block at the source's heading and position;
+- ``upper-body`` / ``lower-body``: regenerate that half of the body, keep the other (``upper-body`` keeps the
+  root, legs, feet and foot contacts);
+- ``trajectory``: follow a root XZ path (the source's, or a (T, 2) path in metres).
+
+Everything is in the source's canonical frame (frame 0 at the origin, facing +Z: the HumanML3D convention).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .errors import SMFError
+from .motion.features import feature_slices
+from .motion.rigid import RigidMotion
+from .motion.root import follow_path, headings, land_at, root_xz
+from .motion.skeleton import Skeleton, get_skeleton
+
+EDIT_MODES = ("prefix", "suffix", "inbetween", "upper-body", "lower-body", "trajectory")
+IMPOSE = ("x0", "xt")
+SEAM_FRAMES = 10  # generated frames next to a kept block over which a seam is blended (0.5 s at 20 fps)
+
+
+@dataclass
+class EditPlan:
+    """What an edit keeps, in an output of ``frames`` frames: known features (T, D) in dataset units where
+    ``mask`` (T, D) is True; ``kept`` (T,) frames known whole and ``source_frame`` (T,) the source frame each
+    output frame keeps (-1 where generated); root constraints: ``land`` (start, frame, half-angle, xz (2,))
+    for in-betweening, ``path`` (T, 2) metres for trajectories, ``anchor`` (output frame, source frame) whose
+    world placement the output takes from the source (suffix)."""
+
+    mode: str
+    frames: int
+    known: np.ndarray
+    mask: np.ndarray
+    kept: np.ndarray
+    source_frame: np.ndarray
+    land: tuple[int, int, float, np.ndarray] | None = None
+    path: np.ndarray | None = None
+    anchor: tuple[int, int] | None = None
+
+    def project(self, features: torch.Tensor) -> torch.Tensor:
+        """Impose the known entries and the root constraints on features (T, D) in dataset units, and blend
+        the generated frames next to kept blocks into them (:func:`blend_seams`)."""
+        f = torch.where(torch.from_numpy(self.mask).to(features.device),
+                        torch.from_numpy(self.known).to(features), features)
+        if self.kept.any() and not self.kept.all():
+            f = blend_seams(f, torch.from_numpy(self.kept).to(f.device))
+        if self.land is not None:
+            start, frame, angle, xz = self.land
+            f = land_at(f, start, frame, angle, torch.from_numpy(xz).to(f))
+        if self.path is not None:
+            f = follow_path(f, torch.from_numpy(self.path).to(f))
+        return f
+
+
+def blend_seams(features: torch.Tensor, kept: torch.Tensor, frames: int = SEAM_FRAMES) -> torch.Tensor:
+    """Make the generated frames next to each block of ``kept`` (T,) frames continue it without a jump in
+    position or velocity (inertialisation, as game engines blend animations): the first generated frame
+    after a block gets an offset that puts it where the block's last step leads and gives it the block's
+    last velocity; the offset fades to zero over ``frames`` frames along a cubic Hermite curve (value and
+    slope at the seam, zero value and slope at the end). The same, backwards, before a block. Applies to
+    every per-frame feature (root height, joint positions, rotations, velocities), not to the root's yaw
+    and XZ velocities (which integrate) nor to the foot contacts. features (T, D) -> (T, D)."""
+    f = features.clone()
+    T = len(f)
+    dims = torch.ones(f.shape[1], dtype=torch.bool, device=f.device)
+    dims[:3] = False
+    dims[-4:] = False
+    k = kept.cpu().tolist()
+
+    def fade(n: int) -> tuple[torch.Tensor, torch.Tensor]:
+        s = torch.arange(n, dtype=f.dtype, device=f.device)[:, None] / frames
+        return 2 * s ** 3 - 3 * s ** 2 + 1, (s ** 3 - 2 * s ** 2 + s) * frames  # Hermite h00, h10 (per frame)
+
+    for b in range(2, T - 1):
+        if k[b - 1] and k[b - 2] and not k[b]:  # a block ends at b - 1: blend forwards from b
+            n = min(frames, next((i for i in range(b, T) if k[i]), T) - b)
+            v_kept = f[b - 1] - f[b - 2]
+            dp = f[b - 1] + v_kept - f[b]
+            dv = v_kept - (f[b + 1] - f[b])
+            h0, h1 = fade(n)
+            f[b:b + n, dims] += (h0 * dp + h1 * dv)[:, dims]
+    for b in range(T - 2, 1, -1):
+        if k[b] and k[b + 1] and not k[b - 1]:  # a block starts at b: blend backwards from b - 1
+            prev = next((i for i in range(b - 1, -1, -1) if k[i]), -1)
+            n = min(frames, b - 1 - prev)
+            v_kept = f[b + 1] - f[b]
+            dp = f[b] - v_kept - f[b - 1]
+            dv = v_kept - (f[b - 1] - f[b - 2])
+            h0, h1 = fade(n)
+            f[b - n:b, dims] += (h0 * dp + h1 * dv).flip(0)[:, dims]
+    return f
+
+
+def splice_rigid(edited: RigidMotion, source: RigidMotion, plan: EditPlan) -> RigidMotion:
+    """The edited rigid motion with its kept part taken from the source's rigid motion (same skeleton and
+    world frame), so kept frames, or the kept half of the body, are the source's exactly: the rigid stage
+    fits all frames together, which would move them by up to about 2 cm. The body is the source's (its
+    bone offsets, which differ from the edit's own fit by a few millimetres)."""
+    rotations, root = edited.rotations.copy(), edited.root.copy()
+    sk = get_skeleton(edited.skeleton)
+    if plan.mode in ("upper-body", "lower-body"):
+        lower = list(sk.lower_body)
+        keep = lower if plan.mode == "upper-body" else [j for j in range(sk.num_joints) if j not in lower]
+        rotations[:, keep] = source.rotations[:, keep]
+        if plan.mode == "upper-body":
+            root[:] = source.root
+    else:
+        out = np.flatnonzero(plan.source_frame >= 0)
+        rotations[out], root[out] = source.rotations[plan.source_frame[out]], source.root[plan.source_frame[out]]
+    return RigidMotion(source.offsets, rotations, root, edited.skeleton)
+
+
+def source_features(motion, skeleton: Skeleton, fps: float, given_fps: float | None = None) -> np.ndarray:
+    """Features (T, D) in dataset units of a loaded :class:`~stablemofusion.motion.files.Motion` (joints or
+    features `.npy`, BVH): features as they are; joints resampled from ``given_fps`` (default: the file's) to
+    ``fps`` and converted (canonical frame, the skeleton's bone lengths)."""
+    from .motion.features import features_from_joints
+    from .motion.files import resample
+
+    if motion.skeleton.name != skeleton.name:
+        raise SMFError(f"the motion is on the {motion.skeleton.name} skeleton; this model uses {skeleton.name}")
+    if motion.features is not None and given_fps is None:
+        return np.asarray(motion.features, dtype=np.float64)
+    joints = resample(np.asarray(motion.joints, dtype=np.float64), given_fps or motion.fps, fps)
+    if len(joints) < 3:
+        raise SMFError(f"the motion is too short to edit ({len(joints)} frames at {fps:g} fps)")
+    return features_from_joints(joints, skeleton)
+
+
+def body_mask(skeleton: Skeleton, joints: tuple[int, ...], root: bool) -> np.ndarray:
+    """(D,) True on the features of ``joints`` (positions, rotations, velocities), on the root features
+    when ``root``, and on the foot contacts when the joints include the feet."""
+    s = feature_slices(skeleton)
+    mask = np.zeros(skeleton.feature_dim, dtype=bool)
+    for j in joints:
+        if j > 0:  # positions and rotations are stored for joints 1..J-1
+            mask[s.positions.start + 3 * (j - 1):s.positions.start + 3 * j] = True
+            mask[s.rotations.start + 6 * (j - 1):s.rotations.start + 6 * j] = True
+        mask[s.velocities.start + 3 * j:s.velocities.start + 3 * (j + 1)] = True
+    if root:
+        mask[:4] = True
+    if set(skeleton.foot_left + skeleton.foot_right) <= set(joints):
+        mask[s.contacts] = True
+    return mask
+
+
+def plan_edit(mode: str, source: np.ndarray, skeleton: Skeleton, *, keep_start: int = 0, keep_end: int = 0,
+              frames: int | None = None, path: np.ndarray | None = None) -> EditPlan:
+    """The plan of an edit of ``source`` features (Ts, D) in dataset units; lengths in frames."""
+    if mode not in EDIT_MODES:
+        raise SMFError(f"edit mode must be one of {', '.join(EDIT_MODES)}, got {mode!r}")
+    src = np.asarray(source, dtype=np.float64)
+    Ts, D = src.shape
+    T = Ts if frames is None else int(frames)
+    if mode == "trajectory" and path is not None:
+        T = len(path)
+    if T < 2:
+        raise SMFError(f"the output needs at least 2 frames, got {T}")
+    known, mask = np.zeros((T, D)), np.zeros((T, D), dtype=bool)
+    source_frame = np.full(T, -1)
+    plan = dict(mode=mode, frames=T)
+    if mode in ("prefix", "inbetween"):
+        if not 0 < keep_start < min(T, Ts + 1):
+            raise SMFError(f"keep-start must keep 1 to {min(T, Ts + 1) - 1} frames of the source, got {keep_start}")
+        known[:keep_start], source_frame[:keep_start] = src[:keep_start], np.arange(keep_start)
+    if mode in ("suffix", "inbetween"):
+        if not 0 < keep_end < min(T, Ts + 1) or keep_start + keep_end >= T:
+            raise SMFError(f"keep-end must keep 1 to {min(T, Ts + 1) - 1 - keep_start} frames of the source, "
+                           f"got {keep_end}")
+        known[T - keep_end:], source_frame[T - keep_end:] = src[Ts - keep_end:], np.arange(Ts - keep_end, Ts)
+    if mode in ("prefix", "suffix", "inbetween"):
+        mask[source_frame >= 0] = True
+    if mode == "inbetween":
+        f = torch.from_numpy(src)
+        a = Ts - keep_end
+        plan["land"] = (keep_start, T - keep_end, float(headings(f)[a]), root_xz(f)[a].numpy())
+    if mode == "suffix":
+        plan["anchor"] = (T - keep_end, Ts - keep_end)
+    if mode in ("upper-body", "lower-body"):
+        if T != Ts:
+            raise SMFError(f"{mode} edits keep the source's length ({Ts} frames)")
+        lower = tuple(skeleton.lower_body)
+        upper = tuple(j for j in range(skeleton.num_joints) if j not in lower)
+        mask[:] = body_mask(skeleton, lower, root=True) if mode == "upper-body" else body_mask(skeleton, upper, False)
+        known[:] = src
+        source_frame[:] = np.arange(T)
+    if mode == "trajectory":
+        if path is None:
+            path = root_xz(torch.from_numpy(src)).numpy()[:T]
+            T = plan["frames"] = len(path)
+            known, mask, source_frame = known[:T], mask[:T], source_frame[:T]
+        path = np.asarray(path, dtype=np.float64)
+        if path.ndim != 2 or path.shape[1] != 2 or not np.isfinite(path).all():
+            raise SMFError(f"a path is a finite (T, 2) array of root X, Z positions in metres, got shape {path.shape}")
+        plan["path"] = path - path[:1]
+    return EditPlan(known=known, mask=mask, kept=mask.all(-1), source_frame=source_frame, **plan)
+
+
+__all__ = ["EDIT_MODES", "IMPOSE", "EditPlan", "plan_edit", "body_mask", "blend_seams", "source_features",
+           "splice_rigid"]

@@ -103,8 +103,8 @@ def blend_seams(features: torch.Tensor, kept: torch.Tensor, frames: int = SEAM_F
             v_kept = f[b + 1] - f[b]
             dp = f[b] - v_kept - f[b - 1]
             dv = v_kept - (f[b - 1] - f[b - 2])
-            h0, h1 = fade(n)
-            f[b - n:b, dims] += (h0 * dp + h1 * dv).flip(0)[:, dims]
+            h0, h1 = fade(n)  # going backwards in time the slope of the offset is -dv
+            f[b - n:b, dims] += (h0 * dp - h1 * dv).flip(0)[:, dims]
     return f
 
 

@@ -33,6 +33,7 @@ from .text.frozen import sentence_embedding
 from .text.known import ACTIONS_FILE, DomainCheck, KnownActions
 from .text.length import WEIGHTS as LENGTH_WEIGHTS
 from .text.length import LengthEstimator
+from .timeline import DEFAULT_OVERLAP, plan_windows
 
 
 DEFAULT_SECONDS = 4.0  # length of a motion when none is given and the model has no length estimator
@@ -136,8 +137,9 @@ class MotionPipeline:
         """Frozen token embeddings for ``prompts`` through the LRU cache: (B, L, C), (B, L)."""
         return self.text_cache.get_or_compute(list(prompts), device=self.device)
 
-    def frames_for(self, seconds: float | None, frames: int | None) -> int:
-        """Clamp a requested duration to what the model was trained on (multiple of 4), warning if changed."""
+    def frames_for(self, seconds: float | None, frames: int | None, long: bool = False) -> int:
+        """Clamp a requested duration to what the model was trained on (multiple of 4), warning if changed;
+        with ``long``, lengths past ``max_frames`` are kept (they are generated window by window)."""
         if frames is None:
             if seconds is None:
                 seconds = DEFAULT_SECONDS
@@ -146,7 +148,8 @@ class MotionPipeline:
             frames = int(round(seconds * self.fps))
         if frames <= 0:
             raise SMFError(f"frames must be positive, got {frames}")
-        n = min(max(frames, self.min_frames), self.max_frames) // 4 * 4
+        n = max(frames, self.min_frames) if long else min(max(frames, self.min_frames), self.max_frames)
+        n = n // 4 * 4
         if n != frames:
             warnings.warn(f"length {frames} frames ({frames / self.fps:.2f} s) clamped to {n} frames "
                           f"({n / self.fps:.2f} s), the range this model was trained on", LengthClampedWarning,
@@ -183,7 +186,7 @@ class MotionPipeline:
         if unknown and self.length_estimator is not None:  # no length given: the model's estimate from the text
             for i, s in zip(unknown, self.predict_seconds([prompts[i] for i in unknown])):
                 secs[i] = s
-        lengths = [self.frames_for(s, f) for s, f in zip(secs, frs)]
+        lengths = [self.frames_for(s, f, long=True) for s, f in zip(secs, frs)]
         per_item = isinstance(seed, (list, tuple))
         if per_item and len(seed) != n:
             raise SMFError(f"give one seed for all prompts or one per prompt: {len(seed)} seeds for {n} prompts")
@@ -195,10 +198,18 @@ class MotionPipeline:
             for p, d in dict(zip(prompts, domains)).items():
                 if d.out_of_domain:
                     warnings.warn(d.message(p), OutOfDomainWarning, stacklevel=2)
-        results: list[MotionResult] = []
-        starts = range(0, n, batch_size)
+        results: list[MotionResult | None] = [None] * n
+        short = [i for i in range(n) if lengths[i] <= self.max_frames]
+        for i in range(n):  # longer than one window: a one-segment timeline (no clamping)
+            if lengths[i] > self.max_frames:
+                item_seed = seed[i] if per_item else (0 if seed is None else seed) + i
+                results[i] = self.timeline([(prompts[i], lengths[i] / self.fps)], guidance_scale=guidance_scale,
+                                           steps=steps, sampler=sampler, seed=item_seed, footskate=footskate,
+                                           footskate_options=footskate_options)
+                results[i].prompt, results[i].domain = prompts[i], domains[i]
+        starts = range(0, len(short), batch_size)
         for k, start in enumerate(tqdm(starts, desc="generate", unit="batch", disable=not progress)):
-            idx = list(range(start, min(n, start + batch_size)))
+            idx = short[start:start + batch_size]
             batch_seed = [seed[i] for i in idx] if per_item else None if seed is None else seed + k
             raw = self.denoise([prompts[i] for i in idx], [lengths[i] for i in idx], guidance_scale=guidance_scale,
                                steps=steps, sampler=sampler, seed=batch_seed, footskate=footskate,
@@ -206,9 +217,38 @@ class MotionPipeline:
             for j, i in enumerate(idx):
                 f, motion = self.finish(raw[j, :lengths[i]].numpy(), footskate, footskate_options)
                 joints = joints_from_features(f, self.skeleton) if motion is None else motion.joints()
-                results.append(MotionResult(prompts[i], f, joints, self.fps, seed[i] if per_item else batch_seed, motion,
-                                            domains[i]))
+                results[i] = MotionResult(prompts[i], f, joints, self.fps, seed[i] if per_item else batch_seed, motion,
+                                          domains[i])
         return results
+
+    @torch.no_grad()
+    def timeline(self, segments: list[tuple[str, float]], *, overlap: float = DEFAULT_OVERLAP,
+                 guidance_scale: float = 2.5, steps: int = 10, sampler: str = DEFAULT_SAMPLER, seed: int | None = None,
+                 impose: str = "x0", footskate: str = "off", footskate_options=None) -> MotionResult:
+        """One continuous motion from (prompt, seconds) segments, of any total length
+        (:mod:`stablemofusion.timeline`): window after window, each continuing the last ``overlap`` seconds
+        of the motion so far. ``seed`` seeds the first window; window j uses ``seed + j``."""
+        segs = []
+        for prompt, secs in segments:
+            if not isinstance(secs, (int, float)) or not np.isfinite(secs) or secs <= 0:
+                raise SMFError(f"timeline segment {prompt!r}: seconds must be a positive number, got {secs}")
+            segs.append((prompt, int(round(secs * self.fps))))
+        windows = plan_windows(segs, self.max_frames, int(round(overlap * self.fps)), self.min_frames)
+        base = 0 if seed is None else int(seed)
+        kw = dict(guidance_scale=guidance_scale, steps=steps, sampler=sampler, footskate=footskate,
+                  footskate_options=footskate_options)
+        out = torch.zeros(0, int(self.mean.shape[0]), dtype=torch.float64)
+        for j, w in enumerate(windows):
+            frames = max(w.frames, self.min_frames)
+            if w.keep == 0:
+                raw = self.denoise([w.prompt], [frames], seed=[base + j], **kw)[0]
+            else:
+                plan = plan_edit("prefix", out[-w.keep:].numpy(), self.skeleton, keep_start=w.keep, frames=frames)
+                raw = self.denoise([w.prompt], [frames], seed=[base + j], edit=plan, impose=impose, **kw)[0]
+            out = torch.cat([out, raw[w.keep:w.keep + w.new].double()])
+        f, motion = self.finish(out.numpy(), footskate, footskate_options)
+        joints = joints_from_features(f, self.skeleton) if motion is None else motion.joints()
+        return MotionResult("; ".join(f"{p}:{s:g}" for p, s in segments), f, joints, self.fps, seed, motion)
 
     @torch.no_grad()
     def edit(self, prompt: str, source: np.ndarray, mode: str, *, keep_start: float = 0.0, keep_end: float = 0.0,

@@ -88,11 +88,14 @@ def test_text_cache_avoids_the_language_model(pipe):
     assert pipe.text_cache.encoder.calls == calls + 1
 
 
-def test_mixed_lengths_and_clamping(pipe):
+def test_mixed_lengths_clamping_and_long_motions(pipe):
     res = pipe(["a", "b"], frames=[40, 100], steps=2, seed=0)
     assert [len(r.joints) for r in res] == [40, 100]
-    with pytest.warns(LengthClampedWarning, match="clamped to 196"):
-        assert len(pipe("c", seconds=20, steps=2, seed=0)[0].joints) == 196
+    with pytest.warns(LengthClampedWarning, match="clamped to 40"):
+        assert len(pipe("c", seconds=1.0, steps=2, seed=0)[0].joints) == 40
+    # longer than one window: generated window by window, not clamped, in order among short ones
+    res = pipe(["c", "d"], seconds=[20, 3], steps=2, seed=0)
+    assert [len(r.joints) for r in res] == [400, 60] and [r.prompt for r in res] == ["c", "d"]
 
 
 @pytest.mark.parametrize("kwargs, msg", [

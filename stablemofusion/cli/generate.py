@@ -18,6 +18,8 @@ def add_parser(sub, name: str) -> None:
                        description="Generate one motion per prompt and write joints/features .npy, video and BVH.")
     p.add_argument("text", nargs="?", default=None, help="the prompt (or use --prompts FILE)")
     p.add_argument("--prompts", type=Path, default=None, help="file with one prompt per line")
+    p.add_argument("--timeline", default=None,
+                   help="one continuous motion from segments 'PROMPT:SECONDS; PROMPT:SECONDS; ...' (any total length)")
     p.add_argument("--seconds", type=float, default=None,
                    help="length of each motion (default: predicted from the text by the model's length estimator; "
                         "4 s for a model without one)")
@@ -107,8 +109,8 @@ def run(args: argparse.Namespace) -> None:
     from ..errors import SMFError
 
     formats = parse_formats(args.format)
-    if (args.text is None) == (args.prompts is None):
-        raise SMFError("give either a prompt text or --prompts FILE")
+    if sum(x is not None for x in (args.text, args.prompts, args.timeline)) != 1:
+        raise SMFError("give one of: a prompt text, --prompts FILE, --timeline 'PROMPT:SECONDS; ...'")
     if args.prompts is not None:
         if not args.prompts.is_file():
             raise SMFError(f"no such file: {args.prompts}")
@@ -119,6 +121,11 @@ def run(args: argparse.Namespace) -> None:
         prompts = [ln.strip() for ln in text.splitlines() if ln.strip()]
         if not prompts:
             raise SMFError(f"{args.prompts} holds no prompts")
+    elif args.timeline is not None:
+        from ..timeline import parse_timeline
+
+        segments = parse_timeline(args.timeline)
+        prompts = [p for p, _ in segments]
     else:
         prompts = [args.text]
     if any(not p.strip() for p in prompts):
@@ -132,9 +139,13 @@ def run(args: argparse.Namespace) -> None:
     pipe = MotionPipeline.from_pretrained(args.checkpoint, device=args.device, engine=args.engine)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        results = pipe(prompts, seconds=args.seconds, guidance_scale=args.guidance, steps=args.steps,
-                       sampler=args.sampler, seed=args.seed, batch_size=args.batch_size, progress=len(prompts) > 1,
-                       footskate=args.footskate, footskate_options=options)
+        common = dict(guidance_scale=args.guidance, steps=args.steps, sampler=args.sampler, seed=args.seed,
+                      footskate=args.footskate, footskate_options=options)
+        if args.timeline is not None:
+            results = [pipe.timeline(segments, **common)]
+        else:
+            results = pipe(prompts, seconds=args.seconds, batch_size=args.batch_size, progress=len(prompts) > 1,
+                           **common)
     shown = (LengthClampedWarning, OutOfDomainWarning)
     for w in dict.fromkeys(str(c.message) for c in caught if issubclass(c.category, shown)):
         print(f"smf: warning: {w}")

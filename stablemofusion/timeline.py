@@ -1,0 +1,79 @@
+"""Long and multi-prompt motions: a timeline of (prompt, seconds) segments generated as one continuous motion.
+
+The motion is built window by window. The first window is generated from its prompt; every later window
+keeps the last ``overlap`` frames made so far as its known start (prefix editing, :mod:`stablemofusion.edit`)
+and generates what follows from its own prompt, so each join continues the motion before it: features are
+relative to the body, so appending a window's new frames continues the root path and heading exactly, and
+the seam blending of editing keeps the velocity continuous. A segment longer than one window (the model's
+``max_frames``) spans several windows with the same prompt.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .errors import SMFError
+
+DEFAULT_OVERLAP = 1.0  # seconds of the motion so far that a window keeps as its start
+TAIL = 8  # frames generated past what a window adds and then dropped: a motion's last frames are its least
+# settled (its final velocities have no next frame to agree with), and the next window continues from them
+
+
+@dataclass(frozen=True)
+class Window:
+    """One generation call: ``prompt``, ``keep`` frames of the motion so far as its start (0 for the first),
+    then ``new`` frames added to the motion, then ``tail`` generated frames that are dropped; ``segment`` the
+    timeline entry it belongs to."""
+
+    prompt: str
+    keep: int
+    new: int
+    segment: int
+    tail: int = TAIL
+
+    @property
+    def frames(self) -> int:
+        return self.keep + self.new + self.tail
+
+
+def parse_timeline(text: str) -> list[tuple[str, float]]:
+    """``"walk forward:4; wave both hands:3"`` -> [("walk forward", 4.0), ("wave both hands", 3.0)]."""
+    segments = []
+    for part in (p.strip() for p in text.split(";")):
+        if not part:
+            continue
+        prompt, sep, seconds = part.rpartition(":")
+        if not sep or not prompt.strip():
+            raise SMFError(f"timeline entry {part!r} is not 'PROMPT:SECONDS'")
+        try:
+            value = float(seconds)
+        except ValueError:
+            raise SMFError(f"timeline entry {part!r}: {seconds.strip()!r} is not a number of seconds") from None
+        segments.append((prompt.strip(), value))
+    if not segments:
+        raise SMFError("the timeline is empty; write it as 'PROMPT:SECONDS; PROMPT:SECONDS'")
+    return segments
+
+
+def plan_windows(segments: list[tuple[str, int]], max_frames: int, overlap: int, min_frames: int) -> list[Window]:
+    """The windows of a timeline of (prompt, frames) segments: each at most ``max_frames`` frames (the
+    dropped tail included), each after the first keeping ``overlap`` frames; a window shorter than
+    ``min_frames`` is generated at ``min_frames`` and cut (the model's shortest length)."""
+    if not 0 < overlap < max_frames - TAIL:
+        raise SMFError(f"the overlap must be 1 to {max_frames - TAIL - 1} frames, got {overlap}")
+    windows: list[Window] = []
+    for i, (prompt, frames) in enumerate(segments):
+        if not prompt.strip():
+            raise SMFError(f"timeline segment {i + 1} has an empty prompt")
+        if frames < 1:
+            raise SMFError(f"timeline segment {i + 1} ({prompt!r}) must last at least one frame, got {frames}")
+        left = frames
+        while left > 0:
+            keep = overlap if windows else 0
+            new = min(left, max_frames - keep - TAIL)
+            windows.append(Window(prompt, keep, new, i))
+            left -= new
+    return windows
+
+
+__all__ = ["DEFAULT_OVERLAP", "Window", "parse_timeline", "plan_windows"]

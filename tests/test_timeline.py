@@ -1,0 +1,65 @@
+"""Long and multi-prompt motions: parsing, window planning, and one continuous motion with known joins."""
+
+import numpy as np
+import pytest
+
+from stablemofusion.cli.main import main
+from stablemofusion.errors import SMFError
+from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.timeline import TAIL, parse_timeline, plan_windows
+
+
+def test_parse_timeline():
+    assert parse_timeline("walk forward:4; wave both hands: 3.5 ;bow:2;") == [
+        ("walk forward", 4.0), ("wave both hands", 3.5), ("bow", 2.0)]
+    assert parse_timeline("look at 12:30 then sit:3") == [("look at 12:30 then sit", 3.0)]
+    for bad, msg in [("walk", "not 'PROMPT:SECONDS'"), (":4", "not 'PROMPT:SECONDS'"), ("walk:x", "not a number"),
+                     (" ; ", "empty")]:
+        with pytest.raises(SMFError, match=msg):
+            parse_timeline(bad)
+
+
+def test_windows_cover_every_frame_once():
+    windows = plan_windows([("walk", 400), ("bow", 30)], max_frames=196, overlap=20, min_frames=40)
+    assert windows[0].keep == 0 and all(w.keep == 20 for w in windows[1:])
+    assert all(w.frames <= 196 for w in windows) and all(w.tail == TAIL for w in windows)
+    assert sum(w.new for w in windows if w.segment == 0) == 400 and sum(w.new for w in windows if w.segment == 1) == 30
+    with pytest.raises(SMFError, match="at least one frame"):
+        plan_windows([("walk", 0)], 196, 20, 40)
+    with pytest.raises(SMFError, match="overlap"):
+        plan_windows([("walk", 10)], 196, 196, 40)
+
+
+@pytest.fixture(scope="module")
+def pipe():
+    return MotionPipeline.from_pretrained(device="cpu")
+
+
+def test_timeline_is_one_continuous_motion(pipe):
+    segments = [("a person walks forward", 8.0), ("a person waves both hands", 6.0), ("a person bows", 6.0)]
+    r = pipe.timeline(segments, seed=0)
+    assert r.joints.shape == (400, 22, 3) and r.features.shape == (400, 263)
+    v = (r.joints[1:] - r.joints[:-1]) * 20
+    dv = np.linalg.norm(v[1:] - v[:-1], axis=-1).max(-1)  # (T-2,) largest velocity change per frame
+    joins = [160, 280]
+    near = np.zeros(len(dv), dtype=bool)
+    for j in joins:
+        near[j - 8:j + 6] = True
+    assert max(dv[j - 3:j + 1].max() for j in joins) <= dv[~near].max()  # no join jumps more than the inside
+    walked = np.linalg.norm(r.joints[159, 0, [0, 2]] - r.joints[0, 0, [0, 2]])
+    assert walked > 3.0  # 8 s of walking goes somewhere (9 m when written)
+    # the root path does not jump at the joins either
+    step = np.linalg.norm(r.joints[1:, 0, [0, 2]] - r.joints[:-1, 0, [0, 2]], axis=-1)
+    assert max(step[j - 2:j + 2].max() for j in joins) <= step.max()
+
+
+def test_generate_timeline_cli(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["generate", "--timeline", "walk forward:3; bow:2", "--format", "npy", "--out", str(out),
+                 "--steps", "4"]) == 0
+    joints = np.load(next(out.glob("*_joints.npy")))
+    assert joints.shape == (100, 22, 3)
+    assert main(["generate", "--timeline", "walk forward", "--out", str(out)]) == 2
+    assert main(["generate", "a person walks", "--timeline", "walk:3", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "not 'PROMPT:SECONDS'" in err and "give one of" in err

@@ -85,8 +85,14 @@ def blend_seams(features: torch.Tensor, kept: torch.Tensor, frames: int = SEAM_F
     k = kept.cpu().tolist()
 
     def fade(n: int) -> tuple[torch.Tensor, torch.Tensor]:
-        s = torch.arange(n, dtype=f.dtype, device=f.device)[:, None] / frames
-        return 2 * s ** 3 - 3 * s ** 2 + 1, (s ** 3 - 2 * s ** 2 + s) * frames  # Hermite h00, h10 (per frame)
+        """Per-frame weights (n, 1) of the position and the velocity offsets: the first frame takes the whole
+        position offset, the second the position plus the whole velocity offset, and both fade to zero value
+        and zero slope at ``frames`` (cubic Hermite curves on frames 1..frames)."""
+        i = torch.arange(n, dtype=f.dtype, device=f.device)[:, None]
+        s = ((i - 1) / (frames - 1)).clamp(min=0)
+        h0 = 2 * s ** 3 - 3 * s ** 2 + 1
+        h1 = i * (1 - i / frames).clamp(min=0) ** 2 / (1 - 1 / frames) ** 2
+        return h0, h1
 
     for b in range(2, T - 1):
         if k[b - 1] and k[b - 2] and not k[b]:  # a block ends at b - 1: blend forwards from b

@@ -84,7 +84,7 @@ def test_kept_frames_are_the_source(pipe, source, mode, kw, impose):
     assert np.abs(r.joints[gen] - ref[gen]).max() > 0.05
     real = accel(ref).max()
     for b in ([n_s] if n_s else []) + ([T - n_e] if n_e else []):
-        assert accel(r.joints)[b - 2:b + 1].max() <= 2 * real  # no pop: within twice the source's own largest
+        assert accel(r.joints)[b - 2:b].max() <= real  # no pop: within the source's own range
 
 
 def test_upper_body_keeps_the_lower_body(pipe, source):

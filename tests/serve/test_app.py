@@ -186,3 +186,24 @@ def test_generate_reports_the_out_of_domain_check(checkpoint, tmp_path):
     assert ood.status_code == 200 and a["out_of_domain"] is True and "backflip" in a["warning"]
     assert b["out_of_domain"] is False and "warning" not in b and b["closest_actions"][0][0] == "walk"
     assert 0 < a["similarity"] < 0.56 <= b["similarity"]
+
+
+def test_generate_without_seconds_predicts_the_length(checkpoint, tmp_path):
+    import shutil
+
+    from stablemofusion.pipeline import default_model_path
+
+    folder = tmp_path / "ck"
+    shutil.copytree(checkpoint, folder)
+    plain = create_app(MotionPipeline.from_pretrained(folder, device="cpu"))
+    (r,) = call(plain, ("POST", "/v1/generate", {"prompt": "a person walks forward", "seed": 0, "steps": 1}))
+    assert r.status_code == 200 and r.json()["frames"] == 80  # no estimator: 4 s
+    for name in ("length.safetensors", "length.json"):  # the shipped estimator (same text encoder)
+        shutil.copy(default_model_path() / name, folder / name)
+    pipe = MotionPipeline.from_pretrained(folder, device="cpu")
+    app = create_app(pipe)
+    walk, hands = call(app, ("POST", "/v1/generate", {"prompt": "a person walks forward", "seed": 0, "steps": 1}),
+                       ("POST", "/v1/generate", {"prompt": "a person raises both hands", "seed": 0, "steps": 1}))
+    expected = [int(round(s * 20)) // 4 * 4 for s in pipe.predict_seconds(["a person walks forward",
+                                                                            "a person raises both hands"])]
+    assert [walk.json()["frames"], hands.json()["frames"]] == expected and expected[0] > expected[1]

@@ -18,6 +18,7 @@ EDITS = [  # file name, prompt, mode, options
     ("edit_suffix", "a person bows", "suffix", dict(keep_end=1.5)),
     ("edit_inbetween", "a person turns around", "inbetween", dict(keep_start=1.5, keep_end=1.5)),
     ("edit_upper_body", "a person punches forward", "upper-body", {}),
+    ("edit_lower_body", "a person walks forward", "lower-body", {}),
     ("edit_trajectory", "a person walks", "trajectory", {}),
 ]
 

@@ -95,6 +95,16 @@ def test_upper_body_keeps_the_lower_body(pipe, source):
     assert np.abs(r.joints[:, upper] - ref[:, upper]).max() > 0.05
 
 
+def test_lower_body_keeps_the_upper_body_pose(pipe, source):
+    """The upper body's local joint rotations are the source's (its rigid fit's); the root and legs move anew."""
+    src_motion = pipe.finish(source)[1]
+    r = pipe.edit("a person walks forward", source, "lower-body", seed=0)
+    upper = [j for j in range(1, 22) if j not in HUMANML3D.lower_body]
+    assert np.abs(r.motion.rotations[:, upper] - src_motion.rotations[:, upper]).max() < 1e-9
+    moved = np.linalg.norm(r.joints[-1, 0, [0, 2]] - r.joints[0, 0, [0, 2]])
+    assert moved > 0.5  # the source waves in place; the edit walks (0.8 m when written)
+
+
 def test_trajectory_is_followed(pipe, source, tmp_path):
     t = np.linspace(0, 1, 80)
     path = np.stack([np.sin(t * np.pi) * 1.5, t * 2.0], -1)  # an arc: 2 m forward, 1.5 m to the side

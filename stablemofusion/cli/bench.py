@@ -23,7 +23,7 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--engine", action="append", default=None,
                    help="eager, fast, compiled, graph or auto; repeatable (default: eager and auto); the speed-up is "
                         "over eager")
-    p.add_argument("--frames", type=int, default=196)
+    p.add_argument("--frames", type=int, default=None, help="motion length (default: the model's longest, 196)")
     p.add_argument("--batch-sizes", default="1,32")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--guidance", type=float, default=2.5)
@@ -61,6 +61,7 @@ def run(args: argparse.Namespace) -> None:
     from ..io import write_text
 
     pipe = _pipeline(args)
+    args.frames = args.frames or pipe.max_frames
     samplers = args.sampler or [DEFAULT_SAMPLER]
     steps_list = args.steps or [10]
     try:

@@ -13,7 +13,7 @@ from typing import Any
 
 from ..errors import SMFError
 from ..models.base import ModelConfig
-from ..motion.skeleton import get_skeleton
+from ..motion.skeleton import HUMANML3D, get_skeleton
 from .schedule import ScheduleConfig
 
 
@@ -75,9 +75,9 @@ class CheckpointConfig:
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
     text_encoder: str = "minilm"
     skeleton: str = "humanml3d"
-    fps: float = 20.0
-    min_frames: int = 40
-    max_frames: int = 196
+    fps: float = HUMANML3D.fps
+    min_frames: int = HUMANML3D.min_frames
+    max_frames: int = HUMANML3D.max_frames
     train: TrainConfig | None = None
     step: int | None = None
     export: ExportInfo | None = None

@@ -18,6 +18,7 @@ import torch
 from torch import nn
 
 from ..errors import SMFError
+from ..motion.skeleton import HUMANML3D
 
 WEIGHTS, CONFIG = "length.safetensors", "length.json"
 
@@ -29,8 +30,8 @@ class LengthConfig:
     in_dim: int = 384
     hidden: int = 256
     dropout: float = 0.1
-    min_frames: int = 40
-    max_frames: int = 196
+    min_frames: int = HUMANML3D.min_frames
+    max_frames: int = HUMANML3D.max_frames
     unit: int = 4
 
     @property

@@ -56,6 +56,16 @@ def bandai_mini_source(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def bandai_mini_corpus(bandai_mini_source, tmp_path_factory) -> Path:
+    """The mini Bandai-Namco corpus in the HumanML3D layout (built once; tests must not modify it)."""
+    from stablemofusion.data.corpus_bandai import build_corpus
+
+    out = tmp_path_factory.mktemp("bandai-mini-corpus")
+    build_corpus(bandai_mini_source, out, workers=1)
+    return out
+
+
+@pytest.fixture(scope="session")
 def save_tiny_checkpoint():
     """The function below, for tests in any folder."""
     return _save_tiny_checkpoint

@@ -4,15 +4,12 @@ import numpy as np
 import pytest
 
 from stablemofusion.data.batches import batch_indices, get_batch
-from stablemofusion.data.corpus_bandai import build_corpus
 from stablemofusion.data.dataset import MotionTextDataset
 
 
 @pytest.fixture(scope="module")
-def corpus(bandai_mini_source, tmp_path_factory):
-    out = tmp_path_factory.mktemp("batch-corpus")
-    build_corpus(bandai_mini_source, out, workers=1)
-    return out
+def corpus(bandai_mini_corpus):
+    return bandai_mini_corpus
 
 
 def test_batches_are_a_function_of_the_step():

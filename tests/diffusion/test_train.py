@@ -7,17 +7,14 @@ import pytest
 import torch
 
 from stablemofusion.cli.main import main
-from stablemofusion.data.corpus_bandai import build_corpus
 from stablemofusion.diffusion.checkpoint import load_checkpoint
 from stablemofusion.diffusion.train import TrainConfig, masked_mse, train
 from stablemofusion.errors import SMFError
 
 
 @pytest.fixture(scope="module")
-def corpus(bandai_mini_source, tmp_path_factory):
-    out = tmp_path_factory.mktemp("train-corpus")
-    build_corpus(bandai_mini_source, out, workers=1)
-    return out
+def corpus(bandai_mini_corpus):
+    return bandai_mini_corpus
 
 
 @pytest.fixture(scope="module")

@@ -8,17 +8,14 @@ import pytest
 import torch
 
 from stablemofusion.cli.main import main
-from stablemofusion.data.corpus_bandai import build_corpus
 from stablemofusion.errors import SMFError
 from stablemofusion.pipeline import MotionPipeline, default_model_path
 from stablemofusion.text.length import LengthConfig, LengthEstimator
 
 
 @pytest.fixture(scope="module")
-def corpus(bandai_mini_source, tmp_path_factory):
-    out = tmp_path_factory.mktemp("length-corpus")
-    build_corpus(bandai_mini_source, out, workers=1)
-    return out
+def corpus(bandai_mini_corpus):
+    return bandai_mini_corpus
 
 
 def test_bins_and_median_prediction():

@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from .diffusion.checkpoint import load_checkpoint
 from .diffusion.config import CheckpointConfig
-from .diffusion.engine import SolverEngine, check_engine, default_engine
+from .diffusion.engine import COMPILED_ENGINES, GRAPH_ENGINES, SolverEngine, check_engine, default_engine
 from .diffusion.samplers import DEFAULT_SAMPLER, make_sampler, sampler_spec
 from .diffusion.sampling import (DenoiserFn, Noise, Step, X0Hook, cfg_batched, cfg_two_pass, impute_xt,
                                  model_denoiser, replace_x0, run_diffusers, run_solver, with_x0_hook)
@@ -385,7 +385,7 @@ class MotionPipeline:
             engine = "fast"
         if footskate == "loop":  # a hook on x0: eager loops only (it leaves the device)
             engine = "eager" if engine == "eager" else "fast"
-        if engine in ("compiled", "graph") and batched_cfg:
+        if engine in COMPILED_ENGINES + GRAPH_ENGINES and batched_cfg:
             table = self.solver(sampler, steps)
             x = noise.draw() * table.init_sigma
             step_noise = noise.draw(steps) if table.stochastic else None

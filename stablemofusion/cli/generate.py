@@ -12,6 +12,7 @@ FORMATS = ("npy", "mp4", "gif", "bvh", "json")
 
 
 def add_parser(sub, name: str) -> None:
+    from ..diffusion.engine import ENGINES
     from ..diffusion.samplers import DEFAULT_SAMPLER
 
     p = sub.add_parser(name, help="generate motions from text",
@@ -32,7 +33,7 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--batch-size", type=int, default=32)
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
-    p.add_argument("--engine", default="auto", choices=("auto", "eager", "fast", "compiled", "graph"),
+    p.add_argument("--engine", default="auto", choices=("auto",) + ENGINES,
                    help="denoising engine (default auto: CUDA graphs on a GPU, the precomputed solver loop on a CPU; "
                         "docs/inference.md)")
     add_footskate_arguments(p)

@@ -7,13 +7,15 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
+    from ..diffusion.engine import ENGINES
+
     p = sub.add_parser(name, help="serve text-to-motion over HTTP",
                        description="An HTTP API (POST /v1/generate, GET /v1/health) with dynamic batching.")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
     p.add_argument("--port", type=int, default=8000)
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
-    p.add_argument("--engine", default="auto", choices=("auto", "eager", "fast", "compiled", "graph"),
+    p.add_argument("--engine", default="auto", choices=("auto",) + ENGINES,
                    help="denoising engine of the worker (default auto; 'compiled' pays on a CPU server: a one-off "
                         "compilation per shape, docs/inference.md)")
     p.add_argument("--max-batch", type=int, default=32, help="most requests in one sampling call (default 32)")

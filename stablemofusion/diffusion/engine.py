@@ -6,8 +6,10 @@ Engines, fastest last (``eager`` is the reference and works with every sampler):
 - ``fast``: the coefficient-table loop (:func:`.sampling.run_solver`) around the eager model;
 - ``compiled``: the same loop around ``torch.compile`` of the model's motion part (inductor; CPU or GPU);
   one compilation per shape bucket, cached by torch across runs where it can;
-- ``graph`` (CUDA only): the whole loop (every step, guidance included) captured as one CUDA graph per
-  (sampler, steps, guidance, batch bucket, length bucket, text bucket) and replayed.
+- ``graph`` (CUDA only): the whole loop (every step, guidance included) around the eager model, captured as
+  one CUDA graph per (sampler, steps, guidance, batch bucket, length bucket, text bucket) and replayed: the
+  launches go, the warm-up is one capture (no compilation);
+- ``compiled-graph`` (CUDA only): the same graph around the compiled model (fused kernels too; compiles first).
 
 Static shapes: lengths padded up to multiples of :data:`FRAME_BUCKET` (frames past an item's length are
 masked; only for models whose output on valid frames does not depend on padding), batches up to the next of
@@ -26,16 +28,18 @@ from ..models.base import TextCondition
 from .sampling import DenoiserFn, Step, cfg_batched, model_denoiser, run_solver
 from .solvers import SolverTable
 
-ENGINES = ("eager", "fast", "compiled", "graph")
+ENGINES = ("eager", "fast", "compiled", "graph", "compiled-graph")
+GRAPH_ENGINES = ("graph", "compiled-graph")
+COMPILED_ENGINES = ("compiled", "compiled-graph")
 FRAME_BUCKET = 16
 TEXT_BUCKET = 16
 BATCH_BUCKETS = (1, 2, 4, 8, 16, 32)
 
 
 def default_engine(device: torch.device, sampler_fast: bool) -> str:
-    """The fastest engine that works without a long warm-up: ``graph`` on CUDA, ``fast`` on CPU (compiling
-    costs tens of seconds per shape on a CPU, so ``compiled`` is opt-in there), ``eager`` for samplers
-    without a precomputed form."""
+    """The fastest engine that works without a long warm-up: ``graph`` on CUDA (one capture per shape),
+    ``fast`` on CPU (compiling costs tens of seconds per shape, so ``compiled`` and ``compiled-graph`` are
+    opt-in, for servers), ``eager`` for samplers without a precomputed form."""
     if not sampler_fast:
         return "eager"
     return "graph" if device.type == "cuda" else "fast"
@@ -44,8 +48,8 @@ def default_engine(device: torch.device, sampler_fast: bool) -> str:
 def check_engine(name: str, device: torch.device) -> None:
     if name not in ENGINES and name != "auto":
         raise SMFError(f"engine must be auto or one of {', '.join(ENGINES)}, got {name!r}")
-    if name == "graph" and device.type != "cuda":
-        raise SMFError("engine 'graph' needs a CUDA device (CUDA graphs); use 'fast' or 'compiled' on the CPU")
+    if name in GRAPH_ENGINES and device.type != "cuda":
+        raise SMFError(f"engine {name!r} needs a CUDA device (CUDA graphs); use 'fast' or 'compiled' on the CPU")
 
 
 def bucket(n: int, step: int) -> int:
@@ -82,7 +86,7 @@ class SolverEngine:
         self._graphs: dict[tuple, _Captured] = {}
 
     def _denoise_fn(self):
-        if self.engine == "fast":
+        if self.engine not in COMPILED_ENGINES:
             return self.model
         if self._compiled is None:
             self._compiled = _CompiledDenoise(self.model)

@@ -133,7 +133,7 @@ def test_compiled_engine_equals_the_fast_one(pipe):
 
 
 @cuda
-@pytest.mark.parametrize("engine", ["compiled", "graph"])
+@pytest.mark.parametrize("engine", ["compiled", "graph", "compiled-graph"])
 def test_cuda_engines_equal_the_fast_one(tmp_path, save_tiny_checkpoint, engine):
     path = save_tiny_checkpoint(tmp_path / "c", np.zeros(263), np.full(263, 0.1))
     p = MotionPipeline.from_pretrained(path, device="cuda", dtype=torch.float32)

@@ -175,8 +175,16 @@ def plan_edit(mode: str, source: np.ndarray, skeleton: Skeleton, *, keep_start: 
     src = np.asarray(source, dtype=np.float64)
     Ts, D = src.shape
     T = Ts if frames is None else int(frames)
-    if mode == "trajectory" and path is not None:
-        T = len(path)
+    if mode == "trajectory":
+        if path is not None:
+            path = np.asarray(path, dtype=np.float64)
+            if path.ndim != 2 or path.shape[1] != 2 or len(path) < 2 or not np.isfinite(path).all():
+                raise SMFError(f"a path is a finite (T, 2) array of root X, Z positions in metres, got shape "
+                               f"{path.shape}")
+        n = len(path) if path is not None else Ts
+        if frames is not None and frames != n:
+            raise SMFError(f"a trajectory edit is as long as its path ({n} frames); leave out the length")
+        T = n
     if T < 2:
         raise SMFError(f"the output needs at least 2 frames, got {T}")
     known, mask = np.zeros((T, D)), np.zeros((T, D), dtype=bool)
@@ -209,12 +217,7 @@ def plan_edit(mode: str, source: np.ndarray, skeleton: Skeleton, *, keep_start: 
         source_frame[:] = np.arange(T)
     if mode == "trajectory":
         if path is None:
-            path = root_xz(torch.from_numpy(src)).numpy()[:T]
-            T = plan["frames"] = len(path)
-            known, mask, source_frame = known[:T], mask[:T], source_frame[:T]
-        path = np.asarray(path, dtype=np.float64)
-        if path.ndim != 2 or path.shape[1] != 2 or not np.isfinite(path).all():
-            raise SMFError(f"a path is a finite (T, 2) array of root X, Z positions in metres, got shape {path.shape}")
+            path = root_xz(torch.from_numpy(src)).numpy()
         plan["path"] = path - path[:1]
     return EditPlan(known=known, mask=mask, kept=mask.all(-1), source_frame=source_frame, **plan)
 

@@ -119,6 +119,9 @@ class MotionPipeline:
             pipe.known_actions = KnownActions.load(ck.path / ACTIONS_FILE, pipe.text_cache)
         if (ck.path / LENGTH_WEIGHTS).is_file():
             pipe.length_estimator = LengthEstimator.load(ck.path)
+            if pipe.length_estimator.config.text_encoder != ck.config.text_encoder:
+                raise SMFError(f"{ck.path}: the length estimator was trained with the text encoder "
+                               f"{pipe.length_estimator.config.text_encoder}, the model uses {ck.config.text_encoder}")
         return pipe
 
     def predict_seconds(self, prompts: str | list[str]) -> list[float]:
@@ -130,7 +133,7 @@ class MotionPipeline:
                            "with `smf train-length`")
         tokens, mask = self.encode_text(prompts)
         sentence = sentence_embedding(tokens.float().cpu(), mask.bool().cpu())
-        frames = self.length_estimator.predict_frames(sentence)
+        frames = self.length_estimator.predict_frames(sentence).clamp(self.min_frames, self.max_frames)
         return [int(f) / self.fps for f in frames]
 
     def encode_text(self, prompts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -200,9 +203,11 @@ class MotionPipeline:
                     warnings.warn(d.message(p), OutOfDomainWarning, stacklevel=2)
         results: list[MotionResult | None] = [None] * n
         short = [i for i in range(n) if lengths[i] <= self.max_frames]
+        if len(short) < n:
+            _check_long(sampler, self.max_frames / self.fps)
         for i in range(n):  # longer than one window: a one-segment timeline (no clamping)
             if lengths[i] > self.max_frames:
-                item_seed = seed[i] if per_item else (0 if seed is None else seed) + i
+                item_seed = seed[i] if per_item else _fresh_seed() if seed is None else seed + i
                 results[i] = self.timeline([(prompts[i], lengths[i] / self.fps)], guidance_scale=guidance_scale,
                                            steps=steps, sampler=sampler, seed=item_seed, footskate=footskate,
                                            footskate_options=footskate_options)
@@ -234,7 +239,9 @@ class MotionPipeline:
                 raise SMFError(f"timeline segment {prompt!r}: seconds must be a positive number, got {secs}")
             segs.append((prompt, int(round(secs * self.fps))))
         windows = plan_windows(segs, self.max_frames, int(round(overlap * self.fps)), self.min_frames)
-        base = 0 if seed is None else int(seed)
+        if len(windows) > 1:
+            _check_long(sampler, self.max_frames / self.fps)
+        base = _fresh_seed() if seed is None else int(seed)
         kw = dict(guidance_scale=guidance_scale, steps=steps, sampler=sampler, footskate=footskate,
                   footskate_options=footskate_options)
         out = torch.zeros(0, int(self.mean.shape[0]), dtype=torch.float64)
@@ -248,7 +255,7 @@ class MotionPipeline:
             out = torch.cat([out, raw[w.keep:w.keep + w.new].double()])
         f, motion = self.finish(out.numpy(), footskate, footskate_options)
         joints = joints_from_features(f, self.skeleton) if motion is None else motion.joints()
-        return MotionResult("; ".join(f"{p}:{s:g}" for p, s in segments), f, joints, self.fps, seed, motion)
+        return MotionResult("; ".join(f"{p}:{s:g}" for p, s in segments), f, joints, self.fps, base, motion)
 
     @torch.no_grad()
     def edit(self, prompt: str, source: np.ndarray, mode: str, *, keep_start: float = 0.0, keep_end: float = 0.0,
@@ -262,14 +269,18 @@ class MotionPipeline:
         (``impose`` 'x0' or 'xt'). Returns the edited motion in the source's canonical frame."""
         if not isinstance(prompt, str) or not prompt.strip():
             raise SMFError("the prompt must be a non-empty text")
+        for name, value in (("keep_start", keep_start), ("keep_end", keep_end), ("seconds", seconds)):
+            if value is not None and not (np.isfinite(value) and value >= 0):
+                raise SMFError(f"{name} must be a finite number of seconds >= 0, got {value}")
+        seed = _fresh_seed() if seed is None else int(seed)
         plan = plan_edit(mode, source, self.skeleton, keep_start=int(round(keep_start * self.fps)),
                          keep_end=int(round(keep_end * self.fps)),
                          frames=None if seconds is None else int(round(seconds * self.fps)), path=path)
-        if plan.frames > self.max_frames:
-            raise SMFError(f"an edit of {plan.frames} frames is longer than the {self.max_frames} this model "
-                           "generates at once")
+        if not self.min_frames <= plan.frames <= self.max_frames:
+            raise SMFError(f"an edit of {plan.frames} frames is outside the {self.min_frames}-{self.max_frames} "
+                           "frames this model generates at once")
         raw = self.denoise([prompt], [plan.frames], guidance_scale=guidance_scale, steps=steps, sampler=sampler,
-                           seed=[0 if seed is None else seed], footskate=footskate, footskate_options=footskate_options,
+                           seed=[seed], footskate=footskate, footskate_options=footskate_options,
                            edit=plan, impose=impose)
         f, motion = self.finish(raw[0].numpy(), footskate, footskate_options)
         src = np.asarray(source, dtype=np.float64)
@@ -478,6 +489,18 @@ class MotionPipeline:
 
 
 FOOTSKATE_MODES = ("off", "post", "loop")
+
+
+def _check_long(sampler: str, window_seconds: float) -> None:
+    """Motions of several windows continue each window by editing: that needs a fast sampler."""
+    if not sampler_spec(sampler).fast:
+        raise SMFError(f"motions longer than {window_seconds:g} s and timelines are made window by window, which "
+                       f"needs a sampler with a precomputed form, not {sampler!r}")
+
+
+def _fresh_seed() -> int:
+    """A random seed for a call without one (reported in its results, so the motion can be made again)."""
+    return int(torch.randint(0, 2**31, (1,)))
 
 
 def _check_footskate(mode: str) -> None:

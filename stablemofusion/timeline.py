@@ -62,6 +62,7 @@ def plan_windows(segments: list[tuple[str, int]], max_frames: int, overlap: int,
     if not 0 < overlap < max_frames - TAIL:
         raise SMFError(f"the overlap must be 1 to {max_frames - TAIL - 1} frames, got {overlap}")
     windows: list[Window] = []
+    made = 0  # frames of the motion so far
     for i, (prompt, frames) in enumerate(segments):
         if not prompt.strip():
             raise SMFError(f"timeline segment {i + 1} has an empty prompt")
@@ -69,10 +70,11 @@ def plan_windows(segments: list[tuple[str, int]], max_frames: int, overlap: int,
             raise SMFError(f"timeline segment {i + 1} ({prompt!r}) must last at least one frame, got {frames}")
         left = frames
         while left > 0:
-            keep = overlap if windows else 0
+            keep = min(overlap, made)  # a first segment shorter than the overlap: keep what there is
             new = min(left, max_frames - keep - TAIL)
             windows.append(Window(prompt, keep, new, i))
             left -= new
+            made += new
     return windows
 
 

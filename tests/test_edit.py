@@ -126,6 +126,8 @@ def test_source_features_converts_joints_at_another_frame_rate(source):
     ("inbetween", dict(keep_start=50, keep_end=80), "keep-end must keep"),
     ("upper-body", dict(frames=40), "keep the source's length"),
     ("trajectory", dict(path=np.zeros((10, 3))), "a path is a finite"),
+    ("trajectory", dict(path=np.zeros(())), "a path is a finite"),
+    ("trajectory", dict(path=np.zeros((50, 2)), frames=60), "as long as its path"),
 ])
 def test_bad_plans_are_one_line_errors(source, mode, kw, msg):
     with pytest.raises(SMFError, match=msg):
@@ -144,4 +146,4 @@ def test_smf_edit_writes_files_and_rejects_bad_input(tmp_path, capsys):
     assert main(["edit", "x", "--motion", "example:wave-both-hands", "--mode", "prefix", "--path", "p.npy",
                  "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "no such file" in err and "must not be negative" in err and "--path is for --mode trajectory" in err
+    assert "no such file" in err and "must be a finite number" in err and "--path is for --mode trajectory" in err

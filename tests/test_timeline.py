@@ -24,6 +24,8 @@ def test_windows_cover_every_frame_once():
     assert windows[0].keep == 0 and all(w.keep == 20 for w in windows[1:])
     assert all(w.frames <= 196 for w in windows) and all(w.tail == TAIL for w in windows)
     assert sum(w.new for w in windows if w.segment == 0) == 400 and sum(w.new for w in windows if w.segment == 1) == 30
+    short_first = plan_windows([("jump", 10), ("walk", 80)], max_frames=196, overlap=20, min_frames=40)
+    assert [w.keep for w in short_first] == [0, 10]  # keeps what there is
     with pytest.raises(SMFError, match="at least one frame"):
         plan_windows([("walk", 0)], 196, 20, 40)
     with pytest.raises(SMFError, match="overlap"):
@@ -51,6 +53,15 @@ def test_timeline_is_one_continuous_motion(pipe):
     # the root path does not jump at the joins either
     step = np.linalg.norm(r.joints[1:, 0, [0, 2]] - r.joints[:-1, 0, [0, 2]], axis=-1)
     assert max(step[j - 2:j + 2].max() for j in joins) <= step.max()
+
+
+def test_short_first_segments_and_samplers_without_a_fast_form(pipe):
+    r = pipe.timeline([("a person jumps", 0.5), ("a person walks forward", 3.0)], seed=0, steps=2)
+    assert len(r.joints) == 70 and isinstance(r.seed, int)
+    with pytest.raises(SMFError, match="window by window"):
+        pipe("a person walks", seconds=15, sampler="ddpm")
+    a, b = pipe.timeline([("a person walks", 12.0)], steps=2), pipe.timeline([("a person walks", 12.0)], steps=2)
+    assert a.seed != b.seed or not np.array_equal(a.joints, b.joints)  # no seed: a fresh one, reported
 
 
 def test_generate_timeline_cli(tmp_path, capsys):

@@ -51,12 +51,12 @@ def run(args: argparse.Namespace) -> None:
     if not args.text.strip():
         raise SMFError("the prompt is empty")
     for flag in ("keep_start", "keep_end"):
-        if getattr(args, flag) < 0:
-            raise SMFError(f"--{flag.replace('_', '-')} must not be negative")
-    if args.fps is not None and not args.fps > 0:
-        raise SMFError(f"--fps must be positive, got {args.fps}")
-    if args.seconds is not None and not args.seconds > 0:
-        raise SMFError(f"--seconds must be positive, got {args.seconds}")
+        if not (np.isfinite(getattr(args, flag)) and getattr(args, flag) >= 0):
+            raise SMFError(f"--{flag.replace('_', '-')} must be a finite number of seconds >= 0")
+    for flag in ("fps", "seconds"):
+        value = getattr(args, flag)
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise SMFError(f"--{flag} must be a finite positive number, got {value}")
     path = None
     if args.path is not None:
         if args.mode != "trajectory":

@@ -16,7 +16,8 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--data", type=Path, required=True, help="corpus folder (HumanML3D layout) with train/test splits")
     p.add_argument("--out", type=Path, required=True, help="model folder to write the estimator into")
     p.add_argument("--text-cache", type=Path, default=None, help="text embedding cache folder (default OUT/text-cache)")
-    p.add_argument("--text-encoder", default="minilm", help="frozen encoder (the model's; default minilm)")
+    p.add_argument("--text-encoder", default=None,
+                   help="frozen encoder (default: the --out model's, from its config.json; minilm without one)")
     p.add_argument("--steps", type=int, default=3000, help="optimisation steps (default 3000)")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=run)
@@ -27,6 +28,7 @@ def run(args: argparse.Namespace) -> None:
 
     from ..errors import SMFError
     from ..data.layout import MotionLayout
+    from ..diffusion.checkpoint import CONFIG, read_config
     from ..text.cache import TextEmbeddingCache
     from ..text.length import LengthConfig, caption_lengths, length_errors, sentence_embeddings, train_length_estimator
 
@@ -34,11 +36,19 @@ def run(args: argparse.Namespace) -> None:
         raise SMFError("--steps must be at least 1")
     if not args.data.is_dir():
         raise SMFError(f"no such corpus folder: {args.data}")
-    cache = TextEmbeddingCache(args.text_cache or (args.out / "text-cache"), args.text_encoder)
+    sk = MotionLayout(args.data).skeleton
+    encoder, lo, hi = args.text_encoder or "minilm", sk.min_frames, sk.max_frames
+    if (args.out / CONFIG).is_file():  # the model the estimator goes with: its encoder and length range
+        model_cfg = read_config(args.out)
+        if args.text_encoder not in (None, model_cfg.text_encoder):
+            raise SMFError(f"--text-encoder {args.text_encoder} differs from the model's ({model_cfg.text_encoder})")
+        if model_cfg.skeleton != sk.name:
+            raise SMFError(f"the corpus is on the {sk.name} skeleton, the model in {args.out} on {model_cfg.skeleton}")
+        encoder, lo, hi = model_cfg.text_encoder, model_cfg.min_frames, model_cfg.max_frames
+    cache = TextEmbeddingCache(args.text_cache or (args.out / "text-cache"), encoder)
     texts, lengths = caption_lengths(args.data, "train")
     emb = sentence_embeddings(texts, cache)
-    sk = MotionLayout(args.data).skeleton
-    config = LengthConfig(in_dim=int(emb.shape[1]), min_frames=sk.min_frames, max_frames=sk.max_frames)
+    config = LengthConfig(text_encoder=encoder, in_dim=int(emb.shape[1]), min_frames=lo, max_frames=hi)
     model = train_length_estimator((emb, lengths), config, steps=args.steps, seed=args.seed)
     median = float(np.median(lengths))
     metrics = {"train": length_errors(model, emb, lengths, median), "constant_median_frames": median,

@@ -106,17 +106,25 @@ class CheckpointConfig:
             raise SMFError(f"{where}: not a checkpoint config (needs an object 'model' with a string 'arch')")
         try:
             _check_keys(where, d, CheckpointConfig)
+            for name in ("train", "schedule", "export"):
+                if d.get(name) is not None and not isinstance(d[name], dict):
+                    raise SMFError(f"{where}: '{name}' must be an object")
             train = TrainConfig.from_dict(d["train"]) if d.get("train") else None
             # configs written before the schedule had its own entry kept it in the training settings
             schedule = ScheduleConfig(**(d.get("schedule") or (d.get("train") or {}).get("schedule") or {}))
             sk = get_skeleton(d.get("skeleton", "humanml3d"))
             export = ExportInfo(**d["export"]) if d.get("export") else None
-            return CheckpointConfig(
+            given = (lambda k, default: default if d.get(k) is None else d[k])  # noqa: E731
+            cfg = CheckpointConfig(
                 model=ModelConfig.from_dict(model), schedule=schedule, text_encoder=str(d.get("text_encoder", "minilm")),
-                skeleton=sk.name, fps=float(d.get("fps") or sk.fps), min_frames=int(d.get("min_frames") or sk.min_frames),
-                max_frames=int(d.get("max_frames") or sk.max_frames), train=train, step=d.get("step"), export=export)
-        except TypeError as e:
+                skeleton=sk.name, fps=float(given("fps", sk.fps)), min_frames=int(given("min_frames", sk.min_frames)),
+                max_frames=int(given("max_frames", sk.max_frames)), train=train, step=d.get("step"), export=export)
+        except (TypeError, ValueError) as e:
             raise SMFError(f"{where}: bad checkpoint config ({e})") from None
+        if not (cfg.fps > 0 and 0 < cfg.min_frames <= cfg.max_frames):
+            raise SMFError(f"{where}: fps must be positive and 0 < min_frames <= max_frames, got fps {cfg.fps}, "
+                           f"frames {cfg.min_frames}-{cfg.max_frames}")
+        return cfg
 
     def resume_mismatch(self, other: "CheckpointConfig") -> list[str]:
         """What differs between this run's config and a saved one in what a resumed run must keep: the

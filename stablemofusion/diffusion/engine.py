@@ -19,6 +19,7 @@ masked; only for models whose output on valid frames does not depend on padding)
 from __future__ import annotations
 
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import torch
@@ -34,6 +35,8 @@ COMPILED_ENGINES = ("compiled", "compiled-graph")
 FRAME_BUCKET = 16
 TEXT_BUCKET = 16
 BATCH_BUCKETS = (1, 2, 4, 8, 16, 32)
+MAX_GRAPHS = 32  # captured graphs kept per engine (least recently used dropped, with their memory)
+RECOMPILE_LIMIT = 256  # torch.compile's shapes per function (torch's default, 8, is far fewer than the buckets)
 
 
 def default_engine(device: torch.device, sampler_fast: bool) -> str:
@@ -83,7 +86,7 @@ class SolverEngine:
         self.model, self.engine = model, engine
         self.stats = EngineStats()
         self._compiled = None
-        self._graphs: dict[tuple, _Captured] = {}
+        self._graphs: OrderedDict[tuple, _Captured] = OrderedDict()
 
     def _denoise_fn(self):
         if self.engine not in COMPILED_ENGINES:
@@ -104,7 +107,7 @@ class SolverEngine:
         mask_p = _pad_items(_pad(motion_mask, 1, Tb, False), Bb)
         x_p = _pad(_pad(x, 1, Tb, 0.0), 0, Bb, 0.0)
         n_p = None if step_noise is None else _pad(_pad(step_noise, 2, Tb, 0.0), 1, Bb, 0.0)
-        key = (table.name, table.steps, float(scale), uncond is None, Bb, Tb, Lb, x.dtype)
+        key = (table.name, table.steps, uncond is None, Bb, Tb, Lb, x.dtype)  # the guidance scale is an input
         if self.engine == "compiled":
             t0 = time.perf_counter()
             out = run_solver(_guided(self._denoise_fn(), cond_p, uncond_p, mask_p, scale), table, x_p, n_p)
@@ -113,14 +116,17 @@ class SolverEngine:
             return out[:B, :T]
         graph = self._graphs.get(key)
         if graph is None:
+            if len(self._graphs) >= MAX_GRAPHS:
+                self._graphs.popitem(last=False)
             t0 = time.perf_counter()
             graph = self._graphs[key] = _Captured(self._denoise_fn(), cond_p, uncond_p, mask_p, scale, table, x_p, n_p)
             self.stats.warmup_seconds[key] = time.perf_counter() - t0
-        return graph.replay(cond_p, uncond_p, mask_p, x_p, n_p)[:B, :T]
+        self._graphs.move_to_end(key)
+        return graph.replay(cond_p, uncond_p, mask_p, scale, x_p, n_p)[:B, :T]
 
 
 def _guided(model, cond: TextCondition, uncond: TextCondition | None, mask: torch.Tensor,
-            scale: float) -> DenoiserFn:
+            scale: float | torch.Tensor) -> DenoiserFn:
     return model_denoiser(model, cond, mask) if uncond is None else cfg_batched(model, cond, uncond, mask, scale)
 
 
@@ -128,7 +134,12 @@ class _CompiledDenoise:
     """``model.denoise`` compiled with inductor (static shapes), callable like the model's ``denoise``."""
 
     def __init__(self, model):
+        import torch._dynamo
+
         self.model = model
+        for name in ("recompile_limit", "cache_size_limit"):  # the option's name changed across torch versions
+            if hasattr(torch._dynamo.config, name):
+                setattr(torch._dynamo.config, name, max(getattr(torch._dynamo.config, name), RECOMPILE_LIMIT))
         self.fn = torch.compile(model.denoise, dynamic=False)
 
     def denoise(self, *args):
@@ -136,13 +147,16 @@ class _CompiledDenoise:
 
 
 class _Captured:
-    """One CUDA graph of the whole solver loop over static input buffers."""
+    """One CUDA graph of the whole solver loop over static input buffers (the guidance scale among them)."""
 
     def __init__(self, model, cond, uncond, mask, scale, table, x, noise):
         self.cond, self.uncond = _clone_cond(cond), None if uncond is None else _clone_cond(uncond)
         self.mask, self.x = mask.clone(), x.clone()
         self.noise = None if noise is None else noise.clone()
-        fn = (lambda: run_solver(_guided(model, self.cond, self.uncond, self.mask, scale), table, self.x, self.noise))
+        self.scale = torch.tensor(float(scale), device=x.device, dtype=x.dtype)
+        self.table = table  # the graph reads its coefficient tensors: keep them alive
+        fn = (lambda: run_solver(_guided(model, self.cond, self.uncond, self.mask, self.scale), table, self.x,
+                                 self.noise))
         stream = torch.cuda.Stream()
         stream.wait_stream(torch.cuda.current_stream())
         with torch.cuda.stream(stream):  # warm-up (lazy inits, compilation) outside the capture
@@ -153,8 +167,9 @@ class _Captured:
         with torch.cuda.graph(self.graph):
             self.out = fn()
 
-    def replay(self, cond, uncond, mask, x, noise) -> torch.Tensor:
+    def replay(self, cond, uncond, mask, scale, x, noise) -> torch.Tensor:
         _copy_cond(self.cond, cond)
+        self.scale.fill_(float(scale))
         if uncond is not None:
             _copy_cond(self.uncond, uncond)
         self.mask.copy_(mask)

@@ -47,9 +47,10 @@ def model_denoiser(model, cond: TextCondition, motion_mask: torch.Tensor | None)
 
 
 def cfg_batched(model, cond: TextCondition, uncond: TextCondition, motion_mask: torch.Tensor | None,
-                scale: float) -> DenoiserFn:
+                scale: float | torch.Tensor) -> DenoiserFn:
     """Classifier-free guidance ``u + scale * (c - u)`` with both passes in one forward of batch 2B; the
-    pair's condition and mask are built once here, not at every step."""
+    pair's condition and mask are built once here, not at every step. ``scale`` may be a 0-d tensor (a
+    CUDA graph's input)."""
     pair = TextCondition(torch.cat([cond.features, uncond.features]), torch.cat([cond.mask, uncond.mask]),
                          _cat_opt(cond.keep, uncond.keep, cond.features), _cat_opt(cond.sentence, uncond.sentence))
     mask2 = None if motion_mask is None else torch.cat([motion_mask, motion_mask])

@@ -47,13 +47,16 @@ def follow_path(features: torch.Tensor, path: torch.Tensor) -> torch.Tensor:
 def land_at(features: torch.Tensor, start: int, frame: int, angle: float | torch.Tensor,
             xz: torch.Tensor) -> torch.Tensor:
     """Spread a heading and a position change evenly over the velocities of frames [start, frame) so that
-    frame ``frame`` integrates to half-angle ``angle`` and root position ``xz`` (2,); frames before ``start``
-    and the features of every frame from ``frame`` on keep their values."""
+    frame ``frame`` integrates to the heading of half-angle ``angle`` (by the shortest turn) and root
+    position ``xz`` (2,); frames before ``start`` and the features of every frame from ``frame`` on keep
+    their values."""
     if not 0 <= start < frame < len(features):
         raise ValueError(f"need 0 <= start < frame < T, got start {start}, frame {frame}, T {len(features)}")
     f = features.clone()
     n = frame - start
-    f[start:frame, 0] += (angle - headings(f)[frame]) / n
+    turn = angle - headings(f)[frame]
+    turn = (turn + torch.pi / 2) % torch.pi - torch.pi / 2  # half-angles: the same heading every pi; take the
+    f[start:frame, 0] += turn / n  # shortest turn, not a full spin
     dp = (xz.to(f.dtype) - root_xz(f)[frame]) / n
     ang = headings(f)
     f[start:frame, 1:3] += _to_body(ang[start + 1:frame + 1], dp.expand(n, 2))

@@ -25,7 +25,6 @@ from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field
 
 from ..errors import SMFError
-from ..pipeline import DEFAULT_SECONDS
 from .batcher import DynamicBatcher, Job, QueueFull
 
 MAX_PROMPT_CHARS = 300
@@ -110,13 +109,11 @@ def create_app(pipe, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: in
         prompt = body.prompt.strip()
         if not prompt or len(prompt) > MAX_PROMPT_CHARS:
             return _error(422, f"prompt must have 1 to {MAX_PROMPT_CHARS} characters, got {len(prompt)}")
-        seconds = body.seconds
-        if seconds is None:
-            seconds = pipe.predict_seconds(prompt)[0] if pipe.length_estimator is not None else DEFAULT_SECONDS
-            seconds = min(max(seconds, min_s), max_s)
-        if not min_s <= seconds <= max_s:
-            return _error(422, f"seconds must be between {min_s:g} and {max_s:g}, got {seconds:g}")
-        frames = int(round(seconds * pipe.fps)) // 4 * 4
+        frames = None  # predicted from the text where generation runs (models with a length estimator), else 4 s
+        if body.seconds is not None:
+            if not min_s <= body.seconds <= max_s:
+                return _error(422, f"seconds must be between {min_s:g} and {max_s:g}, got {body.seconds:g}")
+            frames = int(round(body.seconds * pipe.fps)) // 4 * 4
         seed = random.randrange(2**31) if body.seed is None else body.seed
         try:
             r = await batcher.submit(Job(prompt, frames, seed, body.guidance, body.steps, body.footskate))

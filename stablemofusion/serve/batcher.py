@@ -25,10 +25,11 @@ class QueueFull(SMFError):
 
 @dataclass(frozen=True)
 class Job:
-    """One generation request, validated: ``frames`` within the model's range."""
+    """One generation request, validated: ``frames`` within the model's range, or None (the model's length
+    estimate, made in the worker)."""
 
     prompt: str
-    frames: int
+    frames: int | None
     seed: int
     guidance: float = 2.5
     steps: int = 10

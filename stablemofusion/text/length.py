@@ -25,8 +25,10 @@ WEIGHTS, CONFIG = "length.safetensors", "length.json"
 
 @dataclass
 class LengthConfig:
-    """The estimator's shape: input width (the frozen encoder's), hidden width, and the length bins."""
+    """The estimator's input (the frozen encoder it was trained with, and its width), hidden width, and the
+    length bins."""
 
+    text_encoder: str = "minilm"
     in_dim: int = 384
     hidden: int = 256
     dropout: float = 0.1

@@ -44,6 +44,9 @@ def test_reads_the_shipped_model_config():
     ({"model": "unet"}, "needs an object 'model'"),
     ({"model": {"arch": "unet"}, "train": {"learning_rate": 1}}, "unknown config field"),
     ({"model": {"arch": "unet"}, "skeleton": "horse"}, "horse"),
+    ({"model": {"arch": "unet"}, "train": "x"}, "'train' must be an object"),
+    ({"model": {"arch": "unet"}, "fps": "abc"}, "bad checkpoint config"),
+    ({"model": {"arch": "unet"}, "max_frames": 0}, "min_frames <= max_frames"),
 ])
 def test_bad_configs_are_one_line_errors(bad, msg):
     with pytest.raises(SMFError, match=msg):

@@ -53,6 +53,18 @@ def test_shipped_estimator_and_pipeline_lengths():
     assert meta["metrics"]["test"]["reduction"] >= 0.25  # the bar: 25% lower error than the median
 
 
+def test_an_estimator_of_another_text_encoder_is_refused(tmp_path, save_tiny_checkpoint):
+    import shutil
+
+    path = save_tiny_checkpoint(tmp_path / "c", np.zeros(263), np.full(263, 0.1))
+    shutil.copy(default_model_path() / "length.safetensors", path / "length.safetensors")
+    meta = json.loads((default_model_path() / "length.json").read_text())
+    meta["config"]["text_encoder"] = "clip:/somewhere"
+    (path / "length.json").write_text(json.dumps(meta))
+    with pytest.raises(SMFError, match="trained with the text encoder clip:/somewhere"):
+        MotionPipeline.from_pretrained(path, device="cpu")
+
+
 def test_models_without_an_estimator(tmp_path, save_tiny_checkpoint):
     path = save_tiny_checkpoint(tmp_path / "c", np.zeros(263), np.full(263, 0.1))
     pipe = MotionPipeline.from_pretrained(path, device="cpu")

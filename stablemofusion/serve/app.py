@@ -33,6 +33,8 @@ MAX_UPLOAD_BYTES = 16 * 1024 * 1024  # a dropped .bvh / .npy
 VIEWER = Path(__file__).resolve().parents[1] / "assets" / "viewer"
 MAX_STEPS = 50
 FORMATS = ("json", "bvh", "npy")
+MAX_SEGMENTS = 16
+MAX_TIMELINE_SECONDS = 120.0
 
 
 class GenerateRequest(BaseModel):
@@ -46,6 +48,44 @@ class GenerateRequest(BaseModel):
     guidance: float = Field(default=2.5, ge=0.0, le=20.0)
     steps: int = Field(default=10, ge=1, le=MAX_STEPS)
     footskate: Literal["off", "post", "loop"] = "off"
+
+
+class Segment(BaseModel):
+    """One entry of a timeline: what to do and for how long."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    prompt: str
+    seconds: float = Field(gt=0.0)
+
+
+class TimelineRequest(BaseModel):
+    """The body of POST /v1/timeline: one continuous motion from several prompts."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    segments: list[Segment] = Field(min_length=1, max_length=MAX_SEGMENTS)
+    seed: int | None = Field(default=None, ge=0, lt=2**63)
+    guidance: float = Field(default=2.5, ge=0.0, le=20.0)
+    steps: int = Field(default=10, ge=1, le=MAX_STEPS)
+    footskate: Literal["off", "post", "loop"] = "off"
+
+
+def _motion_response(r, seed: int, format: str) -> Response:
+    """A generated motion as JSON (joints), a BVH file or a joints .npy."""
+    if format == "npy":
+        buf = io.BytesIO()
+        np.save(buf, r.joints.astype(np.float32), allow_pickle=False)
+        return Response(buf.getvalue(), media_type="application/octet-stream",
+                        headers={"Content-Disposition": 'attachment; filename="motion_joints.npy"'})
+    if format == "bvh":
+        return Response(_bvh_text(r), media_type="text/plain; charset=utf-8",
+                        headers={"Content-Disposition": 'attachment; filename="motion.bvh"'})
+    # JSONResponse serialises with json.dumps (C); FastAPI's own encoder walks every float in Python and,
+    # on the event loop, starved the batching of requests arriving meanwhile
+    return JSONResponse({"prompt": r.prompt, "fps": r.fps, "frames": len(r.joints), "seed": seed,
+                         **(r.domain.to_dict(r.prompt) if r.domain else {}),
+                         "joints": np.round(r.joints, 5).tolist()})
 
 
 def _error(status: int, message: str) -> JSONResponse:
@@ -121,19 +161,29 @@ def create_app(pipe, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: in
             return _error(503, str(e))
         except SMFError as e:
             return _error(422, str(e))
-        if format == "npy":
-            buf = io.BytesIO()
-            np.save(buf, r.joints.astype(np.float32), allow_pickle=False)
-            return Response(buf.getvalue(), media_type="application/octet-stream",
-                            headers={"Content-Disposition": 'attachment; filename="motion_joints.npy"'})
-        if format == "bvh":
-            return Response(_bvh_text(r), media_type="text/plain; charset=utf-8",
-                            headers={"Content-Disposition": 'attachment; filename="motion.bvh"'})
-        # JSONResponse serialises with json.dumps (C); FastAPI's own encoder walks every float in Python and,
-        # on the event loop, starved the batching of requests arriving meanwhile
-        return JSONResponse({"prompt": r.prompt, "fps": r.fps, "frames": len(r.joints), "seed": seed,
-                             **(r.domain.to_dict(r.prompt) if r.domain else {}),
-                             "joints": np.round(r.joints, 5).tolist()})
+        return _motion_response(r, seed, format)
+
+    @app.post("/v1/timeline")
+    async def timeline(body: TimelineRequest, format: str = "json"):
+        if format not in FORMATS:
+            return _error(400, f"format must be one of {', '.join(FORMATS)}, got {format!r}")
+        segments = tuple((seg.prompt.strip(), float(seg.seconds)) for seg in body.segments)
+        for i, (prompt, _) in enumerate(segments):
+            if not prompt or len(prompt) > MAX_PROMPT_CHARS:
+                return _error(422, f"segments.{i}.prompt must have 1 to {MAX_PROMPT_CHARS} characters, "
+                                   f"got {len(prompt)}")
+        total = sum(sec for _, sec in segments)
+        if total > MAX_TIMELINE_SECONDS:
+            return _error(422, f"a timeline lasts at most {MAX_TIMELINE_SECONDS:g} s, got {total:g}")
+        seed = random.randrange(2**31) if body.seed is None else body.seed
+        try:
+            r = await batcher.submit(Job("; ".join(p for p, _ in segments), None, seed, body.guidance, body.steps,
+                                         body.footskate, segments))
+        except QueueFull as e:
+            return _error(503, str(e))
+        except SMFError as e:
+            return _error(422, str(e))
+        return _motion_response(r, seed, format)
 
     @app.post("/v1/convert")
     async def convert(request: Request, filename: str):

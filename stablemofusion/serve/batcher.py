@@ -34,16 +34,20 @@ class Job:
     guidance: float = 2.5
     steps: int = 10
     footskate: str = "off"
+    segments: tuple[tuple[str, float], ...] | None = None  # a timeline (POST /v1/timeline) instead of one prompt
 
     @property
     def key(self) -> tuple:
-        """Requests with the same key can share a sampling call."""
-        return self.guidance, self.steps, self.footskate
+        """Requests with the same key can share a sampling call (timelines run one by one)."""
+        return self.guidance, self.steps, self.footskate, self.segments is not None
 
 
 def generate_jobs(pipe, jobs: list[Job], max_batch: int) -> list:
-    """Run jobs sharing one key as one pipeline call (one seed per job)."""
+    """Run jobs sharing one key as one pipeline call (one seed per job); timelines one after another."""
     first = jobs[0]
+    if first.segments is not None:
+        return [pipe.timeline(list(j.segments), guidance_scale=j.guidance, steps=j.steps, seed=j.seed,
+                              footskate=j.footskate) for j in jobs]
     return pipe([j.prompt for j in jobs], frames=[j.frames for j in jobs], seed=[j.seed for j in jobs],
                 guidance_scale=first.guidance, steps=first.steps, footskate=first.footskate, batch_size=max_batch)
 

@@ -207,3 +207,20 @@ def test_generate_without_seconds_predicts_the_length(checkpoint, tmp_path):
     expected = [int(round(s * 20)) // 4 * 4 for s in pipe.predict_seconds(["a person walks forward",
                                                                             "a person raises both hands"])]
     assert [walk.json()["frames"], hands.json()["frames"]] == expected and expected[0] > expected[1]
+
+
+def test_timeline_endpoint(pipe):
+    ok, bvh, bad_total, bad_empty, bad_prompt = call(
+        create_app(pipe),
+        ("POST", "/v1/timeline", {"segments": [{"prompt": "a person walks", "seconds": 3},
+                                               {"prompt": "a person bows", "seconds": 2}], "seed": 1, "steps": 1}),
+        ("POST", "/v1/timeline?format=bvh", {"segments": [{"prompt": "walk", "seconds": 2.5}], "seed": 1, "steps": 1}),
+        ("POST", "/v1/timeline", {"segments": [{"prompt": "walk", "seconds": 100}, {"prompt": "run", "seconds": 30}]}),
+        ("POST", "/v1/timeline", {"segments": []}),
+        ("POST", "/v1/timeline", {"segments": [{"prompt": " ", "seconds": 2}]}))
+    assert ok.status_code == 200 and ok.json()["frames"] == 100 and ok.json()["seed"] == 1
+    assert ok.json()["prompt"] == "a person walks:3; a person bows:2"
+    assert bvh.status_code == 200 and bvh.text.startswith("HIERARCHY")
+    assert bad_total.status_code == 422 and "at most 120 s" in bad_total.json()["error"]
+    assert bad_empty.status_code == 422 and "segments" in bad_empty.json()["error"]
+    assert bad_prompt.status_code == 422 and "segments.0.prompt" in bad_prompt.json()["error"]

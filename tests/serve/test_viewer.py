@@ -101,6 +101,22 @@ def test_generate_draws_the_skeleton_and_scrubbing_moves_it(page):
     assert page.logs == []
 
 
+def test_a_timeline_prompt_and_an_empty_length(page):
+    page.fill("#prompt", "a person walks:2; a person bows:1.5")
+    page.click("#generate")
+    page.wait_for_function("window.smf.ready && window.smf.frames === 70", timeout=60_000)
+    assert "a person walks:2; a person bows:1.5" in page.inner_text("#status")
+    page.fill("#prompt", "a person walks forward")
+    page.fill("#seconds", "")  # no length: the model's estimate (this test model has none: 4 s)
+    page.click("#generate")
+    page.wait_for_function("window.smf.ready && window.smf.frames === 80", timeout=60_000)
+    page.fill("#prompt", "walk:; bow:2")
+    page.click("#generate")
+    page.wait_for_function("document.getElementById('status').className === 'error'", timeout=30_000)
+    assert "is not PROMPT:SECONDS" in page.inner_text("#status")
+    assert [m for m in page.logs if "pageerror" in m] == []
+
+
 def test_dropping_a_local_npy_shows_it_and_bad_files_show_an_error(page):
     from stablemofusion.motion.files import load_motion
 

@@ -1,4 +1,4 @@
-// stablemofusion viewer: a three.js skeleton player for the HTTP API (POST /v1/generate, POST /v1/convert).
+// stablemofusion viewer: a three.js skeleton player for the HTTP API (POST /v1/generate, /v1/timeline, /v1/convert).
 import * as THREE from 'three';
 import { OrbitControls } from '/viewer/vendor/OrbitControls.js';
 
@@ -171,19 +171,40 @@ async function post(url, body, headers) {
   return res;
 }
 
+// "walk forward:4; wave both hands:3" -> [{prompt, seconds}, ...]; null for a plain prompt (one without ';'
+// that does not end in ':SECONDS')
+function parseTimeline(text) {
+  if (!text.includes(';') && !/:\s*\d+(\.\d+)?\s*$/.test(text)) return null;
+  const segments = [];
+  for (const part of text.split(';').map((p) => p.trim()).filter(Boolean)) {
+    const i = part.lastIndexOf(':');
+    const seconds = i < 0 ? NaN : Number(part.slice(i + 1));
+    if (i <= 0 || !Number.isFinite(seconds) || part.slice(i + 1).trim() === '') {
+      throw new Error(`timeline entry "${part}" is not PROMPT:SECONDS`);
+    }
+    segments.push({ prompt: part.slice(0, i).trim(), seconds });
+  }
+  return segments;
+}
+
 $('form').addEventListener('submit', async (ev) => {
   ev.preventDefault();
-  const body = {
-    prompt: $('prompt').value, seconds: Number($('seconds').value), seed: Number($('seed').value),
-    footskate: $('footskate').value,
-  };
+  const common = { seed: Number($('seed').value), footskate: $('footskate').value };
   state.ready = false;
   $('generate').disabled = true;
   status('generating...');
   try {
-    const res = await post('/v1/generate', JSON.stringify(body), { 'Content-Type': 'application/json' });
+    const segments = parseTimeline($('prompt').value);
+    let body = { ...common, segments };
+    if (!segments) {  // one prompt; no seconds: the model predicts the length from the text
+      body = { ...common, prompt: $('prompt').value };
+      if ($('seconds').value.trim() !== '') body.seconds = Number($('seconds').value);
+    }
+    const endpoint = segments ? '/v1/timeline' : '/v1/generate';
+    const res = await post(endpoint, JSON.stringify(body), { 'Content-Type': 'application/json' });
     const m = await res.json();
     state.request = { ...body, seed: m.seed };
+    state.endpoint = endpoint;
     setMotion(m.joints, m.frames, m.fps, `"${m.prompt}": ${m.frames} frames, seed ${m.seed}`);
     $('bvh').disabled = false;
     $('npy').disabled = false;
@@ -207,7 +228,7 @@ $('scrub').addEventListener('input', () => {
 async function download(format) {
   if (!state.request) return;
   try {
-    const res = await post(`/v1/generate?format=${format}`, JSON.stringify(state.request),
+    const res = await post(`${state.endpoint}?format=${format}`, JSON.stringify(state.request),
       { 'Content-Type': 'application/json' });
     const a = document.createElement('a');
     a.href = URL.createObjectURL(await res.blob());

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-from dataclasses import fields
 from pathlib import Path
 
 from ..diffusion.train import TrainConfig
+from .flags import add_config_flags, config_from_args
 
 _FLAGS = {  # TrainConfig field -> help
     "preset": "model preset (see `smf info`)", "steps": "total optimisation steps", "batch_size": "batch per device",
@@ -33,15 +33,7 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     p.add_argument("--text-cache", type=Path, default=None, help="text embedding cache folder (default OUT/text-cache)")
     p.add_argument("--no-progress", action="store_true")
-    defaults = TrainConfig()
-    for f in fields(TrainConfig):
-        if f.name in _FLAGS:
-            default = getattr(defaults, f.name)
-            kind = _TYPES.get(f.name) or (type(default) if default is not None else int)
-            if isinstance(default, bool):
-                p.add_argument("--" + f.name.replace("_", "-"), action="store_true", help=_FLAGS[f.name])
-            else:
-                p.add_argument("--" + f.name.replace("_", "-"), type=kind, default=default, help=_FLAGS[f.name])
+    add_config_flags(p, TrainConfig, _FLAGS, _TYPES)
     p.add_argument("--stop-after", type=int, default=None, help=argparse.SUPPRESS)  # simulate a kill (tests)
     p.set_defaults(func=run)
 
@@ -50,7 +42,7 @@ def run(args: argparse.Namespace) -> None:
     from ..diffusion.train import train
     from ..errors import SMFError
 
-    cfg = TrainConfig(**{k: getattr(args, k) for k in _FLAGS})
+    cfg = config_from_args(TrainConfig, args, _FLAGS)
     if cfg.steps < 1 or cfg.batch_size < 1:
         raise SMFError("--steps and --batch-size must be at least 1")
     if cfg.mixed_precision not in ("no", "fp16", "bf16"):

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import fields
 from pathlib import Path
 
 from ..eval.classifier import ClassifierTrainConfig
+from .flags import add_config_flags, config_from_args
 
 _HELP = {"steps": "optimisation steps", "batch_size": "motions per batch", "lr": "AdamW learning rate",
          "weight_decay": "AdamW weight decay", "seed": "random seed"}
@@ -20,8 +20,7 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--data", type=Path, required=True, help="labelled corpus folder (from `smf prepare bandai`)")
     p.add_argument("--out", type=Path, required=True, help="classifier folder to write")
     p.add_argument("--no-progress", action="store_true")
-    for f in fields(ClassifierTrainConfig):
-        p.add_argument("--" + f.name.replace("_", "-"), type=type(f.default), default=f.default, help=_HELP[f.name])
+    add_config_flags(p, ClassifierTrainConfig, _HELP)
     p.set_defaults(func=run)
 
 
@@ -29,7 +28,7 @@ def run(args: argparse.Namespace) -> None:
     from ..errors import SMFError
     from ..eval.classifier import train_classifier
 
-    cfg = ClassifierTrainConfig(**{f.name: getattr(args, f.name) for f in fields(ClassifierTrainConfig)})
+    cfg = config_from_args(ClassifierTrainConfig, args, _HELP)
     if cfg.steps < 1 or cfg.batch_size < 1:
         raise SMFError("--steps and --batch-size must be at least 1")
     if not args.data.is_dir():

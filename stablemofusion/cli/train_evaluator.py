@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import fields
 from pathlib import Path
 
 from ..eval.train_evaluator import EvaluatorTrainConfig
+from .flags import add_config_flags, config_from_args
 
 _HELP = {"steps": "optimisation steps", "batch_size": "pairs per batch", "lr": "AdamW learning rate",
          "weight_decay": "AdamW weight decay", "temperature": "InfoNCE temperature on distances",
@@ -24,15 +24,14 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--out", type=Path, required=True, help="evaluator folder to write")
     p.add_argument("--text-cache", type=Path, default=None, help="text embedding cache folder")
     p.add_argument("--no-progress", action="store_true")
-    for f in fields(EvaluatorTrainConfig):
-        p.add_argument("--" + f.name.replace("_", "-"), type=type(f.default), default=f.default, help=_HELP[f.name])
+    add_config_flags(p, EvaluatorTrainConfig, _HELP)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> None:
     from ..eval.train_evaluator import train_evaluator
 
-    cfg = EvaluatorTrainConfig(**{f.name: getattr(args, f.name) for f in fields(EvaluatorTrainConfig)})
+    cfg = config_from_args(EvaluatorTrainConfig, args, _HELP)
     meta = train_evaluator(args.data, args.out, cfg, progress=not args.no_progress, text_cache=args.text_cache)
     last = meta["validation"][-1] if meta["validation"] else {}
     print(json.dumps({"out": str(args.out), "final_loss": round(meta["final_loss"], 4), **last}))

@@ -103,3 +103,11 @@ def test_packaged_example_works_without_shared_data(tmp_path):
     assert np.load(tmp_path / "f.npy").shape == (117, 263)
     assert run("render", "example:wave-both-hands", "--frame", 60, "--out", tmp_path / "w.png") == 0
     assert (tmp_path / "w.png").stat().st_size > 10_000
+
+
+def test_settings_flags_with_a_none_default_take_numbers(tmp_path, capsys):
+    """--max-frames of train-evaluator defaults to None (the corpus skeleton's) and still takes an integer."""
+    assert main(["train-evaluator", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "ev"),
+                 "--max-frames", "120"]) == 2
+    err = capsys.readouterr().err
+    assert "invalid" not in err and "does not exist" in err

@@ -1,0 +1,27 @@
+"""Command-line flags from a settings dataclass: one ``--field-name`` per field, and the dataclass back."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import MISSING, fields
+
+
+def add_config_flags(p: argparse.ArgumentParser, cls: type, helps: dict[str, str],
+                     types: dict[str, type] | None = None) -> None:
+    """A flag for each field of dataclass ``cls`` named in ``helps`` (its help text), defaulting to the field's
+    default: booleans are switches; a field whose default is None takes ``types[name]`` or an int."""
+    for f in fields(cls):
+        if f.name not in helps:
+            continue
+        default = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc]
+        flag = "--" + f.name.replace("_", "-")
+        if isinstance(default, bool):
+            p.add_argument(flag, action="store_true", help=helps[f.name])
+        else:
+            kind = (types or {}).get(f.name) or (int if default is None else type(default))
+            p.add_argument(flag, type=kind, default=default, help=helps[f.name])
+
+
+def config_from_args(cls: type, args: argparse.Namespace, helps: dict[str, str]):
+    """The dataclass ``cls`` built from the flags :func:`add_config_flags` added (other fields keep defaults)."""
+    return cls(**{name: getattr(args, name) for name in helps})

@@ -140,9 +140,9 @@ class MotionPipeline:
         """Frozen token embeddings for ``prompts`` through the LRU cache: (B, L, C), (B, L)."""
         return self.text_cache.get_or_compute(list(prompts), device=self.device)
 
-    def frames_for(self, seconds: float | None, frames: int | None, long: bool = False) -> int:
-        """Clamp a requested duration to what the model was trained on (multiple of 4), warning if changed;
-        with ``long``, lengths past ``max_frames`` are kept (they are generated window by window)."""
+    def frames_for(self, seconds: float | None, frames: int | None) -> int:
+        """A requested duration in frames, a multiple of 4, at least the model's shortest (warning if changed);
+        lengths past ``max_frames`` are kept: they are generated window by window (:meth:`timeline`)."""
         if frames is None:
             if seconds is None:
                 seconds = DEFAULT_SECONDS
@@ -151,8 +151,7 @@ class MotionPipeline:
             frames = int(round(seconds * self.fps))
         if frames <= 0:
             raise SMFError(f"frames must be positive, got {frames}")
-        n = max(frames, self.min_frames) if long else min(max(frames, self.min_frames), self.max_frames)
-        n = n // 4 * 4
+        n = max(frames, self.min_frames) // 4 * 4
         if n != frames:
             warnings.warn(f"length {frames} frames ({frames / self.fps:.2f} s) clamped to {n} frames "
                           f"({n / self.fps:.2f} s), the range this model was trained on", LengthClampedWarning,
@@ -189,7 +188,7 @@ class MotionPipeline:
         if unknown and self.length_estimator is not None:  # no length given: the model's estimate from the text
             for i, s in zip(unknown, self.predict_seconds([prompts[i] for i in unknown])):
                 secs[i] = s
-        lengths = [self.frames_for(s, f, long=True) for s, f in zip(secs, frs)]
+        lengths = [self.frames_for(s, f) for s, f in zip(secs, frs)]
         per_item = isinstance(seed, (list, tuple))
         if per_item and len(seed) != n:
             raise SMFError(f"give one seed for all prompts or one per prompt: {len(seed)} seeds for {n} prompts")

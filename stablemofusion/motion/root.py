@@ -67,7 +67,7 @@ def place_like(joints: torch.Tensor, frame: int, angle: torch.Tensor, root: torc
                target_angle: torch.Tensor, target_root: torch.Tensor) -> torch.Tensor:
     """Turn (about +Y) and move joints (T, J, 3) so that frame ``frame``, whose root is at half-angle
     ``angle`` and XZ ``root`` (2,), ends at ``target_angle`` and ``target_root`` (2,)."""
-    q = qmul(qinv(yaw_quat(2.0 * target_angle)), yaw_quat(2.0 * angle))
+    q = _turn(angle, target_angle)
     shift = joints.new_zeros(3)
     shift[[0, 2]] = root.to(joints.dtype)
     moved = qrot(q.to(joints.dtype).expand(joints.shape[:-1] + (4,)), joints - shift)
@@ -79,7 +79,7 @@ def place_like(joints: torch.Tensor, frame: int, angle: torch.Tensor, root: torc
 def place_rigid_like(motion: RigidMotion, frame: int, angle: torch.Tensor, root: torch.Tensor,
                      target_angle: torch.Tensor, target_root: torch.Tensor) -> RigidMotion:
     """:func:`place_like` for a rigid motion: its root path and root rotation turned and moved the same way."""
-    q = qmul(qinv(yaw_quat(2.0 * target_angle)), yaw_quat(2.0 * angle)).double()
+    q = _turn(angle, target_angle).double()
     shift = torch.zeros(3, dtype=torch.float64)
     shift[[0, 2]] = root.double()
     path = qrot(q.expand(len(motion), 4), torch.from_numpy(motion.root) - shift)
@@ -88,3 +88,8 @@ def place_rigid_like(motion: RigidMotion, frame: int, angle: torch.Tensor, root:
     rotations = motion.rotations.copy()
     rotations[:, 0] = quat_to_matrix(q.numpy()) @ rotations[:, 0]
     return RigidMotion(motion.offsets, rotations, path.numpy(), motion.skeleton)
+
+
+def _turn(angle: torch.Tensor, target_angle: torch.Tensor) -> torch.Tensor:
+    """(4,) the yaw quaternion taking a body frame at half-angle ``angle`` to one at ``target_angle``."""
+    return qmul(qinv(yaw_quat(2.0 * target_angle)), yaw_quat(2.0 * angle))

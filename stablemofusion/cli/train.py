@@ -20,6 +20,11 @@ _FLAGS = {  # TrainConfig field -> help
     "text_augment": "probability that a training caption is perturbed (word dropout, synonym swap, typos, case)",
     "init_from": "start from the weights of this checkpoint, run or exported folder (fine-tuning)",
     "compile": "torch.compile the training forward (pays on a GPU)",
+    "lr_schedule": "step (x lr-decay every lr-decay-every) | cosine (to min-lr at --steps) | wsd (constant, then "
+                   "cosine to min-lr over the last --decay-steps)",
+    "warmup": "steps of linear learning-rate warm-up", "min_lr": "final learning rate of cosine / wsd",
+    "decay_steps": "wsd: length of the final decay", "balance": "label balancing power (0 = off, 0.5 = items of a "
+    "rare (dataset, content) label drawn sqrt(n_max / n) times per epoch; needs clips.csv)",
 }
 _TYPES = {"init_from": str}
 
@@ -33,21 +38,42 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     p.add_argument("--text-cache", type=Path, default=None, help="text embedding cache folder (default OUT/text-cache)")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--threads", type=int, default=None, help="CPU threads for torch (default: torch's choice)")
+    ev = p.add_argument_group("self-evaluation", "every --eval-every steps: held-out prompt accuracy and FID on a "
+                                                 "fixed validation subset, into OUT/eval.jsonl (`smf curve` draws it)")
+    ev.add_argument("--eval-every", type=int, default=0, help="steps between evaluations (0 = never)")
+    ev.add_argument("--probe", type=Path, default=None, help="labelled prompt file (e.g. "
+                                                             "benchmarks/prompts_heldout_lexicon.jsonl)")
+    ev.add_argument("--classifier", type=Path, default=None, help="`smf train-classifier` folder")
+    ev.add_argument("--evaluator", type=Path, default=None, help="`smf train-evaluator` folder (FID; optional)")
+    ev.add_argument("--fid-items", type=int, default=256, help="validation items for FID (default 256)")
     add_config_flags(p, TrainConfig, _FLAGS, _TYPES)
     p.add_argument("--stop-after", type=int, default=None, help=argparse.SUPPRESS)  # simulate a kill (tests)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> None:
-    from ..diffusion.train import train
+    from ..diffusion.train import check_train_config, train
     from ..errors import SMFError
 
     cfg = config_from_args(TrainConfig, args, _FLAGS)
-    if cfg.steps < 1 or cfg.batch_size < 1:
-        raise SMFError("--steps and --batch-size must be at least 1")
-    if cfg.mixed_precision not in ("no", "fp16", "bf16"):
-        raise SMFError(f"--mixed-precision must be no, fp16 or bf16, not {cfg.mixed_precision!r}")
+    check_train_config(cfg)
+    if args.threads is not None:
+        if args.threads < 1:
+            raise SMFError(f"--threads must be at least 1, got {args.threads}")
+        import torch
+
+        torch.set_num_threads(args.threads)
+    monitor = None
+    if args.eval_every:
+        if args.eval_every < 0 or args.probe is None or args.classifier is None:
+            raise SMFError("--eval-every N needs N > 0, --probe FILE and --classifier DIR")
+        from ..eval.monitor import MonitorConfig, TrainingMonitor
+
+        monitor = TrainingMonitor(args.data, MonitorConfig(args.probe, args.classifier, args.evaluator,
+                                                           fid_items=args.fid_items))
     losses = train(args.data, args.out, cfg, resume=args.resume, stop_after=args.stop_after,
-                   progress=not args.no_progress, text_cache=args.text_cache)
+                   progress=not args.no_progress, text_cache=args.text_cache, eval_every=args.eval_every,
+                   on_eval=monitor)
     if losses:
         print(f"trained {len(losses)} steps; last loss {losses[-1]:.4f}; checkpoint in {args.out / 'checkpoint'}")

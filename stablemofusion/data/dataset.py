@@ -67,7 +67,7 @@ class MotionTextDataset(Dataset):
         if not feat_bias > 0:
             raise SMFError(f"feat_bias must be positive, got {feat_bias}")
         self.seed = seed
-        self.epoch = 0
+        self.epoch, self.copy = 0, 0
         self.mean = np.asarray(self.layout.mean, dtype=np.float32)
         self.std = biased_std(self.layout.std, sk, self.feat_bias).astype(np.float32)
 
@@ -107,12 +107,15 @@ class MotionTextDataset(Dataset):
     def __len__(self) -> int:
         return len(self.entries)
 
-    def set_epoch(self, epoch: int) -> None:
-        """Select the random stream of an epoch (only matters with a seed)."""
-        self.epoch = int(epoch)
+    def set_epoch(self, epoch: int, copy: int = 0) -> None:
+        """Select the random stream of an epoch (only matters with a seed); ``copy`` > 0 selects another
+        stream for an item drawn more than once in the epoch (label balancing), so each copy differs."""
+        self.epoch, self.copy = int(epoch), int(copy)
 
     def _rng(self, i: int) -> np.random.Generator:
-        return np.random.default_rng() if self.seed is None else np.random.default_rng([self.seed, self.epoch, i])
+        if self.seed is None:
+            return np.random.default_rng()
+        return np.random.default_rng([self.seed, self.epoch, i] + ([self.copy] if self.copy else []))
 
     def crop_length(self, n: int, rng: np.random.Generator) -> int:
         """Training length for a clip of ``n`` frames: a multiple of unit_length in [unit_length, max_frames]."""

@@ -42,6 +42,12 @@ class TrainConfig:
     text_augment: float = 0.0  # probability that a caption is perturbed (data/augment.py) before encoding
     init_from: str | None = None  # start from these weights (a checkpoint, run or exported model folder)
     compile: bool = False  # torch.compile the training forward (pays on a GPU; same numerics up to rounding)
+    lr_schedule: str = "step"  # step (lr_decay every lr_decay_every) | cosine (to min_lr at `steps`) | wsd
+    warmup: int = 0  # steps of linear warm-up from 0 to lr (any schedule)
+    min_lr: float = 0.0  # cosine / wsd: the learning rate at the end
+    decay_steps: int = 0  # wsd: the last `decay_steps` steps decay to min_lr (cosine); before them lr is constant
+    balance: float = 0.0  # label balancing: an item of a (dataset, content) group of n items is drawn
+    #                       round((n_max / n) ** balance) times per epoch (capped); 0 = off (needs clips.csv)
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
 
     def to_dict(self) -> dict:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import math
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -39,12 +40,60 @@ def masked_mse(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> 
     return ((pred - target) ** 2 * m).sum() / (m.sum() * pred.shape[-1]).clamp_min(1.0)
 
 
+LOG_HEADER = "step,loss,lr,seconds,samples_per_s"  # seconds: training wall time since the run began, resumes included
+BALANCE_CAP = 16  # most copies of one item per epoch under label balancing
+SCHEDULES = ("step", "cosine", "wsd")
+
+
+def learning_rate(cfg: TrainConfig, step: int) -> float:
+    """The learning rate of (0-based) step ``step``: linear warm-up over ``cfg.warmup`` steps, then ``step``:
+    ``lr * lr_decay ** (step // lr_decay_every)``; ``cosine``: from lr down to min_lr at ``cfg.steps``;
+    ``wsd`` (warm-up, stable, decay): lr until the last ``cfg.decay_steps`` steps, then cosine to min_lr."""
+    if step < cfg.warmup:
+        return cfg.lr * (step + 1) / cfg.warmup
+    if cfg.lr_schedule == "step":
+        return cfg.lr * cfg.lr_decay ** (step // cfg.lr_decay_every)
+    start = cfg.warmup if cfg.lr_schedule == "cosine" else cfg.steps - cfg.decay_steps
+    if step < start:
+        return cfg.lr
+    frac = min((step - start) / max(cfg.steps - start, 1), 1.0)
+    return cfg.min_lr + (cfg.lr - cfg.min_lr) * 0.5 * (1.0 + math.cos(math.pi * frac))
+
+
+def check_train_config(cfg: TrainConfig) -> None:
+    """One-line errors for settings no run can use."""
+    if cfg.steps < 1 or cfg.batch_size < 1:
+        raise SMFError("--steps and --batch-size must be at least 1")
+    if cfg.mixed_precision not in ("no", "fp16", "bf16"):
+        raise SMFError(f"--mixed-precision must be no, fp16 or bf16, not {cfg.mixed_precision!r}")
+    if cfg.lr_schedule not in SCHEDULES:
+        raise SMFError(f"--lr-schedule must be one of {', '.join(SCHEDULES)}, not {cfg.lr_schedule!r}")
+    if cfg.warmup < 0 or cfg.decay_steps < 0 or cfg.min_lr < 0 or cfg.balance < 0:
+        raise SMFError("--warmup, --decay-steps, --min-lr and --balance must not be negative")
+
+
+def label_balance(data: str | Path, ds: MotionTextDataset, power: float) -> tuple[int, ...] | None:
+    """Per-item repeats that even out (dataset, content) label frequencies (None when ``power`` is 0)."""
+    if power <= 0:
+        return None
+    from ..data.batches import label_repeats
+    from ..data.labels import corpus_labels
+
+    labels = corpus_labels(data)
+    groups = [(labels[ds.ids[e.index]].dataset, labels[ds.ids[e.index]].content) for e in ds.entries]
+    return label_repeats(groups, power, BALANCE_CAP)
+
+
 def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool = False, stop_after: int | None = None,
-          progress: bool = True, text_cache: str | Path | None = None) -> list[float]:
+          progress: bool = True, text_cache: str | Path | None = None, eval_every: int = 0,
+          on_eval: Callable[[Path, int], dict] | None = None) -> list[float]:
     """Train a denoiser on the corpus at ``data``; checkpoints go to ``out``. Returns this run's step losses.
 
-    ``stop_after`` ends the run after that many total steps, as if killed right after a checkpoint.
+    ``stop_after`` ends the run after that many total steps, as if killed right after a checkpoint. With
+    ``eval_every`` and ``on_eval``, every ``eval_every`` steps a checkpoint is saved and ``on_eval(out, step)``
+    measures it; its figures go to ``out/eval.jsonl`` with the step and the training wall time.
     """
+    check_train_config(cfg)
     from accelerate import Accelerator
     from diffusers.training_utils import EMAModel
 
@@ -65,7 +114,6 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     # the fused CUDA kernel on a GPU (one launch for all parameters); the reference loop on a CPU
     optimizer = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
                                   fused=accelerator.device.type == "cuda")
-    lr_sched = torch.optim.lr_scheduler.StepLR(optimizer, step_size=cfg.lr_decay_every, gamma=cfg.lr_decay)
     ema = EMAModel(model.parameters(), decay=cfg.ema_decay)
     start = 0
     config = CheckpointConfig.for_skeleton(model_cfg, ds.skeleton.name, schedule=cfg.schedule,
@@ -82,13 +130,15 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
 
         model.load_state_dict(load_file(out / CHECKPOINT_DIR / MODEL))
         optimizer.load_state_dict(state["optimizer"])
-        lr_sched.load_state_dict(state["lr_scheduler"])
         ema.load_state_dict(state["ema"])
         start = int(state["step"])
-        if saved.train is None or (saved.train.lr, saved.train.lr_decay, saved.train.lr_decay_every,
-                                   saved.train.weight_decay, saved.train.ema_decay) != (
-                cfg.lr, cfg.lr_decay, cfg.lr_decay_every, cfg.weight_decay, cfg.ema_decay):
-            _apply_optimisation_settings(optimizer, lr_sched, ema, cfg, start)
+        for group in optimizer.param_groups:  # this run's settings apply from the resumed step
+            group["weight_decay"] = cfg.weight_decay
+        ema.decay = cfg.ema_decay
+    repeats = label_balance(data, ds, cfg.balance)
+    # every training caption through the frozen language model once, up front: steps then only read the cache
+    cache.precompute(c.caption for e in ds.entries for c in e.captions)
+    cache.flush()
     model, optimizer = accelerator.prepare(model, optimizer)
     forward = torch.compile(model) if cfg.compile else model  # `model` keeps the parameters and is saved
     noise_sched = make_train_scheduler(cfg.schedule)
@@ -97,17 +147,18 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     log_path = out / "log.csv"
     out.mkdir(parents=True, exist_ok=True)
     if not resume or not log_path.exists():
-        log_path.write_text("step,loss,lr,seconds\n")
+        log_path.write_text(LOG_HEADER + "\n")
+    seconds_before = _logged_seconds(log_path, start)
     end = cfg.steps if stop_after is None else min(cfg.steps, stop_after)
     losses: list[float] = []
     bar = tqdm(range(start, end), initial=start, total=end, desc="train", unit="step", disable=not progress or
                not accelerator.is_main_process)
-    t0 = time.perf_counter()
+    t0 = t_step = time.perf_counter()
     rank, world = accelerator.process_index, accelerator.num_processes
     with open(log_path, "a", newline="") as log_file:
         log = csv.writer(log_file)
         for step in bar:
-            batch = get_batch(ds, step, cfg.batch_size * world, cfg.seed, cfg.bucket)
+            batch = get_batch(ds, step, cfg.batch_size * world, cfg.seed, cfg.bucket, repeats)
             sl = slice(rank * cfg.batch_size, (rank + 1) * cfg.batch_size)
             x0 = batch["motion"][sl].to(accelerator.device)
             mask = batch["mask"][sl].to(accelerator.device)
@@ -130,26 +181,57 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
             accelerator.backward(loss)
             if accelerator.sync_gradients:
                 accelerator.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+            lr = learning_rate(cfg, step)
+            for group in optimizer.param_groups:
+                group["lr"] = lr
             optimizer.step()
-            lr_sched.step()
             optimizer.zero_grad(set_to_none=True)
             ema.step(accelerator.unwrap_model(model).parameters())
             value = accelerator.gather(loss.detach()[None]).mean().item()
             if not math.isfinite(value):
                 raise SMFError(f"training diverged at step {step}: loss is {value}")
             losses.append(value)
-            elapsed = time.perf_counter() - t0
+            now = time.perf_counter()
+            rate = cfg.batch_size * world / max(now - t_step, 1e-9)
+            t_step = now
             if accelerator.is_main_process:
-                log.writerow([step + 1, f"{value:.6f}", f"{lr_sched.get_last_lr()[0]:.3e}", f"{elapsed:.2f}"])
-                bar.set_postfix(loss=f"{value:.4f}", lr=f"{lr_sched.get_last_lr()[0]:.1e}")
-            if (step + 1) % cfg.checkpoint_every == 0 or step + 1 == end:
+                log.writerow([step + 1, f"{value:.6f}", f"{lr:.3e}", f"{seconds_before + now - t0:.2f}", f"{rate:.1f}"])
+                bar.set_postfix(loss=f"{value:.4f}", lr=f"{lr:.1e}", samples_s=f"{rate:.0f}")
+            evaluate_now = on_eval is not None and eval_every > 0 and (step + 1) % eval_every == 0
+            if (step + 1) % cfg.checkpoint_every == 0 or step + 1 == end or evaluate_now:
                 log_file.flush()
                 cache.flush()
                 if accelerator.is_main_process:
-                    _save(out, accelerator.unwrap_model(model), ema, optimizer, lr_sched, step + 1, config, ds)
+                    _save(out, accelerator.unwrap_model(model), ema, optimizer, step + 1, config, ds)
+                    if evaluate_now:
+                        t_eval = time.perf_counter()
+                        _log_eval(out, step + 1, seconds_before + t_eval - t0, on_eval(out, step + 1))
+                        t0 += time.perf_counter() - t_eval  # evaluation is not training time
+                        t_step = time.perf_counter()
                 accelerator.wait_for_everyone()
     cache.close()
     return losses
+
+
+def _logged_seconds(log_path: Path, step: int) -> float:
+    """Training wall time the log records up to ``step`` (0 for a new run or a log without the column)."""
+    rows = log_path.read_text().splitlines()
+    if step == 0 or len(rows) < 2:
+        return 0.0
+    head = rows[0].split(",")
+    for row in reversed(rows[1:]):
+        cols = row.split(",")
+        if "seconds" in head and len(cols) == len(head) and int(cols[0]) <= step:
+            return float(cols[head.index("seconds")])
+    return 0.0
+
+
+def _log_eval(out: Path, step: int, seconds: float, figures: dict) -> None:
+    """Append one evaluation to ``out/eval.jsonl`` (one JSON object per line)."""
+    import json
+
+    with open(out / "eval.jsonl", "a", encoding="utf-8") as f:
+        f.write(json.dumps({"step": step, "train_seconds": round(seconds, 1), **figures}) + "\n")
 
 
 def _synonyms(data: str | Path) -> dict[str, tuple[str, ...]]:
@@ -190,19 +272,6 @@ def _augmented_text(captions: list[str], cache, encoder, cfg: TrainConfig, synon
     return pad_rows(rows, tokens.shape[-1], device)
 
 
-def _apply_optimisation_settings(optimizer, lr_sched, ema, cfg: TrainConfig, step: int) -> None:
-    """Make a resumed run use this run's learning-rate schedule, weight decay and EMA decay (the saved states
-    carry the old ones). Called only when they changed, so an unchanged run resumes bit for bit."""
-    lr_sched.base_lrs = [cfg.lr] * len(optimizer.param_groups)
-    lr_sched.step_size, lr_sched.gamma = cfg.lr_decay_every, cfg.lr_decay
-    for group in optimizer.param_groups:
-        group["initial_lr"] = cfg.lr
-        group["lr"] = cfg.lr * cfg.lr_decay ** (step // cfg.lr_decay_every)
-        group["weight_decay"] = cfg.weight_decay
-    lr_sched._last_lr = [g["lr"] for g in optimizer.param_groups]
-    ema.decay = cfg.ema_decay
-
-
 def _init_weights(model: torch.nn.Module, source: str) -> None:
     """Load every weight of ``source`` into ``model``; parameters the model adds (e.g. a zero-initialised
     sentence conditioning map) keep their initial values. Every source weight must fit the model."""
@@ -217,11 +286,9 @@ def _init_weights(model: torch.nn.Module, source: str) -> None:
     model.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()}, strict=False)
 
 
-def _save(out: Path, model, ema, optimizer, lr_sched, step: int, config: CheckpointConfig,
-          ds: MotionTextDataset) -> None:
+def _save(out: Path, model, ema, optimizer, step: int, config: CheckpointConfig, ds: MotionTextDataset) -> None:
     ema_model_state = _ema_state(model, ema)
-    training_state = {"optimizer": optimizer.state_dict(), "lr_scheduler": lr_sched.state_dict(),
-                      "ema": ema.state_dict(), "step": step, "torch_rng": torch.get_rng_state(),
+    training_state = {"optimizer": optimizer.state_dict(), "ema": ema.state_dict(), "step": step, "torch_rng": torch.get_rng_state(),
                       "numpy_rng": np.random.get_state()}
     save_checkpoint(out / CHECKPOINT_DIR, model=model, config=replace(config, step=step), mean=ds.mean, std=ds.std,
                     ema_state=ema_model_state, training_state=training_state)
@@ -236,4 +303,4 @@ def _ema_state(model, ema) -> dict[str, torch.Tensor]:
     return state
 
 
-__all__ = ["TrainConfig", "train", "masked_mse"]
+__all__ = ["TrainConfig", "check_train_config", "learning_rate", "masked_mse", "train"]

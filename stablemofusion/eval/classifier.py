@@ -11,7 +11,6 @@ Model: three strided 1-D convolutions over normalised features, masked mean+max 
 
 from __future__ import annotations
 
-import csv
 import json
 import time
 from collections.abc import Sequence
@@ -24,36 +23,12 @@ from torch import nn
 from torch.nn import functional as F
 
 from ..data.dataset import MotionTextDataset
+from ..data.labels import LabelInfo, corpus_labels
 from ..errors import SMFError
 from ..io import write_text
 
 WEIGHTS = "classifier.safetensors"
 CONFIG = "classifier.json"
-
-
-@dataclass(frozen=True)
-class LabelInfo:
-    """Labels of one corpus motion."""
-
-    dataset: int
-    content: str
-    style: str
-
-
-def corpus_labels(data: str | Path) -> dict[str, LabelInfo]:
-    """Motion id -> labels, from ``<data>/clips.csv`` (mirrored ``M`` ids included)."""
-    from ..data.captions import mirror_label
-
-    path = Path(data) / "clips.csv"
-    if not path.is_file():
-        raise SMFError(f"{data}: no clips.csv with content/style labels (a labelled corpus from `smf prepare bandai`)")
-    out: dict[str, LabelInfo] = {}
-    with open(path, newline="", encoding="utf-8") as f:
-        for row in csv.DictReader(f):
-            info = LabelInfo(int(row["dataset"]), row["content"], row["style"])
-            out[row["id"]] = info
-            out["M" + row["id"]] = LabelInfo(info.dataset, mirror_label(info.content), info.style)
-    return out
 
 
 @dataclass

@@ -30,7 +30,7 @@ def test_tiny_model_lowers_its_loss(corpus, text_cache, tmp_path):
     ck = load_checkpoint(tmp_path / "run")  # the run folder resolves to its checkpoint/
     assert ck.config.step == 60 and ck.config.model.arch == "unet" and ck.config.text_encoder == "minilm"
     log = (tmp_path / "run" / "log.csv").read_text().splitlines()
-    assert log[0] == "step,loss,lr,seconds" and len(log) == 61
+    assert log[0] == "step,loss,lr,seconds,samples_per_s" and len(log) == 61
 
 
 def test_killed_run_resumes_exactly(corpus, text_cache, tmp_path):

@@ -48,9 +48,10 @@ class MotionPipeline(Components):
     def timeline(self, segments: list[tuple[str, float]], *, overlap: float = DEFAULT_OVERLAP,
                  guidance_scale: float = GUIDANCE, steps: int = STEPS, sampler: str = DEFAULT_SAMPLER,
                  seed: int | None = None, impose: str = "x0", footskate: str = "off", footskate_options=None,
-                 engine: str | None = None, progress: bool | None = None) -> MotionResult:
+                 engine: str | None = None, progress: bool | None = False) -> MotionResult:
         """One continuous motion from (prompt, seconds) segments, of any total length
-        (:class:`~stablemofusion.pipelines.timeline.TimelinePipeline`); window j uses ``seed + j``."""
+        (:class:`~stablemofusion.pipelines.timeline.TimelinePipeline`); window j uses ``seed + j``;
+        ``progress`` None: a progress bar for long timelines."""
         settings = Settings(guidance_scale, steps, sampler, footskate, footskate_options, engine)
         return TimelinePipeline(self)(segments, overlap=overlap, seed=seed, settings=settings, impose=impose,
                                       progress=progress)
@@ -58,13 +59,14 @@ class MotionPipeline(Components):
     def edit(self, prompt: str, source: np.ndarray, mode: str, *, keep_start: float = 0.0, keep_end: float = 0.0,
              seconds: float | None = None, path: np.ndarray | None = None, guidance_scale: float = GUIDANCE,
              steps: int = STEPS, sampler: str = DEFAULT_SAMPLER, seed: int | None = None, impose: str = "x0",
-             footskate: str = "off", footskate_options=None, engine: str | None = None) -> MotionResult:
+             footskate: str = "off", footskate_options=None, engine: str | None = None,
+             progress: bool | None = None) -> MotionResult:
         """Edit ``source`` features (Ts, D) with ``prompt`` (:class:`~stablemofusion.pipelines.edit.EditPipeline`):
         ``mode`` one of :data:`stablemofusion.edit.EDIT_MODES`, lengths in seconds."""
         settings = Settings(guidance_scale, steps, sampler, footskate, footskate_options, engine)
         self.engine_for(sampler, engine)
         return EditPipeline(self)(prompt, source, mode, keep_start=keep_start, keep_end=keep_end, seconds=seconds,
-                                  path=path, seed=seed, settings=settings, impose=impose)
+                                  path=path, seed=seed, settings=settings, impose=impose, progress=progress)
 
     @torch.no_grad()
     def sample(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = GUIDANCE, steps: int = STEPS,

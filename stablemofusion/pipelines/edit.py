@@ -16,6 +16,7 @@ from .result import MotionResult
 from .sample import sample
 from .settings import Settings, base_seed, check_text
 
+PROGRESS_SECONDS = 5.0  # edits longer than this show a progress bar by default
 MODE_FLAGS = {"prefix": ("keep_start",), "suffix": ("keep_end",), "inbetween": ("keep_start", "keep_end")}
 
 
@@ -29,10 +30,11 @@ class EditPipeline:
     @torch.no_grad()
     def __call__(self, prompt: str, source: np.ndarray, mode: str, *, keep_start: float = 0.0, keep_end: float = 0.0,
                  seconds: float | None = None, path: np.ndarray | None = None, seed: int | None = None,
-                 settings: Settings = Settings(), impose: str = "x0") -> MotionResult:
+                 settings: Settings = Settings(), impose: str = "x0", progress: bool | None = None) -> MotionResult:
         """``source`` features (Ts, D) in dataset units (:func:`stablemofusion.edit.source_features` converts
         joints and BVH); ``keep_start`` / ``keep_end`` seconds; ``seconds`` the output length (default the
-        source's: the output then has the source's frame count); ``path`` (T, 2) metres for 'trajectory'."""
+        source's: the output then has the source's frame count); ``path`` (T, 2) metres for 'trajectory'.
+        ``progress``: a tqdm bar over the denoising steps (None: for edits longer than PROGRESS_SECONDS)."""
         c = self.c
         # 1. check inputs
         check_text(prompt, "the prompt")
@@ -51,8 +53,9 @@ class EditPipeline:
                            "`smf generate --timeline`")
         x0_hook, xt_hook = edit_hooks(plan, c.mean, c.std, 1, c.device, c.dtype, impose)
         # 3. denoise (the table loop: hooks run eagerly), exact on the known part after the last step
+        show = plan.frames / c.fps > PROGRESS_SECONDS if progress is None else progress
         raw = sample(c, [prompt], [plan.frames], settings.with_engine("fast"), [seed], x0_hook=x0_hook,
-                     xt_hook=xt_hook)
+                     xt_hook=xt_hook, progress=show)
         f, motion = c.finish(plan.project(raw[0].double()).float().numpy(), settings.footskate,
                              settings.footskate_options)
         # 4. post-process: place the output like the source, splice the source's kept rigid body back in

@@ -25,10 +25,11 @@ XtHookFactory = Callable[[torch.Tensor, SolverTable], XHook]
 @torch.no_grad()
 def sample(c: Components, prompts: list[str], lengths: list[int], settings: Settings,
            seed: int | list[int] | None, *, x0_hook: X0Hook | None = None, xt_hook: XtHookFactory | None = None,
-           batched_cfg: bool = True) -> torch.Tensor:
+           batched_cfg: bool = True, progress: bool = False) -> torch.Tensor:
     """The model's raw features (B, max(lengths), D) in dataset units (CPU, float32), before the final stage.
     ``seed``: one for the batch, or one per item (then an item does not depend on the others batched with
-    it). In footskate 'loop' mode the last predicted x0 are cleaned (rigid body) inside the loop."""
+    it). In footskate 'loop' mode the last predicted x0 are cleaned (rigid body) inside the loop.
+    ``progress``: a tqdm bar over the steps (loops that run step by step on the host: not CUDA graphs)."""
     settings.check(rigid=c.rigid is not None)
     hooks = x0_hook is not None or xt_hook is not None or settings.footskate == "loop"
     engine = resolve_engine(settings.engine or c.engine, c.device, settings.sampler, hooks=hooks)
@@ -48,6 +49,8 @@ def sample(c: Components, prompts: list[str], lengths: list[int], settings: Sett
         denoiser = with_x0_hook(denoiser, footskate_hook(c, lengths, settings.footskate_options))
     if x0_hook is not None:
         denoiser = with_x0_hook(denoiser, x0_hook)
+    if progress:
+        denoiser = with_x0_hook(denoiser, progress_hook(settings.steps))
     if engine == "eager":
         sched = make_sampler(settings.sampler, c.schedule)
         sched.set_timesteps(settings.steps, device=c.device)
@@ -57,6 +60,21 @@ def sample(c: Components, prompts: list[str], lengths: list[int], settings: Sett
     step_noise = noise.draw(settings.steps).to(c.dtype) if table.stochastic else None
     x_hook = None if xt_hook is None else xt_hook(eps, table)
     return c.denormalise(run_solver(denoiser, table, eps * table.init_sigma, step_noise, x_hook))
+
+
+def progress_hook(steps: int) -> X0Hook:
+    """An x0 hook that only advances a tqdm bar of ``steps`` steps."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=steps, desc="denoise", unit="step")
+
+    def hook(x0: torch.Tensor, step: Step) -> torch.Tensor:
+        bar.update(1)
+        if step.index + 1 == step.count:
+            bar.close()
+        return x0
+
+    return hook
 
 
 def footskate_hook(c: Components, lengths: list[int], options) -> X0Hook:

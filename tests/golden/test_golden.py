@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from .make_golden import http_body, outputs
+from make_golden import http_body, outputs
 
 GOLDEN = Path(__file__).resolve().parent / "golden.npz"
 

@@ -112,11 +112,11 @@ def edit_hooks(plan: EditPlan, mean: torch.Tensor, std: torch.Tensor, batch: int
 
     known = normalise(on.known).expand(batch, -1, -1)
     kmask = on.mask.expand(batch, -1, -1)
-    project = None
-    if plan.land is not None or plan.path is not None:  # root constraints: not a fixed set of entries
-        def project(x0: torch.Tensor) -> torch.Tensor:
-            feats = x0.double() * std64 + mean64
-            return normalise(torch.stack([on.project(f) for f in feats]))
+    def constrain(x0: torch.Tensor) -> torch.Tensor:  # root constraints: not a fixed set of entries
+        feats = x0.double() * std64 + mean64
+        return normalise(torch.stack([on.project(f) for f in feats]))
+
+    project = None if plan.land is None and plan.path is None else constrain
     if impose == "x0":
         return replace_x0(known, kmask, project), None
     x0_hook = None if project is None else (lambda x0, step: project(x0))

@@ -1,7 +1,6 @@
 """stablemofusion.output: bytes and files of a MotionResult from one place; never overwrites silently."""
 
 import io
-import json
 
 import numpy as np
 import pytest

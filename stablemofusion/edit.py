@@ -54,19 +54,73 @@ class EditPlan:
     path: np.ndarray | None = None
     anchor: tuple[int, int] | None = None
 
+    def on(self, device: torch.device | str = "cpu") -> "PlanTensors":
+        """The plan's arrays as float64 / bool tensors on ``device``, converted once for a whole sampling call."""
+        land = None
+        if self.land is not None:
+            start, frame, angle, xz = self.land
+            land = (start, frame, angle, torch.from_numpy(xz).to(device))
+        return PlanTensors(torch.from_numpy(self.known).to(device), torch.from_numpy(self.mask).to(device),
+                           torch.from_numpy(self.kept).to(device), land,
+                           None if self.path is None else torch.from_numpy(self.path).to(device))
+
+    def project(self, features: torch.Tensor) -> torch.Tensor:
+        """:meth:`PlanTensors.project` of one motion's features (T, D) in dataset units."""
+        return self.on(features.device).project(features)
+
+
+@dataclass(frozen=True)
+class PlanTensors:
+    """An :class:`EditPlan`'s known part and root constraints as tensors on one device (float64)."""
+
+    known: torch.Tensor
+    mask: torch.Tensor
+    kept: torch.Tensor
+    land: tuple | None
+    path: torch.Tensor | None
+
     def project(self, features: torch.Tensor) -> torch.Tensor:
         """Impose the known entries and the root constraints on features (T, D) in dataset units, and blend
         the generated frames next to kept blocks into them (:func:`blend_seams`)."""
-        f = torch.where(torch.from_numpy(self.mask).to(features.device),
-                        torch.from_numpy(self.known).to(features), features)
+        f = torch.where(self.mask, self.known.to(features), features)
         if self.kept.any() and not self.kept.all():
-            f = blend_seams(f, torch.from_numpy(self.kept).to(f.device))
+            f = blend_seams(f, self.kept)
         if self.land is not None:
             start, frame, angle, xz = self.land
-            f = land_at(f, start, frame, angle, torch.from_numpy(xz).to(f))
+            f = land_at(f, start, frame, angle, xz.to(f))
         if self.path is not None:
-            f = follow_path(f, torch.from_numpy(self.path).to(f))
+            f = follow_path(f, self.path.to(f))
         return f
+
+
+def edit_hooks(plan: EditPlan, mean: torch.Tensor, std: torch.Tensor, batch: int, device: torch.device,
+               dtype: torch.dtype, impose: str = "x0"):
+    """The sampling hooks imposing ``plan`` on a batch (:mod:`stablemofusion.pipelines.sample`), built once on
+    the torch side: (x0 hook or None, x_t hook factory or None). ``mean``/``std`` (D,) float32 the model's
+    normalisation; ``impose`` 'x0' (replace the prediction's known entries and project its root) or 'xt'
+    (impute the noisy sample; the root constraints still on x0)."""
+    from .diffusion.sampling import impute_xt, replace_x0
+
+    if impose not in IMPOSE:
+        raise SMFError(f"impose must be one of {', '.join(IMPOSE)}, got {impose!r}")
+    on = plan.on(device)
+    mean64, std64 = mean.double().to(device), std.double().to(device)
+    mean32, std32 = mean.to(device), std.to(device)
+
+    def normalise(f: torch.Tensor) -> torch.Tensor:
+        return ((f.float() - mean32) / std32).to(device, dtype)
+
+    known = normalise(on.known).expand(batch, -1, -1)
+    kmask = on.mask.expand(batch, -1, -1)
+    def constrain(x0: torch.Tensor) -> torch.Tensor:  # root constraints: not a fixed set of entries
+        feats = x0.double() * std64 + mean64
+        return normalise(torch.stack([on.project(f) for f in feats]))
+
+    project = None if plan.land is None and plan.path is None else constrain
+    if impose == "x0":
+        return replace_x0(known, kmask, project), None
+    x0_hook = None if project is None else (lambda x0, step: project(x0))
+    return x0_hook, lambda eps, table: impute_xt(known, kmask, eps, table)
 
 
 def blend_seams(features: torch.Tensor, kept: torch.Tensor, frames: int = SEAM_FRAMES) -> torch.Tensor:
@@ -136,7 +190,7 @@ def splice_rigid(edited: RigidMotion, source: RigidMotion, plan: EditPlan) -> Ri
 def source_features(motion, skeleton: Skeleton, fps: float, given_fps: float | None = None) -> np.ndarray:
     """Features (T, D) in dataset units of a loaded :class:`~stablemofusion.motion.files.Motion` (joints or
     features `.npy`, BVH): features as they are; joints resampled from ``given_fps`` (default: the file's) to
-    ``fps`` and converted (canonical frame, the skeleton's bone lengths)."""
+    ``fps`` and converted (canonical frame, the skeleton's bone lengths), one feature frame per joint frame."""
     from .motion.features import features_from_joints
     from .motion.files import resample
 
@@ -147,7 +201,9 @@ def source_features(motion, skeleton: Skeleton, fps: float, given_fps: float | N
     joints = resample(np.asarray(motion.joints, dtype=np.float64), given_fps or motion.fps, fps)
     if len(joints) < 3:
         raise SMFError(f"the motion is too short to edit ({len(joints)} frames at {fps:g} fps)")
-    return features_from_joints(joints, skeleton)
+    # features of T frames need T + 1 joint frames (velocities): one more, continuing the last step, so that
+    # an edit of the motion has the source's frame count
+    return features_from_joints(np.concatenate([joints, 2 * joints[-1:] - joints[-2:-1]]), skeleton)
 
 
 def body_mask(skeleton: Skeleton, joints: tuple[int, ...], root: bool) -> np.ndarray:
@@ -222,5 +278,5 @@ def plan_edit(mode: str, source: np.ndarray, skeleton: Skeleton, *, keep_start: 
     return EditPlan(known=known, mask=mask, kept=mask.all(-1), source_frame=source_frame, **plan)
 
 
-__all__ = ["EDIT_MODES", "IMPOSE", "EditPlan", "plan_edit", "body_mask", "blend_seams", "source_features",
+__all__ = ["EDIT_MODES", "IMPOSE", "EditPlan", "PlanTensors", "edit_hooks", "plan_edit", "body_mask", "blend_seams", "source_features",
            "splice_rigid"]

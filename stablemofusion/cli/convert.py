@@ -17,6 +17,8 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("output", type=Path)
     p.add_argument("--to", choices=["joints", "features"], default=None,
                    help="what a .npy output holds (default: features for a joints input, joints otherwise)")
+    p.add_argument("--joint-map", default=None,
+                   help="read a raw mocap .bvh input through a joint map: a built-in NAME (bandai-namco) or a JSON FILE")
     p.set_defaults(func=run)
 
 
@@ -24,7 +26,7 @@ def run(args: argparse.Namespace) -> None:
     suffix = args.output.suffix.lower()
     if suffix not in (".npy", ".bvh"):
         raise SMFError(f"unsupported output extension '{args.output.suffix}'; use .npy or .bvh")
-    motion = load_motion(args.input)
+    motion = load_motion(args.input, joint_map=args.joint_map)
     if suffix == ".bvh":
         kind = "bvh"
     elif args.to is not None:

@@ -26,7 +26,7 @@ import torch
 
 from ..errors import SMFError
 from ..models.base import TextCondition
-from .sampling import DenoiserFn, Step, cfg_batched, model_denoiser, run_solver
+from .sampling import Step, guided, run_solver
 from .solvers import SolverTable
 
 ENGINES = ("eager", "fast", "compiled", "graph", "compiled-graph")
@@ -99,7 +99,7 @@ class SolverEngine:
             table: SolverTable, x: torch.Tensor, step_noise: torch.Tensor | None) -> torch.Tensor:
         B, T, _ = x.shape
         if self.engine == "fast":
-            return run_solver(_guided(self.model, cond, uncond, motion_mask, scale), table, x, step_noise)
+            return run_solver(guided(self.model, cond, uncond, motion_mask, scale), table, x, step_noise)
         Tb = self.model.frame_bucket(T, FRAME_BUCKET)
         Bb = batch_bucket(B)
         Lb = bucket(cond.features.shape[1], TEXT_BUCKET)
@@ -110,7 +110,7 @@ class SolverEngine:
         key = (table.name, table.steps, uncond is None, Bb, Tb, Lb, x.dtype)  # the guidance scale is an input
         if self.engine == "compiled":
             t0 = time.perf_counter()
-            out = run_solver(_guided(self._denoise_fn(), cond_p, uncond_p, mask_p, scale), table, x_p, n_p)
+            out = run_solver(guided(self._denoise_fn(), cond_p, uncond_p, mask_p, scale), table, x_p, n_p)
             if key not in self.stats.warmup_seconds:  # first call of a shape: compilation included
                 self.stats.warmup_seconds[key] = time.perf_counter() - t0
             return out[:B, :T]
@@ -123,11 +123,6 @@ class SolverEngine:
             self.stats.warmup_seconds[key] = time.perf_counter() - t0
         self._graphs.move_to_end(key)
         return graph.replay(cond_p, uncond_p, mask_p, scale, x_p, n_p)[:B, :T]
-
-
-def _guided(model, cond: TextCondition, uncond: TextCondition | None, mask: torch.Tensor,
-            scale: float | torch.Tensor) -> DenoiserFn:
-    return model_denoiser(model, cond, mask) if uncond is None else cfg_batched(model, cond, uncond, mask, scale)
 
 
 class _CompiledDenoise:
@@ -155,7 +150,7 @@ class _Captured:
         self.noise = None if noise is None else noise.clone()
         self.scale = torch.tensor(float(scale), device=x.device, dtype=x.dtype)
         self.table = table  # the graph reads its coefficient tensors: keep them alive
-        fn = (lambda: run_solver(_guided(model, self.cond, self.uncond, self.mask, self.scale), table, self.x,
+        fn = (lambda: run_solver(guided(model, self.cond, self.uncond, self.mask, self.scale), table, self.x,
                                  self.noise))
         stream = torch.cuda.Stream()
         stream.wait_stream(torch.cuda.current_stream())

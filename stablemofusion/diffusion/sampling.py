@@ -2,7 +2,7 @@
 
 - a *denoiser* is a callable ``(x_t, step) -> x0``: x_t (B, T, D) the model input of step ``step``, x0 the
   clean-motion prediction (B, T, D); :func:`model_denoiser` makes one from a model and its text condition;
-- guidance is a wrapper that builds a denoiser: :func:`cfg_batched` (conditional and unconditional passes in
+- guidance is a wrapper that builds a denoiser (:func:`guided`): :func:`cfg_batched` (conditional and unconditional passes in
   one batch) or :func:`cfg_two_pass`;
 - x0 hooks (footskate cleanup in the loop, editing constraints) wrap a denoiser: :func:`with_x0_hook`;
 - the loops: :func:`run_diffusers` (any diffusers scheduler of the registry, the reference) and
@@ -60,6 +60,17 @@ def cfg_batched(model, cond: TextCondition, uncond: TextCondition, motion_mask: 
         return u + scale * (c - u)
 
     return denoise
+
+
+def guided(model, cond: TextCondition, uncond: TextCondition | None, motion_mask: torch.Tensor | None,
+           scale: float | torch.Tensor, batched: bool = True) -> DenoiserFn:
+    """The denoiser of a call: the model under the text condition, with classifier-free guidance in x0 space
+    (``u + scale * (c - u)``, both passes in one batch, or two) unless ``uncond`` is None (no guidance)."""
+    if uncond is None:
+        return model_denoiser(model, cond, motion_mask)
+    if batched:
+        return cfg_batched(model, cond, uncond, motion_mask, scale)
+    return cfg_two_pass(model_denoiser(model, cond, motion_mask), model_denoiser(model, uncond, motion_mask), scale)
 
 
 def cfg_two_pass(cond: DenoiserFn, uncond: DenoiserFn, scale: float) -> DenoiserFn:

@@ -10,10 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from ..errors import SMFError
+from .attention import Attention, feed_forward, modulate, zero_linear
 from .base import Denoiser, TextCondition, TextConfig, register
 from .embeddings import TimestepEmbedding, sinusoidal_embedding
 
@@ -28,55 +28,6 @@ class DiTConfig:
     cross_attention: bool = False  # False: text tokens concatenated into self-attention
     time_dim: int = 512  # timestep-embedding width feeding the adaLN modulation
     max_frames: int = 256  # learned positions (initialised sinusoidal)
-
-
-def masked_attention(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, mask: torch.Tensor,
-                     dropout: float = 0.0) -> torch.Tensor:
-    """q (B, H, N, d), k/v (B, H, M, d), mask (B, M) bool True on keys to use -> (B, H, N, d).
-
-    Rows of a sample with no usable key (e.g. dropped text under cross-attention) return zeros.
-    """
-    has = mask.any(-1)
-    m = (mask | ~has[:, None])[:, None, None, :]
-    out = F.scaled_dot_product_attention(q, k, v, attn_mask=m, dropout_p=dropout)
-    return out * has[:, None, None, None].to(out.dtype)
-
-
-class Attention(nn.Module):
-    """Multi-head attention: x (B, N, dim) attends to ctx (B, M, dim) (None: self) with key mask (B, M)."""
-
-    def __init__(self, dim: int, heads: int, dropout: float = 0.0):
-        super().__init__()
-        if dim % heads:
-            raise SMFError(f"dim {dim} is not divisible by heads {heads}")
-        self.heads, self.dropout = heads, dropout
-        self.q = nn.Linear(dim, dim)
-        self.kv = nn.Linear(dim, 2 * dim)
-        self.out = nn.Linear(dim, dim)
-
-    def forward(self, x: torch.Tensor, mask: torch.Tensor, ctx: torch.Tensor | None = None) -> torch.Tensor:
-        ctx = x if ctx is None else ctx
-        B, N, C = x.shape
-        q = self.q(x).view(B, N, self.heads, -1).transpose(1, 2)
-        k, v = self.kv(ctx).view(B, ctx.shape[1], 2, self.heads, -1).permute(2, 0, 3, 1, 4)
-        o = masked_attention(q, k, v, mask, self.dropout if self.training else 0.0)
-        return self.out(o.transpose(1, 2).reshape(B, N, C))
-
-
-def feed_forward(dim: int, mult: int, dropout: float) -> nn.Sequential:
-    return nn.Sequential(nn.Linear(dim, mult * dim), nn.GELU(approximate="tanh"), nn.Dropout(dropout),
-                         nn.Linear(mult * dim, dim))
-
-
-def modulate(x: torch.Tensor, shift: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
-    return x * (1 + scale) + shift
-
-
-def zero_linear(i: int, o: int) -> nn.Linear:
-    lin = nn.Linear(i, o)
-    nn.init.zeros_(lin.weight)
-    nn.init.zeros_(lin.bias)
-    return lin
 
 
 class DiTBlock(nn.Module):

@@ -16,7 +16,7 @@ from torch import nn
 
 from ..errors import SMFError
 from .base import Denoiser, TextCondition, TextConfig, register
-from .dit import Attention
+from .attention import Attention
 from .embeddings import TimestepEmbedding
 
 

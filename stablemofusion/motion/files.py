@@ -43,9 +43,10 @@ def example_path(name: str) -> Path:
     return path
 
 
-def load_motion(path: str | Path, skeleton: str | Skeleton | None = None) -> Motion:
+def load_motion(path: str | Path, skeleton: str | Skeleton | None = None, joint_map: str | None = None) -> Motion:
     """Read a joints `.npy`, a features `.npy`, a `.bvh` written with our skeleton's joint names, or a
-    packaged example given as ``example:<name>``."""
+    packaged example given as ``example:<name>``; ``joint_map`` (a built-in name such as 'bandai-namco', or a
+    JSON file) reads a `.bvh` of another skeleton (raw mocap) onto ours."""
     if isinstance(path, str) and path.startswith("example:"):
         path = example_path(path[len("example:"):])
     path = Path(path)
@@ -53,6 +54,14 @@ def load_motion(path: str | Path, skeleton: str | Skeleton | None = None) -> Mot
         raise SMFError(f"unsupported motion file extension '{path.suffix}' for {path}; use .npy or .bvh")
     if not path.is_file():
         raise SMFError(f"no such file: {path}")
+    if joint_map is not None:
+        from .retarget import JointMap, retarget_bvh
+
+        if path.suffix.lower() != ".bvh":
+            raise SMFError(f"--joint-map is for .bvh motions, not {path.name}")
+        jm = JointMap.named(joint_map)
+        sk = get_skeleton(jm.skeleton)
+        return Motion(retarget_bvh(path, jm), sk, sk.fps)
     if path.suffix.lower() == ".bvh":
         return _load_bvh(path, skeleton)
     try:
@@ -97,7 +106,8 @@ def _load_bvh(path: Path, skeleton: str | Skeleton | None) -> Motion:
             return Motion(resample(forward_kinematics(bvh)[:, order], bvh.fps, sk.fps), sk, sk.fps)
     raise SMFError(
         f"{path}: BVH joints {bvh.names[:3]}... are not a {'/'.join(s.name for s in candidates)} skeleton; "
-        "retarget it first with `smf prepare bvh --joint-map`"
+        "read it through a joint map with --joint-map NAME|FILE (built-in: bandai-namco; format in "
+        "docs/data.md)"
     )
 
 

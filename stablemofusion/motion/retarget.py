@@ -67,6 +67,14 @@ class JointMap:
             raise SMFError(f"no built-in joint map named {name!r}")
         return JointMap.from_dict(json.loads(res.read_text(encoding="utf-8")), "humanml3d", name)
 
+    @staticmethod
+    def named(name_or_path: str | Path) -> "JointMap":
+        """A JSON file's joint map if ``name_or_path`` is a file (or ends in .json), else the built-in of that name."""
+        path = Path(name_or_path)
+        if path.is_file() or path.suffix.lower() == ".json":
+            return JointMap.load(path)
+        return JointMap.builtin(str(name_or_path))
+
     def apply(self, positions: np.ndarray, names: list[str], where: str = "BVH") -> np.ndarray:
         """Source world positions (T, S, 3) with joint ``names`` -> our joints (T, J, 3)."""
         index = {n: i for i, n in enumerate(names)}

@@ -36,6 +36,9 @@ _BACKGROUND = "#ffffff"
 _ELEVATION = math.radians(22.0)
 _AZIMUTH = math.radians(35.0)  # from the +Z front, towards the character's left (+X)
 _FOV = math.radians(34.0)
+FOLLOW_EXTENT = 4.0  # root paths longer than this many body heights: the camera follows the character
+FOLLOW_SMOOTH = 1.0  # seconds over which the followed root position is averaged (no camera shake)
+TITLE_CHARS, TITLE_LINES = 52, 4  # a title wraps at TITLE_CHARS characters, up to TITLE_LINES lines
 
 
 def _validate(joints: np.ndarray, sk: Skeleton) -> np.ndarray:
@@ -104,15 +107,17 @@ class _Scene:
         self.floor = float(joints[..., 1].min())
         self.root = joints[:, 0].copy()
         self.root[:, 1] = self.floor
+        self.track = self._follow_track()  # (T, 3) per-frame camera offset (zeros: a fixed camera)
+        self.offset = np.zeros(3)
         self.cam = self._make_camera()
 
         # Figure: a square canvas of size x size pixels; the axes fill it below a title band.
         dpi = 100.0
         self.fig = Figure(figsize=(size / dpi, size / dpi), dpi=dpi, facecolor=_BACKGROUND)
         self.canvas = FigureCanvasAgg(self.fig)
-        lines = textwrap.wrap(title.strip(), width=52) if title else []
-        if len(lines) > 3:
-            lines = lines[:3]
+        lines = [ln for part in title.strip().split("; ") for ln in textwrap.wrap(part, width=TITLE_CHARS)] if title else []
+        if len(lines) > TITLE_LINES:
+            lines = lines[:TITLE_LINES]
             lines[-1] = lines[-1][: max(0, len(lines[-1]) - 1)].rstrip() + "\u2026"
         fontsize = 12.0 * px
         band = (len(lines) * 1.35 * fontsize * dpi / 72 + (14 if lines else 6) * px) / size
@@ -143,7 +148,7 @@ class _Scene:
     # -- camera ---------------------------------------------------------------------------------
     def _make_camera(self) -> _Camera:
         """One camera for the whole clip: 3/4 front view, or side-on to a long root trajectory."""
-        pts = self.joints.reshape(-1, 3)
+        pts = (self.joints - self.track[:, None]).reshape(-1, 3)
         lo, hi = pts.min(0), pts.max(0)
         lo[1] = self.floor
         target = (lo + hi) / 2
@@ -158,12 +163,34 @@ class _Scene:
         radius = max(0.5 * float(np.linalg.norm(hi - lo)), 0.9 * self.scale)
         return _Camera(target, azimuth, _ELEVATION, max(radius / math.sin(_FOV / 2), 3.0 * self.scale))
 
+    def _follow_track(self) -> np.ndarray:
+        """Where the camera looks from frame to frame: the root's floor position averaged over FOLLOW_SMOOTH
+        seconds for a motion whose path spans more than FOLLOW_EXTENT body heights (so a long walk stays
+        readable), else zeros (one fixed camera framing the whole path)."""
+        xz = self.root[:, [0, 2]]
+        track = np.zeros((len(xz), 3))
+        if np.linalg.norm(xz.max(0) - xz.min(0)) <= FOLLOW_EXTENT * self.scale:
+            return track
+        k = max(1, int(round(FOLLOW_SMOOTH * self.fps)))
+        padded = np.concatenate([np.repeat(xz[:1], k, 0), xz, np.repeat(xz[-1:], k, 0)])
+        kernel = np.ones(2 * k + 1) / (2 * k + 1)
+        track[:, [0, 2]] = np.stack([np.convolve(padded[:, i], kernel, "valid") for i in (0, 1)], 1)
+        return track
+
+    @property
+    def follows(self) -> bool:
+        return bool(self.track.any())
+
+    def _project(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.cam.project(pts - self.offset)
+
     def _proj(self, pts: np.ndarray) -> np.ndarray:
-        return self.cam.project(pts)[0]
+        return self._project(pts)[0]
 
     def _set_limits(self, aspect: float) -> None:
         """Fit every frame's joints plus the root path on the floor; equal scale on both screen axes."""
-        xy = self._proj(np.concatenate([self.joints.reshape(-1, 3), self.root]))
+        rel = self.joints - self.track[:, None]
+        xy = self._proj(np.concatenate([rel.reshape(-1, 3), (self.root - self.track) if self.follows else self.root]))
         lo, hi = xy.min(0), xy.max(0)
         pad = 0.08 * (hi - lo).max() + 0.02
         lo, hi = lo - pad, hi + pad
@@ -196,21 +223,24 @@ class _Scene:
         rgba = np.zeros((len(seg), 4))
         rgba[:, :3] = 0.55
         rgba[:, 3] = 0.75 * fade
-        xy, depth = self.cam.project(seg)
+        xy, depth = self._project(seg)
         keep = (depth > 0.05 * self.scale).all(1) & (fade > 0)
         return xy[keep], rgba[keep]
 
     def draw(self, t: int) -> np.ndarray:
         """Render frame ``t``; return an (H, W, 3) uint8 RGB image."""
         pose = self.joints[t]
+        if self.follows:
+            self.offset = self.track[t]
+            self.path_all.set_segments([self._proj(self.root)])
         seg3 = pose[self.bones]  # (B, 2, 3)
-        xy, depth = self.cam.project(seg3)
+        xy, depth = self._project(seg3)
         order = np.argsort(-depth.mean(1))  # far bones first
         neck, head = pose[self.neck], pose[self.head]
         up = head - neck
         up /= max(np.linalg.norm(up), 1e-9)
         head_c = head + 0.035 * self.scale * up
-        hxy, hd = self.cam.project(head_c)
+        hxy, hd = self._project(head_c)
         radius = 0.085 * self.scale / hd
         in_front = depth.mean(1)[order] < hd
         for coll, mask in ((self.back, ~in_front), (self.front, in_front)):

@@ -1,0 +1,72 @@
+"""The flags `smf generate` and `smf edit` share (sampling, footskate, engine, output), with their defaults
+from :mod:`stablemofusion.pipelines.settings`, and the pipeline settings and writers built from them."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
+    """--out, --format, --overwrite, --guidance, --steps, --sampler, --seed, --checkpoint, --device, --engine and
+    the footskate flags."""
+    from ..diffusion.engine import ENGINES
+    from ..diffusion.samplers import DEFAULT_SAMPLER
+    from ..output import FORMATS
+    from ..pipelines.settings import FOOTSKATE_MODES, GUIDANCE, STEPS
+
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--format", default="npy,mp4,bvh", help=f"comma list of {','.join(FORMATS)} (default npy,mp4,bvh)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace files of the same name (default: a free name, NAME-2, NAME-3, ...)")
+    p.add_argument("--guidance", type=float, default=GUIDANCE, help=f"classifier-free guidance scale (default {GUIDANCE})")
+    p.add_argument("--steps", type=int, default=STEPS, help=f"sampling steps (default {STEPS})")
+    p.add_argument("--sampler", default=DEFAULT_SAMPLER, help=f"sampler name (default {DEFAULT_SAMPLER})")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
+    p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
+    p.add_argument("--engine", default="auto", choices=("auto",) + ENGINES,
+                   help="denoising engine (default auto: CUDA graphs on a GPU, the precomputed solver loop on a CPU; "
+                        "docs/inference.md)")
+    p.add_argument("--footskate", default="off", choices=FOOTSKATE_MODES,
+                   help="footskate cleanup: off, post (after sampling) or loop (inside the last denoising steps)")
+    add_contact_arguments(p)
+
+
+def add_contact_arguments(p: argparse.ArgumentParser) -> None:
+    """--contacts, --vgrf-model, --underpressure: how the footskate cleanup finds contacts."""
+    p.add_argument("--contacts", default="kinematic", choices=("kinematic", "vgrf"),
+                   help="contact route for the cleanup (vgrf needs --vgrf-model or --underpressure)")
+    p.add_argument("--vgrf-model", type=Path, default=None,
+                   help="distilled 22-joint vGRF model (.safetensors): adds the vGRF loss (non-commercial)")
+    p.add_argument("--underpressure", type=Path, default=None,
+                   help="UnderPressure pretrained.tar used directly as vGRF model (non-commercial, slower)")
+
+
+def footskate_options_from_args(args):
+    """FootskateOptions from the flags of :func:`add_contact_arguments`."""
+    from ..footskate import CleanupConfig, FootskateOptions
+    from .footskate import vgrf_model_from_args
+
+    model = None
+    if args.vgrf_model is not None or args.underpressure is not None or args.contacts == "vgrf":
+        model = vgrf_model_from_args(args.vgrf_model, args.underpressure, required=True)
+    return FootskateOptions(config=CleanupConfig(contacts=args.contacts), vgrf_model=model)
+
+
+def sampling_kwargs(args) -> dict:
+    """The pipeline keywords of :func:`add_sampling_arguments`' flags."""
+    options = footskate_options_from_args(args) if args.footskate != "off" else None
+    return dict(guidance_scale=args.guidance, steps=args.steps, sampler=args.sampler, seed=args.seed,
+                footskate=args.footskate, footskate_options=options, engine=args.engine)
+
+
+def load_pipeline(args):
+    from ..pipeline import MotionPipeline
+
+    return MotionPipeline.from_pretrained(args.checkpoint, device=args.device, engine=args.engine)
+
+
+def output_meta(args) -> dict:
+    """What the JSON output records of how a motion was made."""
+    return {"sampler": args.sampler, "steps": args.steps, "guidance": args.guidance}

@@ -1,0 +1,162 @@
+"""Output of a :class:`~stablemofusion.pipelines.result.MotionResult`, the one place motions become files or
+HTTP bodies: bytes for each format (the server answers with them), and file writers built on them (the CLI).
+
+Formats (:data:`WRITERS`): ``npy`` (joints and features), ``bvh`` (the rigid body), ``json`` (joints and
+metadata), ``mp4`` / ``gif`` (a rendered video). A new format is one function decorated with
+``@writer("NAME")`` taking (result, stem, meta) and returning the paths it wrote.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .errors import SMFError
+from .io import atomic_path
+from .motion.files import rigid_bvh_text, rigid_pose
+from .pipelines.result import MotionResult
+
+JSON_DECIMALS = 5  # joint coordinates in JSON: 0.01 mm
+SLUG_CHARS = 48  # characters of the prompt in a file name
+
+Writer = Callable[[MotionResult, Path, dict], list[Path]]
+WRITERS: dict[str, Writer] = {}
+OUTPUTS: dict[str, Callable[[Path], list[Path]]] = {}  # format -> the paths it writes for a stem
+
+
+def writer(name: str, *suffixes: str):
+    """Register a file writer of format ``name`` writing ``stem + suffix`` for each of ``suffixes``."""
+
+    def register(fn: Writer) -> Writer:
+        WRITERS[name] = fn
+        OUTPUTS[name] = lambda stem: [stem.with_name(stem.name + s) for s in suffixes]
+        return fn
+
+    return register
+
+
+# --- bytes (HTTP bodies, and what the file writers write) ---
+
+def npy_bytes(result: MotionResult, what: str = "joints") -> bytes:
+    """The result's joints (T, J, 3) or features (T, D) as a float32 .npy file."""
+    array = {"joints": result.joints, "features": result.features}[what]
+    buf = io.BytesIO()
+    np.save(buf, np.asarray(array, dtype=np.float32), allow_pickle=False)
+    return buf.getvalue()
+
+
+def bvh_text(result: MotionResult) -> str:
+    """The BVH file of the result's rigid body (the closed-form rigid pose of its joints without one), so the
+    file reads back to ``result.joints``."""
+    motion = result.motion if result.motion is not None else rigid_pose(result.joints, _skeleton(result))
+    return rigid_bvh_text(motion, result.fps)
+
+
+def bvh_bytes(result: MotionResult) -> bytes:
+    return bvh_text(result).encode("utf-8")
+
+
+def json_payload(result: MotionResult, **meta) -> dict:
+    """The JSON object of a result: prompt, fps, frames, seed, ``meta``, the closest known action (models
+    with actions.json) and the joints (T, J, 3) rounded to :data:`JSON_DECIMALS`; the HTTP response body."""
+    return {"prompt": result.prompt, "fps": result.fps, "frames": result.frames, "seed": result.seed, **meta,
+            **(result.domain.to_dict(result.prompt) if result.domain else {}),
+            "joints": np.round(result.joints, JSON_DECIMALS).tolist()}
+
+
+def json_bytes(result: MotionResult, **meta) -> bytes:
+    return (json.dumps(json_payload(result, **meta)) + "\n").encode("utf-8")
+
+
+# --- files ---
+
+def _write(path: Path, data: bytes) -> Path:
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return path
+
+
+@writer("npy", "_joints.npy", "_features.npy")
+def write_npy(result: MotionResult, stem: Path, meta: dict) -> list[Path]:
+    joints, features = OUTPUTS["npy"](stem)
+    return [_write(joints, npy_bytes(result, "joints")), _write(features, npy_bytes(result, "features"))]
+
+
+@writer("bvh", ".bvh")
+def write_bvh(result: MotionResult, stem: Path, meta: dict) -> list[Path]:
+    return [_write(OUTPUTS["bvh"](stem)[0], bvh_bytes(result))]
+
+
+@writer("json", ".json")
+def write_json(result: MotionResult, stem: Path, meta: dict) -> list[Path]:
+    return [_write(OUTPUTS["json"](stem)[0], json_bytes(result, **meta))]
+
+
+def _video(fmt: str) -> Writer:
+    def write_video(result: MotionResult, stem: Path, meta: dict) -> list[Path]:
+        from .render import render_video
+
+        return [render_video(result.joints, OUTPUTS[fmt](stem)[0], skeleton=_skeleton(result), fps=result.fps,
+                             title=result.prompt)]
+
+    return writer(fmt, "." + fmt)(write_video)
+
+
+_video("mp4")
+_video("gif")
+FORMATS = tuple(WRITERS)
+
+
+def parse_formats(text: str) -> list[str]:
+    """A comma list of formats, checked: ``"npy,bvh"`` -> ["npy", "bvh"]."""
+    formats = [f.strip().lower() for f in text.split(",") if f.strip()]
+    bad = [f for f in formats if f not in WRITERS]
+    if bad or not formats:
+        raise SMFError(f"unknown format(s) {bad or text!r}; choose from {', '.join(WRITERS)}")
+    return formats
+
+
+def slug(text: str, index: int) -> str:
+    """A file name stem from a prompt: ``000_a_person_walks``."""
+    words = re.sub(r"[^a-z0-9]+", "_", text.lower()).strip("_")[:SLUG_CHARS].rstrip("_")
+    return f"{index:03d}_{words or 'motion'}"
+
+
+def free_stem(stem: Path, formats: list[str], overwrite: bool = False) -> Path:
+    """``stem``, or ``stem-2``, ``stem-3``, ... the first whose files (for ``formats``) do not exist yet:
+    outputs are never overwritten silently (``overwrite`` True: ``stem`` as it is)."""
+    candidate, n = stem, 1
+    while not overwrite and any(p.exists() for f in formats for p in OUTPUTS[f](candidate)):
+        n += 1
+        candidate = stem.with_name(f"{stem.name}-{n}")
+    return candidate
+
+
+def write_result(result: MotionResult, stem: Path, formats: list[str], meta: dict | None = None) -> list[Path]:
+    """Write ``result`` in each of ``formats`` beside ``stem`` (atomically); returns the paths written."""
+    return [p for f in formats for p in WRITERS[f](result, Path(stem), dict(meta or {}))]
+
+
+def write_results(results: list[MotionResult], out: Path, formats: list[str], meta: dict | None = None, *,
+                  overwrite: bool = False) -> list[Path]:
+    """Write each result named from its prompt (``out/000_prompt.*``, a free name unless ``overwrite``);
+    prints one line per motion; returns the stems."""
+    stems = []
+    for i, r in enumerate(results):
+        stem = free_stem(Path(out) / slug(r.prompt, i), formats, overwrite)
+        write_result(r, stem, formats, meta)
+        print(f"wrote {stem}.* ({r.frames} frames, {r.seconds:.1f} s)")
+        stems.append(stem)
+    return stems
+
+
+def _skeleton(result: MotionResult) -> str:
+    """The skeleton of a result: its rigid body's, else the one with its number of joints."""
+    from .motion.skeleton import skeleton_for_shape
+
+    return result.motion.skeleton if result.motion is not None else skeleton_for_shape(result.joints.shape)[0].name

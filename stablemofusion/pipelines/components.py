@@ -1,0 +1,205 @@
+"""What every task pipeline shares: the model and its normalisation, the checkpoint config, the text cache,
+the length estimator, the known actions, the rigid final stage and the per-(sampler, steps) solver tables."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..diffusion.checkpoint import load_checkpoint
+from ..diffusion.config import CheckpointConfig
+from ..diffusion.engine import SolverEngine, check_engine
+from ..diffusion.solvers import SolverTable, solver_table
+from ..errors import SMFError
+from ..models.base import TextCondition
+from ..motion.rigid import DEFAULT_FIT, RigidFitConfig, RigidMotion, rigid_from_features, rigid_to_features
+from ..motion.skeleton import get_skeleton
+from ..text.frozen import sentence_embedding
+from ..text.known import ACTIONS_FILE, DomainCheck, KnownActions
+from ..text.length import WEIGHTS as LENGTH_WEIGHTS
+from ..text.length import LengthEstimator
+from .settings import DEFAULT_SECONDS, LengthClampedWarning, OutOfDomainWarning, check_footskate
+
+
+def default_model_path() -> Path | None:
+    """The default model shipped inside the package, if any."""
+    from importlib import resources
+
+    path = Path(str(resources.files("stablemofusion") / "assets" / "default_model"))
+    return path if (path / "config.json").is_file() else None
+
+
+class Components:
+    """A loaded checkpoint ready to sample: build with :meth:`from_pretrained`. ``rigid`` the rigid final
+    stage (docs/rigid.md; None only to measure what it changes); ``engine`` the default engine."""
+
+    def __init__(self, model, mean: np.ndarray, std: np.ndarray, config: CheckpointConfig, *,
+                 device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32, text_cache_size: int = 1024,
+                 rigid: RigidFitConfig | None = DEFAULT_FIT, engine: str = "auto"):
+        from ..text.cache import LRUTextCache
+        from ..text.frozen import load_text_encoder
+
+        self.device, self.dtype = torch.device(device), dtype
+        self.model = model.to(self.device, dtype).eval()
+        self.config = config
+        self.skeleton = get_skeleton(config.skeleton)
+        self.fps, self.min_frames, self.max_frames = config.fps, config.min_frames, config.max_frames
+        self.mean = torch.as_tensor(mean, dtype=torch.float32)
+        self.std = torch.as_tensor(std, dtype=torch.float32)
+        self.schedule = config.schedule
+        self.text_encoder_name = config.text_encoder
+        check_engine(engine, self.device)
+        self.engine = engine
+        self._tables: dict[tuple[str, int], SolverTable] = {}
+        self._engines: dict[str, SolverEngine] = {}
+        self.text_cache = LRUTextCache(_LazyEncoder(lambda: load_text_encoder(self.text_encoder_name).to(self.device)),
+                                       maxsize=text_cache_size)
+        self.rigid = rigid
+        self.known_actions: KnownActions | None = None  # from the folder's actions.json
+        self.length_estimator: LengthEstimator | None = None  # from the folder's length.safetensors
+
+    @classmethod
+    def from_pretrained(cls, path: str | Path | None = None, *, device: str | torch.device | None = None,
+                        dtype: torch.dtype | None = None, **kwargs):
+        """Load a checkpoint folder (or a training run folder); ``None`` = the shipped default model.
+        On CUDA the model runs in float16 unless ``dtype`` says otherwise; on CPU in float32."""
+        if path is None:
+            path = default_model_path()
+            if path is None:
+                raise SMFError("no default model is shipped in this version; pass a checkpoint folder")
+        device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+        if dtype is None:
+            dtype = torch.float16 if device.type == "cuda" else torch.float32
+        ck = load_checkpoint(path)
+        c = cls(ck.model, ck.mean, ck.std, ck.config, device=device, dtype=dtype, **kwargs)
+        if (ck.path / ACTIONS_FILE).is_file():
+            c.known_actions = KnownActions.load(ck.path / ACTIONS_FILE, c.text_cache)
+        if (ck.path / LENGTH_WEIGHTS).is_file():
+            c.length_estimator = LengthEstimator.load(ck.path)
+            if c.length_estimator.config.text_encoder != ck.config.text_encoder:
+                raise SMFError(f"{ck.path}: the length estimator was trained with the text encoder "
+                               f"{c.length_estimator.config.text_encoder}, the model uses {ck.config.text_encoder}")
+        return c
+
+    @property
+    def window_seconds(self) -> float:
+        """The longest motion the model makes in one sampling call (longer ones are timelines)."""
+        return self.max_frames / self.fps
+
+    def encode_text(self, prompts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Frozen token embeddings for ``prompts`` through the LRU cache: (B, L, C), (B, L)."""
+        return self.text_cache.get_or_compute(list(prompts), device=self.device)
+
+    def text_condition(self, prompts: list[str]) -> tuple[TextCondition, TextCondition]:
+        """The model's text condition for ``prompts`` and for the dropped text (classifier-free guidance), in
+        the model's dtype on its device."""
+        tokens, tmask = self.encode_text(prompts)
+        tokens = tokens.to(self.dtype)
+        B = len(prompts)
+        cond = self.model.condition(tokens, tmask, torch.zeros(B, dtype=torch.bool, device=self.device))
+        uncond = self.model.condition(tokens, tmask, torch.ones(B, dtype=torch.bool, device=self.device))
+        return cond, uncond
+
+    def predict_seconds(self, prompts: str | list[str]) -> list[float]:
+        """The length each prompt's motion is expected to have (seconds), from the model's length estimator
+        (``smf train-length``); SMFError for a model without one."""
+        prompts = [prompts] if isinstance(prompts, str) else list(prompts)
+        if self.length_estimator is None:
+            raise SMFError("this model has no length estimator (length.safetensors); give the length, or train one "
+                           "with `smf train-length`")
+        tokens, mask = self.encode_text(prompts)
+        sentence = sentence_embedding(tokens.float().cpu(), mask.bool().cpu())
+        frames = self.length_estimator.predict_frames(sentence).clamp(self.min_frames, self.max_frames)
+        return [int(f) / self.fps for f in frames]
+
+    def frames_for(self, seconds: float | None, frames: int | None) -> int:
+        """A requested duration in frames, a multiple of 4, at least the model's shortest (warning if changed);
+        lengths past ``max_frames`` are kept: they are generated window by window (timelines)."""
+        if frames is None:
+            seconds = DEFAULT_SECONDS if seconds is None else seconds
+            if not np.isfinite(seconds) or seconds <= 0:
+                raise SMFError(f"seconds must be a positive number, got {seconds}")
+            frames = int(round(seconds * self.fps))
+        if frames <= 0:
+            raise SMFError(f"frames must be positive, got {frames}")
+        n = max(frames, self.min_frames) // 4 * 4
+        if n != frames:
+            warnings.warn(f"length {frames} frames ({frames / self.fps:.2f} s) clamped to {n} frames "
+                          f"({n / self.fps:.2f} s), the range this model was trained on", LengthClampedWarning,
+                          stacklevel=3)
+        return n
+
+    def domains(self, prompts: list[str]) -> list[DomainCheck | None]:
+        """Each prompt's closest known action (None for models without actions.json), warning once per
+        out-of-domain prompt."""
+        if self.known_actions is None:
+            return [None] * len(prompts)
+        domains = list(self.known_actions.check_many(prompts))
+        for p, d in dict(zip(prompts, domains)).items():
+            if d.out_of_domain:
+                warnings.warn(d.message(p), OutOfDomainWarning, stacklevel=3)
+        return domains
+
+    def solver(self, sampler: str, steps: int) -> SolverTable:
+        """The precomputed coefficient table of a fast sampler, cached per (sampler, steps)."""
+        key = (sampler, steps)
+        if key not in self._tables:
+            self._tables[key] = solver_table(sampler, steps, self.schedule).to(self.device, self.dtype)
+        return self._tables[key]
+
+    def solver_engine(self, name: str) -> SolverEngine:
+        """The engine object of ``name`` (its compiled model and captured graphs are kept)."""
+        if name not in self._engines:
+            self._engines[name] = SolverEngine(self.model, name)
+        return self._engines[name]
+
+    def normalise(self, features: torch.Tensor) -> torch.Tensor:
+        """Features (..., D) in dataset units -> the model's normalised space, dtype and device."""
+        return ((features.float() - self.mean) / self.std).to(self.device, self.dtype)
+
+    def denormalise(self, x: torch.Tensor) -> torch.Tensor:
+        """The model's normalised features (..., D) -> dataset units, float32 on the CPU."""
+        return x.float().cpu() * self.std + self.mean
+
+    def finish(self, features: np.ndarray, footskate: str = "off",
+               footskate_options=None) -> tuple[np.ndarray, RigidMotion | None]:
+        """The final stage of one motion's raw features (T, D): the rigid fit, the footskate cleanup in 'post'
+        mode (on the rigid body), and the body written back as features that decode to it exactly.
+        Returns (features (T, D) float64, rigid motion); with the rigid stage off the raw features and None."""
+        check_footskate(footskate)
+        f = np.asarray(features, dtype=np.float64)
+        if self.rigid is None:
+            return f, None
+        if footskate == "post":
+            from ..footskate import FootskateOptions
+            from ..footskate.cleanup import cleanup_features
+
+            options = footskate_options or FootskateOptions()
+            return cleanup_features(f, options.config, vgrf_model=options.vgrf_model, fps=self.fps, rigid=self.rigid)
+        motion = rigid_from_features(f, self.skeleton, self.rigid)
+        motion, f = rigid_to_features(motion, f, self.rigid)
+        return f, motion
+
+
+class _LazyEncoder:
+    """Loads the frozen text encoder on first use (a fully cached pipeline never loads it)."""
+
+    def __init__(self, load):
+        self._load = load
+        self._enc = None
+        self.calls = 0
+
+    def _get(self):
+        if self._enc is None:
+            self._enc = self._load()
+        return self._enc
+
+    def encode(self, texts: list[str]):
+        self.calls += 1
+        return self._get().encode(texts)
+
+    def __getattr__(self, name):
+        return getattr(self._get(), name)

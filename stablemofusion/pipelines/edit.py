@@ -1,0 +1,89 @@
+"""Editing: keep part of a source motion (its start, end, both, half of the body, or its root path) and generate
+the rest from text (:mod:`stablemofusion.edit` plans the edit and builds its sampling hooks)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..edit import EDIT_MODES, edit_hooks, plan_edit, splice_rigid
+from ..diffusion.samplers import sampler_spec
+from ..errors import SMFError
+from ..motion.rigid import rigid_to_features
+from ..motion.root import headings, place_like, place_rigid_like, root_xz
+from .components import Components
+from .result import MotionResult
+from .sample import sample
+from .settings import Settings, base_seed, check_text
+
+PROGRESS_SECONDS = 5.0  # edits longer than this show a progress bar by default
+MODE_FLAGS = {"prefix": ("keep_start",), "suffix": ("keep_end",), "inbetween": ("keep_start", "keep_end")}
+
+
+class EditPipeline:
+    """``pipe(prompt, source, mode, ...)`` -> the edited :class:`MotionResult`, in the source's canonical
+    frame."""
+
+    def __init__(self, components: Components):
+        self.c = components
+
+    @torch.no_grad()
+    def __call__(self, prompt: str, source: np.ndarray, mode: str, *, keep_start: float = 0.0, keep_end: float = 0.0,
+                 seconds: float | None = None, path: np.ndarray | None = None, seed: int | None = None,
+                 settings: Settings = Settings(), impose: str = "x0", progress: bool | None = None) -> MotionResult:
+        """``source`` features (Ts, D) in dataset units (:func:`stablemofusion.edit.source_features` converts
+        joints and BVH); ``keep_start`` / ``keep_end`` seconds; ``seconds`` the output length (default the
+        source's: the output then has the source's frame count); ``path`` (T, 2) metres for 'trajectory'.
+        ``progress``: a tqdm bar over the denoising steps (None: for edits longer than PROGRESS_SECONDS)."""
+        c = self.c
+        # 1. check inputs
+        check_text(prompt, "the prompt")
+        check_edit_inputs(mode, keep_start, keep_end, seconds)
+        settings.check(rigid=c.rigid is not None)
+        if not sampler_spec(settings.sampler).fast:
+            raise SMFError(f"editing needs a sampler with a precomputed form, not {settings.sampler!r}")
+        # 2. prepare: the plan, its hooks and the seed
+        seed = base_seed(seed)
+        plan = plan_edit(mode, source, c.skeleton, keep_start=int(round(keep_start * c.fps)),
+                         keep_end=int(round(keep_end * c.fps)),
+                         frames=None if seconds is None else int(round(seconds * c.fps)), path=path)
+        if not c.min_frames <= plan.frames <= c.max_frames:
+            raise SMFError(f"an edit of {plan.frames / c.fps:g} s is outside the {c.min_frames / c.fps:g} to "
+                           f"{c.window_seconds:g} s this model generates at once; for longer motions use "
+                           "`smf generate --timeline`")
+        x0_hook, xt_hook = edit_hooks(plan, c.mean, c.std, 1, c.device, c.dtype, impose)
+        # 3. denoise (the table loop: hooks run eagerly), exact on the known part after the last step
+        show = plan.frames / c.fps > PROGRESS_SECONDS if progress is None else progress
+        raw = sample(c, [prompt], [plan.frames], settings.with_engine("fast"), [seed], x0_hook=x0_hook,
+                     xt_hook=xt_hook, progress=show)
+        f, motion = c.finish(plan.project(raw[0].double()).float().numpy(), settings.footskate,
+                             settings.footskate_options)
+        # 4. post-process: place the output like the source, splice the source's kept rigid body back in
+        src = np.asarray(source, dtype=np.float64)
+        st, ft = torch.from_numpy(src), torch.from_numpy(f)
+        anchor = None
+        if plan.anchor is not None:  # the output is placed so that its kept end is where the source has it
+            a, b = plan.anchor
+            anchor = (a, headings(ft)[a], root_xz(ft)[a], headings(st)[b], root_xz(st)[b])
+        if motion is None:
+            r = MotionResult.build(prompt, f, None, c.skeleton, c.fps, seed)
+            if anchor is not None:
+                r.joints = place_like(torch.from_numpy(r.joints), *anchor).numpy()
+            return r
+        motion = motion if anchor is None else place_rigid_like(motion, *anchor)
+        motion = splice_rigid(motion, c.finish(src)[1], plan)
+        return MotionResult.build(prompt, rigid_to_features(motion, f, c.rigid)[1], motion, c.skeleton, c.fps, seed)
+
+
+def check_edit_inputs(mode: str, keep_start: float, keep_end: float, seconds: float | None) -> None:
+    """SMFError naming the flag: a bad mode, a negative length, or a mode without the length it needs."""
+    if mode not in EDIT_MODES:
+        raise SMFError(f"edit mode must be one of {', '.join(EDIT_MODES)}, got {mode!r}")
+    for name, value in (("keep_start", keep_start), ("keep_end", keep_end), ("seconds", seconds)):
+        if value is not None and not (np.isfinite(value) and value >= 0):
+            raise SMFError(f"--{name.replace('_', '-')} must be a finite number of seconds >= 0, got {value}")
+    values = {"keep_start": keep_start, "keep_end": keep_end}
+    for name in MODE_FLAGS.get(mode, ()):
+        if not values[name] > 0:
+            raise SMFError(f"a {mode} edit needs --{name.replace('_', '-')} SECONDS (the part of the source it "
+                           f"keeps)")

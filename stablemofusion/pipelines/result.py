@@ -1,0 +1,43 @@
+"""The one result type of every task."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..motion.features import joints_from_features
+from ..motion.rigid import RigidMotion
+from ..motion.skeleton import Skeleton
+from ..text.known import DomainCheck
+
+
+@dataclass
+class MotionResult:
+    """One generated motion: features (T, D) in dataset units, joints (T, J, 3) in metres, at ``fps``; ``motion``
+    the rigid body (skeleton, rotations, root path) the joints and features come from (None with the rigid
+    stage off); ``seed`` the seed that makes it again; ``domain`` the closest known action (models with
+    actions.json)."""
+
+    prompt: str
+    features: np.ndarray
+    joints: np.ndarray
+    fps: float
+    seed: int | None
+    motion: RigidMotion | None = None
+    domain: DomainCheck | None = None
+
+    @classmethod
+    def build(cls, prompt: str, features: np.ndarray, motion: RigidMotion | None, skeleton: Skeleton, fps: float,
+              seed: int | None, domain: DomainCheck | None = None) -> "MotionResult":
+        """A result whose joints come from the rigid body, or from the features without one."""
+        joints = joints_from_features(features, skeleton) if motion is None else motion.joints()
+        return cls(prompt, features, joints, fps, seed, motion, domain)
+
+    @property
+    def frames(self) -> int:
+        return len(self.joints)
+
+    @property
+    def seconds(self) -> float:
+        return self.frames / self.fps

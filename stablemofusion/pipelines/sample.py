@@ -1,0 +1,99 @@
+"""One sampling call shared by every task: text condition, noise, the denoiser (guidance, x0 hooks), the loop of
+the engine chosen once, back to dataset units. Tasks add constraints as generic hooks:
+
+- ``x0_hook(x0, step) -> x0`` on the model's prediction (normalised, model dtype and device);
+- ``xt_hook(eps, table) -> XHook``: builds the hook applied to x_t after each step from the call's initial
+  noise ``eps`` and solver table (imputation needs both).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import torch
+
+from ..diffusion.engine import COMPILED_ENGINES, GRAPH_ENGINES
+from ..diffusion.samplers import make_sampler, sampler_spec
+from ..diffusion.sampling import Noise, Step, X0Hook, XHook, guided, run_diffusers, run_solver, with_x0_hook
+from ..diffusion.solvers import SolverTable
+from .components import Components
+from .settings import Settings, resolve_engine
+
+XtHookFactory = Callable[[torch.Tensor, SolverTable], XHook]
+
+
+@torch.no_grad()
+def sample(c: Components, prompts: list[str], lengths: list[int], settings: Settings,
+           seed: int | list[int] | None, *, x0_hook: X0Hook | None = None, xt_hook: XtHookFactory | None = None,
+           batched_cfg: bool = True, progress: bool = False) -> torch.Tensor:
+    """The model's raw features (B, max(lengths), D) in dataset units (CPU, float32), before the final stage.
+    ``seed``: one for the batch, or one per item (then an item does not depend on the others batched with
+    it). In footskate 'loop' mode the last predicted x0 are cleaned (rigid body) inside the loop.
+    ``progress``: a tqdm bar over the steps (loops that run step by step on the host: not CUDA graphs)."""
+    settings.check(rigid=c.rigid is not None)
+    hooks = x0_hook is not None or xt_hook is not None or settings.footskate == "loop"
+    engine = resolve_engine(settings.engine or c.engine, c.device, settings.sampler, hooks=hooks)
+    B, T, D = len(prompts), max(lengths), int(c.mean.shape[0])
+    noise = Noise(seed, lengths, D, c.device)
+    mask = (torch.arange(T)[None] < torch.tensor(lengths)[:, None]).to(c.device)
+    cond, uncond = c.text_condition(prompts)
+    uncond = uncond if settings.guided else None
+    if engine in COMPILED_ENGINES + GRAPH_ENGINES and batched_cfg:
+        table = c.solver(settings.sampler, settings.steps)
+        x = noise.draw() * table.init_sigma
+        step_noise = noise.draw(settings.steps).to(c.dtype) if table.stochastic else None
+        x = c.solver_engine(engine).run(cond, uncond, mask, settings.guidance_scale, table, x.to(c.dtype), step_noise)
+        return c.denormalise(x)
+    denoiser = guided(c.model, cond, uncond, mask, settings.guidance_scale, batched_cfg)
+    if settings.footskate == "loop":
+        denoiser = with_x0_hook(denoiser, footskate_hook(c, lengths, settings.footskate_options))
+    if x0_hook is not None:
+        denoiser = with_x0_hook(denoiser, x0_hook)
+    if progress:
+        denoiser = with_x0_hook(denoiser, progress_hook(settings.steps))
+    if engine == "eager":
+        sched = make_sampler(settings.sampler, c.schedule)
+        sched.set_timesteps(settings.steps, device=c.device)
+        return c.denormalise(run_diffusers(denoiser, sched, sampler_spec(settings.sampler), noise, c.dtype, B))
+    table = c.solver(settings.sampler, settings.steps)
+    eps = noise.draw().to(c.dtype)
+    step_noise = noise.draw(settings.steps).to(c.dtype) if table.stochastic else None
+    x_hook = None if xt_hook is None else xt_hook(eps, table)
+    return c.denormalise(run_solver(denoiser, table, eps * table.init_sigma, step_noise, x_hook))
+
+
+def progress_hook(steps: int) -> X0Hook:
+    """An x0 hook that only advances a tqdm bar of ``steps`` steps."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=steps, desc="denoise", unit="step")
+
+    def hook(x0: torch.Tensor, step: Step) -> torch.Tensor:
+        bar.update(1)
+        if step.index + 1 == step.count:
+            bar.close()
+        return x0
+
+    return hook
+
+
+def footskate_hook(c: Components, lengths: list[int], options) -> X0Hook:
+    """The in-loop footskate cleanup (on the rigid body) as an x0 hook, on the steps ``options.in_loop``
+    selects: each item's first ``lengths[i]`` frames."""
+    from ..footskate import FootskateOptions
+    from ..footskate.cleanup import cleanup_features
+
+    options = options or FootskateOptions()
+
+    def hook(x0: torch.Tensor, step: Step) -> torch.Tensor:
+        if not options.in_loop(step.index, step.count):
+            return x0
+        feats = c.denormalise(x0)
+        clean = feats.clone()
+        for i, n in enumerate(lengths):
+            f, _ = cleanup_features(feats[i, :n].double().numpy(), options.config, vgrf_model=options.vgrf_model,
+                                    fps=c.fps, rigid=c.rigid)
+            clean[i, :n] = torch.from_numpy(f).float()
+        return ((clean - c.mean) / c.std).to(x0.device, x0.dtype)
+
+    return hook

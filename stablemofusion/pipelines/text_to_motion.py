@@ -1,0 +1,72 @@
+"""Text to motion: one motion per prompt, batched; motions longer than one window are one-segment timelines."""
+
+from __future__ import annotations
+
+import torch
+from tqdm import tqdm
+
+from ..errors import SMFError
+from .components import Components
+from .result import MotionResult
+from .sample import sample
+from .settings import Settings, base_seed, check_text
+from .timeline import TimelinePipeline
+
+
+class TextToMotionPipeline:
+    """``pipe(prompts, seconds=..., seed=..., settings=...)`` -> one :class:`MotionResult` per prompt."""
+
+    def __init__(self, components: Components):
+        self.c = components
+
+    @torch.no_grad()
+    def __call__(self, prompts: str | list[str], *, seconds: float | list[float] | None = None,
+                 frames: int | list[int] | None = None, seed: int | list[int] | None = None,
+                 settings: Settings = Settings(), progress: bool = False) -> list[MotionResult]:
+        """``seconds``/``frames``: one value or one per prompt; with neither, the model's length estimate (or
+        the default length). ``seed``: one for all (batch k uses ``seed + k``, a long item i ``seed + i``) or
+        one per prompt (each motion independent of those it is batched with); None: a fresh one, reported."""
+        c = self.c
+        # 1. check inputs
+        prompts = [prompts] if isinstance(prompts, str) else list(prompts)
+        if not prompts:
+            raise SMFError("every prompt must be a non-empty text")
+        for p in prompts:
+            check_text(p, "every prompt")
+        settings.check(rigid=c.rigid is not None)
+        n = len(prompts)
+        secs = list(seconds) if isinstance(seconds, (list, tuple)) else [seconds] * n
+        frs = list(frames) if isinstance(frames, (list, tuple)) else [frames] * n
+        if len(secs) != n or len(frs) != n:
+            raise SMFError("give one length for all prompts or one per prompt")
+        per_item = isinstance(seed, (list, tuple))
+        if per_item and len(seed) != n:
+            raise SMFError(f"give one seed for all prompts or one per prompt: {len(seed)} seeds for {n} prompts")
+        # 2. prepare: lengths (the model's estimate where none is given), seeds, domains
+        unknown = [i for i in range(n) if secs[i] is None and frs[i] is None]
+        if unknown and c.length_estimator is not None:
+            for i, s in zip(unknown, c.predict_seconds([prompts[i] for i in unknown])):
+                secs[i] = s
+        lengths = [c.frames_for(s, f) for s, f in zip(secs, frs)]
+        base = None if per_item else base_seed(seed)
+        domains = c.domains(prompts)
+        results: list[MotionResult | None] = [None] * n
+        # 3. motions longer than one window: one-segment timelines
+        for i in (i for i in range(n) if lengths[i] > c.max_frames):
+            r = TimelinePipeline(c)([(prompts[i], lengths[i] / c.fps)], seed=seed[i] if per_item else base + i,
+                                    settings=settings)
+            r.prompt, r.domain = prompts[i], domains[i]
+            results[i] = r
+        # 4. denoise the others in batches
+        short = [i for i in range(n) if lengths[i] <= c.max_frames]
+        starts = range(0, len(short), settings.batch_size)
+        for k, start in enumerate(tqdm(starts, desc="generate", unit="batch", disable=not progress)):
+            idx = short[start:start + settings.batch_size]
+            batch_seed = [seed[i] for i in idx] if per_item else base + k
+            raw = sample(c, [prompts[i] for i in idx], [lengths[i] for i in idx], settings, batch_seed)
+            # 5. post-process: the final stage of each motion
+            for j, i in enumerate(idx):
+                f, motion = c.finish(raw[j, :lengths[i]].numpy(), settings.footskate, settings.footskate_options)
+                results[i] = MotionResult.build(prompts[i], f, motion, c.skeleton, c.fps,
+                                                seed[i] if per_item else batch_seed, domains[i])
+        return results

@@ -1,0 +1,69 @@
+"""Timelines: one continuous motion from (prompt, seconds) segments, window after window
+(:mod:`stablemofusion.timeline` plans the windows; each later window is a prefix edit of the motion so far)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from ..edit import edit_hooks, plan_edit
+from ..diffusion.samplers import sampler_spec
+from ..errors import SMFError
+from ..timeline import DEFAULT_OVERLAP, plan_windows
+from .components import Components
+from .result import MotionResult
+from .sample import sample
+from .settings import Settings, base_seed, check_text
+
+PROGRESS_WINDOWS = 3  # timelines of more windows than this show a progress bar by default
+
+
+class TimelinePipeline:
+    """``pipe(segments, seed=..., settings=...)`` -> one :class:`MotionResult` of the whole timeline."""
+
+    def __init__(self, components: Components):
+        self.c = components
+
+    @torch.no_grad()
+    def __call__(self, segments: list[tuple[str, float]], *, overlap: float = DEFAULT_OVERLAP, seed: int | None = None,
+                 settings: Settings = Settings(), impose: str = "x0", progress: bool | None = None) -> MotionResult:
+        """Window j uses ``seed + j``. ``progress``: a tqdm bar over the windows (None: for long timelines)."""
+        c = self.c
+        # 1. check inputs
+        segs = []
+        for prompt, secs in segments:
+            check_text(prompt, "every timeline prompt")
+            if not isinstance(secs, (int, float)) or not np.isfinite(secs) or secs <= 0:
+                raise SMFError(f"timeline segment {prompt!r}: seconds must be a positive number, got {secs}")
+            segs.append((prompt, int(round(secs * c.fps))))
+        settings.check(rigid=c.rigid is not None)
+        # 2. prepare: the windows and the seed
+        windows = plan_windows(segs, c.max_frames, int(round(overlap * c.fps)), c.min_frames)
+        if len(windows) > 1:
+            check_long(settings.sampler, c.window_seconds)
+        base = base_seed(seed)
+        # 3. denoise window after window, each continuing the motion so far
+        out = torch.zeros(0, int(c.mean.shape[0]), dtype=torch.float64)
+        show = len(windows) > PROGRESS_WINDOWS if progress is None else progress
+        for j, w in enumerate(tqdm(windows, desc="timeline", unit="window", disable=not show)):
+            frames = max(w.frames, c.min_frames)
+            if w.keep == 0:
+                raw = sample(c, [w.prompt], [frames], settings, [base + j])[0]
+            else:
+                plan = plan_edit("prefix", out[-w.keep:].numpy(), c.skeleton, keep_start=w.keep, frames=frames)
+                x0_hook, xt_hook = edit_hooks(plan, c.mean, c.std, 1, c.device, c.dtype, impose)
+                raw = sample(c, [w.prompt], [frames], settings.with_engine("fast"), [base + j], x0_hook=x0_hook,
+                             xt_hook=xt_hook)[0]
+                raw = plan.project(raw.double()).float()  # exact on the kept part
+            out = torch.cat([out, raw[w.keep:w.keep + w.new].double()])
+        # 4. post-process: the final stage of the whole motion
+        f, motion = c.finish(out.numpy(), settings.footskate, settings.footskate_options)
+        return MotionResult.build("; ".join(f"{p}:{s:g}" for p, s in segments), f, motion, c.skeleton, c.fps, base)
+
+
+def check_long(sampler: str, window_seconds: float) -> None:
+    """Motions of several windows continue each window by editing: that needs a fast sampler."""
+    if not sampler_spec(sampler).fast:
+        raise SMFError(f"motions longer than {window_seconds:g} s and timelines are made window by window, which "
+                       f"needs a sampler with a precomputed form, not {sampler!r}")

@@ -1,0 +1,57 @@
+"""stablemofusion.output: bytes and files of a MotionResult from one place; never overwrites silently."""
+
+import io
+
+import numpy as np
+import pytest
+
+from stablemofusion.errors import SMFError
+from stablemofusion.motion.features import features_from_joints
+from stablemofusion.motion.files import load_motion
+from stablemofusion.output import (FORMATS, OUTPUTS, WRITERS, bvh_text, free_stem, json_payload, npy_bytes,
+                                   parse_formats, write_result, write_results, writer)
+from stablemofusion.pipelines.result import MotionResult
+
+
+@pytest.fixture(scope="module")
+def result():
+    f = features_from_joints(load_motion("example:wave-both-hands").joints)
+    return MotionResult.build("a person waves", f, None, "humanml3d", 20.0, 3)
+
+
+def test_bytes_of_each_format(result):
+    joints = np.load(io.BytesIO(npy_bytes(result)))
+    assert joints.dtype == np.float32 and joints.shape == result.joints.shape
+    assert np.load(io.BytesIO(npy_bytes(result, "features"))).shape == result.features.shape
+    assert bvh_text(result).startswith("HIERARCHY")
+    body = json_payload(result, steps=10)
+    assert list(body)[:5] == ["prompt", "fps", "frames", "seed", "steps"] and body["frames"] == result.frames
+    assert np.allclose(body["joints"], result.joints, atol=1e-5)
+
+
+def test_files_never_overwrite_silently(result, tmp_path):
+    first = write_results([result], tmp_path, ["npy", "json"])[0]
+    second = write_results([result], tmp_path, ["npy", "json"])[0]
+    assert first != second and second.name == first.name + "-2"
+    assert (tmp_path / (second.name + ".json")).is_file() and (tmp_path / (first.name + ".json")).is_file()
+    again = write_results([result], tmp_path, ["npy", "json"], overwrite=True)[0]
+    assert again == first
+    assert free_stem(first, ["bvh"]) == first  # only the files a format writes count
+
+
+def test_a_new_format_is_one_function(result, tmp_path):
+    @writer("txt", ".txt")
+    def write_txt(r, stem, meta):
+        path = OUTPUTS["txt"](stem)[0]
+        path.write_text(r.prompt)
+        return [path]
+
+    try:
+        assert parse_formats("npy,txt") == ["npy", "txt"]
+        paths = write_result(result, tmp_path / "m", ["txt"])
+        assert paths[0].read_text() == "a person waves"
+    finally:
+        WRITERS.pop("txt"), OUTPUTS.pop("txt")
+    with pytest.raises(SMFError, match="choose from"):
+        parse_formats("npy,txt")
+    assert set(FORMATS) == {"npy", "bvh", "json", "mp4", "gif"}

@@ -67,7 +67,8 @@ def _check_npy(data: bytes, filename: str) -> None:
     try:
         buf = io.BytesIO(data)
         version = np.lib.format.read_magic(buf)
-        shape, _, dtype = np.lib.format._read_array_header(buf, version)
+        read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, _, dtype = read(buf)
     except Exception:  # noqa: BLE001 - numpy raises many types for broken headers
         raise ServeError(422, f"{filename}: not a readable .npy array") from None
     if dtype.hasobject or not np.issubdtype(dtype, np.number):

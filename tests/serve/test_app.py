@@ -8,7 +8,6 @@ import io
 import httpx
 import numpy as np
 import pytest
-import torch
 
 from stablemofusion.cli.main import main
 from stablemofusion.motion.bvh import forward_kinematics, read_bvh
@@ -16,30 +15,7 @@ from stablemofusion.motion.skeleton import HUMANML3D
 from stablemofusion.pipeline import MotionPipeline
 from stablemofusion.serve import create_app
 
-
-@pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory, save_tiny_checkpoint):
-    mean, std = np.zeros(263), np.full(263, 0.1)
-    mean[3] = 0.9
-    return save_tiny_checkpoint(tmp_path_factory.mktemp("serve-ckpt") / "checkpoint", mean, std)
-
-
-@pytest.fixture(scope="module")
-def pipe(checkpoint):
-    torch.set_num_threads(1)
-    return MotionPipeline.from_pretrained(checkpoint, device="cpu")
-
-
-OCTETS = {"Content-Type": "application/octet-stream"}
-
-
-def call(app, *requests):
-    """Send (method, url, json) requests concurrently to the app; returns the responses."""
-    async def go():
-        transport = httpx.ASGITransport(app=app)
-        async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as client:
-            return await asyncio.gather(*[client.request(m, u, json=j) for m, u, j in requests])
-    return asyncio.run(go())
+from serve_helpers import OCTETS, call
 
 
 def wait_until_ready(app, seconds: float = 120.0) -> dict:

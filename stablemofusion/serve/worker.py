@@ -81,13 +81,17 @@ def _failure(job: Job, e: Exception) -> Failure:
     return Failure(500, f"generation failed ({type(e).__name__}); the request was not answered")
 
 
+# not logged: a requested length rounded to a multiple of 4 frames, and libraries' notices
+QUIET_WARNINGS = ("LengthClampedWarning", "DeprecationWarning", "FutureWarning")
+
+
 def _logged_warnings(fn, *args):
     """Call ``fn``; its warnings (which quote prompts) go to the server's log, escaped."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         out = fn(*args)
     for w in caught:
-        if w.category.__name__ != "LengthClampedWarning":  # a requested length rounded to 4 frames
+        if w.category.__name__ not in QUIET_WARNINGS:
             log_event(logging.WARNING, "%s: %s", w.category.__name__, w.message)
     return out
 
@@ -116,7 +120,7 @@ class ThreadWorker:
     def health(self) -> dict:
         ready = self._warm is not None and self._warm.done() and self._warm.exception() is None
         state = "ready" if ready else "failed" if self._warm is not None and self._warm.done() else "starting"
-        return {"state": state, "pid": os.getpid(), "model_loaded": True, "warm": ready, "restarts": 0}
+        return {"state": state, "pid": os.getpid(), "model_loaded": True, "warm": ready, "busy": False, "restarts": 0}
 
     def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)
@@ -170,7 +174,7 @@ class ProcessWorker:
     def __init__(self, spec: WorkerSpec, config):
         self.spec, self.config = spec, config  # config: the checkpoint's CheckpointConfig (frame rate, range)
         self._inbox: queue.Queue = queue.Queue()
-        self._state, self._loaded, self._warm, self._restarts = "stopped", False, False, 0
+        self._state, self._loaded, self._warm, self._restarts, self._busy = "stopped", False, False, 0, False
         self._proc = None
         self._thread: threading.Thread | None = None
         self._stopping = threading.Event()
@@ -195,7 +199,7 @@ class ProcessWorker:
     def health(self) -> dict:
         pid = self._proc.pid if self._proc is not None and self._proc.is_alive() else None
         return {"state": self._state, "pid": pid, "model_loaded": self._loaded, "warm": self._warm,
-                "restarts": self._restarts}
+                "busy": self._busy, "restarts": self._restarts}
 
     def close(self) -> None:
         """Stop the worker now (what SIGTERM leads to): jobs still waiting get a 503."""
@@ -227,11 +231,15 @@ class ProcessWorker:
                     log_event(logging.ERROR, "the generation worker died %s times before ready; giving up",
                               failed_starts)
                     return
-                self._state, self._loaded, self._warm = "restarting", False, False
+                self._down()
                 time.sleep(WORKER_RESTART_DELAY_S)
             finally:
                 conn.close()
                 self._stop_process()
+
+    def _down(self) -> None:
+        """The process is gone: health says so at once (before any request hears of it)."""
+        self._state, self._loaded, self._warm = "restarting", False, False
 
     def _spawn(self):
         ctx = multiprocessing.get_context("spawn")  # no forked torch threads
@@ -264,15 +272,20 @@ class ProcessWorker:
             if not future.set_running_or_notify_cancel():
                 continue
             try:
+                self._busy = True
                 conn.send((jobs, max_batch))
                 future.set_result(self._receive(conn))
             except _Died:
+                self._down()
                 future.set_exception(ServeError(503, "the generation worker stopped while generating this "
                                                      "request; it is being restarted, retry shortly"))
                 raise
             except OSError as e:
+                self._down()
                 future.set_exception(ServeError(503, "the generation worker stopped; retry shortly"))
                 raise _Died(str(e)) from None
+            finally:
+                self._busy = False
 
     def _receive(self, conn):
         while not conn.poll(WORKER_POLL_S):

@@ -83,7 +83,8 @@ def main() -> None:
                 if httpx.get(base + "/v1/health", timeout=1).status_code == 200:
                     break
             except httpx.HTTPError:
-                time.sleep(0.2)
+                pass
+            time.sleep(0.2)  # 503 while the worker loads and warms
         else:
             raise SystemExit("server did not start: " + server.stderr.read().decode()[-500:])
         warm = {"prompt": PROMPTS[0], "seconds": args.seconds, "seed": 0, "footskate": args.footskate}

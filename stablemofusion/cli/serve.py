@@ -1,4 +1,5 @@
-"""`smf serve [--host 127.0.0.1] [--port 8000] [--checkpoint RUN]`: the HTTP API (docs/serve.md)."""
+"""`smf serve [--host 127.0.0.1] [--port 8000] [--checkpoint RUN] [--allow-host NAME]`: the HTTP API
+(docs/serve.md)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,9 @@ def add_parser(sub, name: str) -> None:
                        description="An HTTP API (POST /v1/generate, GET /v1/health) with dynamic batching.")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
     p.add_argument("--port", type=int, default=8000)
+    p.add_argument("--allow-host", action="append", default=[], metavar="NAME",
+                   help="a Host header name to accept besides localhost, 127.0.0.1 and ::1 (repeatable; needed "
+                        "when clients reach the server by another name or address)")
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     p.add_argument("--engine", default="auto", choices=("auto",) + ENGINES,
@@ -26,22 +30,28 @@ def add_parser(sub, name: str) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
+    import logging
+
     import uvicorn
 
+    from ..diffusion.checkpoint import read_config
     from ..errors import SMFError
-    from ..pipeline import MotionPipeline
-    from ..serve import create_app
-    from ..serve.batcher import process_executor
+    from ..pipeline import default_model_path
+    from ..serve import ProcessWorker, WorkerSpec, create_app
+    from ..serve.server import uvicorn_config
 
     if not 0 < args.port < 65536:
         raise SMFError(f"--port must be 1-65535, got {args.port}")
     if args.threads < 1:
         raise SMFError(f"--threads must be at least 1, got {args.threads}")
-    pipe = MotionPipeline.from_pretrained(args.checkpoint, device=args.device, engine=args.engine)  # checks it
-    checkpoint = None if args.checkpoint is None else str(args.checkpoint)
-    # generation runs in a worker process, off the event loop's GIL
-    executor = process_executor(checkpoint, args.device, args.threads, args.engine)
-    app = create_app(pipe, max_batch=args.max_batch, wait_ms=args.wait_ms, max_queue=args.max_queue,
-                     executor=executor)
-    print(f"smf serve: http://{args.host}:{args.port} (POST /v1/generate, GET /v1/health)", flush=True)
-    uvicorn.run(app, host=args.host, port=args.port, log_level="warning")
+    checkpoint = args.checkpoint or default_model_path()
+    if checkpoint is None:
+        raise SMFError("no default model is shipped in this version; pass --checkpoint")
+    config = read_config(checkpoint)  # checks the folder; the worker process loads the model itself
+    spec = WorkerSpec(str(checkpoint), args.device, args.threads, args.engine)
+    app = create_app(ProcessWorker(spec, config), max_batch=args.max_batch, wait_ms=args.wait_ms,
+                     max_queue=args.max_queue, allowed_hosts=tuple(args.allow_host))
+    logging.basicConfig(level=logging.INFO, format="smf serve: %(levelname)s %(message)s")
+    print(f"smf serve: http://{args.host}:{args.port} (POST /v1/generate, GET /v1/health; the model loads in the "
+          "worker: /v1/health says when it is ready)", flush=True)
+    uvicorn.Server(uvicorn_config(app, args.host, args.port)).run()

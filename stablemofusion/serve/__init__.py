@@ -1,6 +1,8 @@
 """`smf serve`: an HTTP API over the pipeline with dynamic batching (FastAPI + uvicorn)."""
 
 from .app import create_app
-from .batcher import DynamicBatcher, Job, QueueFull
+from .batcher import DynamicBatcher
+from .errors import ServeError
+from .worker import Job, ProcessWorker, ThreadWorker, WorkerSpec
 
-__all__ = ["DynamicBatcher", "Job", "QueueFull", "create_app"]
+__all__ = ["DynamicBatcher", "Job", "ProcessWorker", "ServeError", "ThreadWorker", "WorkerSpec", "create_app"]

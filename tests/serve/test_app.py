@@ -8,7 +8,6 @@ import io
 import httpx
 import numpy as np
 import pytest
-import torch
 
 from stablemofusion.cli.main import main
 from stablemofusion.motion.bvh import forward_kinematics, read_bvh
@@ -16,34 +15,28 @@ from stablemofusion.motion.skeleton import HUMANML3D
 from stablemofusion.pipeline import MotionPipeline
 from stablemofusion.serve import create_app
 
-
-@pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory, save_tiny_checkpoint):
-    mean, std = np.zeros(263), np.full(263, 0.1)
-    mean[3] = 0.9
-    return save_tiny_checkpoint(tmp_path_factory.mktemp("serve-ckpt") / "checkpoint", mean, std)
+from serve_helpers import OCTETS, call
 
 
-@pytest.fixture(scope="module")
-def pipe(checkpoint):
-    torch.set_num_threads(1)
-    return MotionPipeline.from_pretrained(checkpoint, device="cpu")
+def wait_until_ready(app, seconds: float = 120.0) -> dict:
+    """Poll /v1/health until the worker is ready (bounded); returns the last health body."""
+    import time
 
-
-def call(app, *requests):
-    """Send (method, url, json) requests concurrently to the app; returns the responses."""
-    async def go():
-        transport = httpx.ASGITransport(app=app)
-        async with httpx.AsyncClient(transport=transport, base_url="http://test") as client:
-            return await asyncio.gather(*[client.request(m, u, json=j) for m, u, j in requests])
-    return asyncio.run(go())
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        (r,) = call(app, ("GET", "/v1/health", None))
+        if r.status_code == 200:
+            return r.json()
+        time.sleep(0.1)
+    raise AssertionError(f"not ready after {seconds} s: {r.json()}")
 
 
 def test_health_and_json_generation(pipe):
     app = create_app(pipe)
-    health, gen = call(app, ("GET", "/v1/health", None),
-                       ("POST", "/v1/generate", {"prompt": "a person walks", "seconds": 2.4, "seed": 5, "steps": 2}))
+    (gen,) = call(app, ("POST", "/v1/generate", {"prompt": "a person walks", "seconds": 2.4, "seed": 5, "steps": 2}))
+    (health,) = call(app, ("GET", "/v1/health", None))
     assert health.status_code == 200 and health.json()["status"] == "ok"
+    assert health.json()["worker"]["model_loaded"] and health.json()["worker"]["warm"]
     body = gen.json()
     assert gen.status_code == 200 and body["frames"] == 48 and body["fps"] == 20.0 and body["seed"] == 5
     joints = np.asarray(body["joints"])
@@ -89,7 +82,7 @@ def test_bad_requests_get_one_line_json_errors(pipe, url, body, status, message)
 def test_a_body_that_is_not_json(pipe):
     async def go():
         transport = httpx.ASGITransport(app=create_app(pipe))
-        async with httpx.AsyncClient(transport=transport, base_url="http://test") as client:
+        async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as client:
             return await client.post("/v1/generate", content=b"not json", headers={"Content-Type": "application/json"})
     r = asyncio.run(go())
     assert r.status_code == 422 and r.json() == {"error": "body: not valid JSON"}
@@ -125,13 +118,17 @@ def test_dynamic_batching_gathers_requests_and_matches_generating_alone(pipe):
 
 def test_a_worker_process_generates_the_same_motions(pipe, checkpoint):
     """`smf serve` generates in a worker process that loads the checkpoint itself: same batching, same motions."""
-    from stablemofusion.serve.batcher import process_executor
+    from stablemofusion.serve import ProcessWorker, WorkerSpec
 
-    app = create_app(pipe, wait_ms=300, executor=process_executor(str(checkpoint), "cpu", threads=1))
+    worker = ProcessWorker(WorkerSpec(str(checkpoint), "cpu", threads=1), pipe.config)
+    app = create_app(worker, wait_ms=300)
     try:
+        worker.start()
+        wait_until_ready(app)
         batched_equals_alone(app, pipe, [("walks", 2.0, 3), ("jumps", 3.2, 7)])
     finally:
         app.state.batcher.close()
+        worker.close()
 
 
 def test_serve_cli_rejects_a_bad_port(capsys):
@@ -152,7 +149,7 @@ def test_viewer_page_and_convert(pipe, tmp_path):
 
     async def go():
         transport = httpx.ASGITransport(app=app)
-        async with httpx.AsyncClient(transport=transport, base_url="http://test") as c:
+        async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1", headers=OCTETS) as c:
             return await asyncio.gather(
                 c.get("/"), c.get("/viewer/vendor/three.module.js"), c.get("/viewer/viewer.js"),
                 c.post("/v1/convert?filename=w.npy", content=buf.getvalue()),

@@ -1,0 +1,39 @@
+"""Every limit of `smf serve` in one place (docs/serve.md lists them): sizes, counts, ranges and timeouts."""
+
+from __future__ import annotations
+
+# request bodies (enforced while reading, for every transfer encoding: serve/guard.py)
+MAX_BODY_BYTES = 16 * 1024  # a JSON request
+MAX_UPLOAD_BYTES = 16 * 1024 * 1024  # a dropped .bvh / .npy (POST /v1/convert)
+BODY_TIMEOUT_S = 30.0  # the whole body must arrive within this
+# connections (uvicorn settings: serve/server.py)
+HEADER_TIMEOUT_S = 10.0  # a connection must send a request's complete headers within this
+KEEP_ALIVE_S = 5  # an idle keep-alive connection is closed after this
+MAX_CONNECTIONS = 256  # concurrent connections and requests; beyond, uvicorn answers 503
+MAX_HEADER_BYTES = 16 * 1024  # request line and headers (h11)
+GRACEFUL_SHUTDOWN_S = 5  # after SIGTERM, requests in flight get this long before the worker is stopped
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")  # Host header names accepted by default (DNS rebinding)
+CLIENT_HEADER = "x-smf-client"  # a request with this header (or an octet-stream body) may POST a file
+
+# generation requests (serve/checks.py)
+MAX_PROMPT_CHARS = 300
+MAX_STEPS = 50
+MAX_GUIDANCE = 20.0
+MAX_SEGMENTS = 16
+MAX_TIMELINE_SECONDS = 120.0
+MAX_SEED = 2**63
+
+# POST /v1/convert (serve/convert.py): a file shown by the viewer
+MAX_CONVERT_SECONDS = 120.0  # as long as the longest timeline
+MIN_FRAME_TIME_S = 1e-3  # a BVH between 1 and 1000 frames per second
+MAX_FRAME_TIME_S = 1.0
+MAX_ABS_VALUE = 1e6  # any number of an uploaded file (metres, centimetres, millimetres or degrees)
+MAX_ABS_METRES = 1e4  # any joint position shown
+
+# the worker process (serve/worker.py)
+WORKER_START_TIMEOUT_S = 600.0  # loading and warming the model
+WORKER_STOP_S = 2.0  # asked to stop, then terminated, then killed
+WORKER_MAX_FAILED_STARTS = 3  # consecutive starts that die before ready: the worker is marked failed
+WORKER_RESTART_DELAY_S = 0.5
+WORKER_POLL_S = 0.1
+WARM_STEPS = 2  # the warm-up generation before the worker reports ready

@@ -1,0 +1,58 @@
+"""uvicorn, configured so that no connection can hold the server: a deadline for a request's headers (a
+half-open connection is closed), a keep-alive timeout, a cap on concurrent connections, a cap on header size,
+and a short graceful shutdown after SIGTERM (the app's shutdown then stops the worker process)."""
+
+from __future__ import annotations
+
+from uvicorn.protocols.http.h11_impl import H11Protocol
+
+from .limits import GRACEFUL_SHUTDOWN_S, HEADER_TIMEOUT_S, KEEP_ALIVE_S, MAX_CONNECTIONS, MAX_HEADER_BYTES
+
+
+def header_timeout_protocol(seconds: float = HEADER_TIMEOUT_S) -> type:
+    """uvicorn's h11 protocol, closing a connection that has not sent a request's complete headers within
+    ``seconds`` of connecting (or of its first bytes after a response)."""
+
+    class HeaderTimeoutH11(H11Protocol):
+        _header_timer = None
+        _armed_cycle = None
+
+        def connection_made(self, transport) -> None:
+            super().connection_made(transport)
+            self._arm()
+
+        def data_received(self, data: bytes) -> None:
+            if self._header_timer is None and (self.cycle is None or self.cycle.response_complete):
+                self._arm()
+            super().data_received(data)
+
+        def connection_lost(self, exc) -> None:
+            self._disarm()
+            super().connection_lost(exc)
+
+        def _arm(self) -> None:
+            self._armed_cycle = self.cycle
+            self._header_timer = self.loop.call_later(seconds, self._expired)
+
+        def _disarm(self) -> None:
+            if self._header_timer is not None:
+                self._header_timer.cancel()
+                self._header_timer = None
+
+        def _expired(self) -> None:
+            self._header_timer = None
+            if self.cycle is self._armed_cycle and not self.transport.is_closing():
+                self.transport.close()  # no new request's headers arrived in time
+
+    return HeaderTimeoutH11
+
+
+def uvicorn_config(app, host: str, port: int, *, header_timeout: float = HEADER_TIMEOUT_S, **overrides):
+    """The uvicorn.Config `smf serve` runs with (tests use it with a free port and shorter timeouts)."""
+    import uvicorn
+
+    settings = dict(host=host, port=port, log_level="warning", http=header_timeout_protocol(header_timeout),
+                    timeout_keep_alive=KEEP_ALIVE_S, limit_concurrency=MAX_CONNECTIONS,
+                    h11_max_incomplete_event_size=MAX_HEADER_BYTES, timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S,
+                    server_header=False)
+    return uvicorn.Config(app, **{**settings, **overrides})

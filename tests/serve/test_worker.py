@@ -1,0 +1,131 @@
+"""The supervised worker process: restarted when it dies (its request in flight answered 503), health
+honest about it; `smf serve` reads the checkpoint config (no pipeline in the parent); SIGTERM stops the
+worker promptly."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import httpx
+
+from stablemofusion.serve import ProcessWorker, WorkerSpec, create_app
+
+from serve_helpers import free_port
+
+LONG = {"segments": [{"prompt": "a person walks", "seconds": 60}, {"prompt": "a person runs", "seconds": 60}],
+        "steps": 50, "seed": 0}
+SHORT = {"prompt": "a person walks", "seconds": 2, "seed": 1, "steps": 1}
+
+
+def test_a_killed_worker_is_restarted_and_its_request_gets_503(pipe, checkpoint):
+    worker = ProcessWorker(WorkerSpec(str(checkpoint), "cpu", threads=1), pipe.config)
+    app = create_app(worker)
+
+    async def health(client):
+        r = await client.get("/v1/health")
+        return r.status_code, r.json()
+
+    async def until_ready(client, seen):
+        for _ in range(1200):  # at most 120 s
+            code, body = await health(client)
+            seen.append((code, body["status"], body["worker"]["warm"]))
+            if code == 200:
+                return body
+            await asyncio.sleep(0.1)
+        raise AssertionError(f"not ready: {seen[-1]}")
+
+    async def go():
+        transport = httpx.ASGITransport(app=app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1", timeout=120) as c:
+            worker.start()
+            first_start = []
+            body = await until_ready(c, first_start)
+            pid = body["worker"]["pid"]
+            long = asyncio.ensure_future(c.post("/v1/timeline", json=LONG))
+            for _ in range(600):
+                if worker.health()["busy"]:
+                    break
+                await asyncio.sleep(0.05)
+            os.kill(pid, signal.SIGKILL)  # as an out-of-memory kill would
+            in_flight = await long
+            restart = []
+            after = await until_ready(c, restart)
+            ok = await c.post("/v1/generate", json=SHORT)
+            return first_start, in_flight, restart, after, ok, pid
+    try:
+        first_start, in_flight, restart, after, ok, pid = asyncio.run(go())
+    finally:
+        worker.close()
+    # not ready before the model was loaded and warm
+    assert first_start[0][0] == 503 and first_start[-1] == (200, "ok", True)
+    assert all(code == 503 and not warm for code, _, warm in first_start[:-1])
+    assert in_flight.status_code == 503 and "restarted" in in_flight.json()["error"]
+    assert restart[0][0] == 503 and restart[0][1] in ("restarting", "starting", "warming")  # honest meanwhile
+    assert after["worker"]["restarts"] == 1 and after["worker"]["pid"] != pid
+    assert ok.status_code == 200 and ok.json()["frames"] == 40
+
+
+def test_serve_reads_the_config_and_loads_no_pipeline_in_the_parent(checkpoint, monkeypatch):
+    import uvicorn
+
+    from stablemofusion.cli.main import main
+    from stablemofusion.pipeline import MotionPipeline
+
+    def refuse(*a, **kw):
+        raise AssertionError("the parent loaded a pipeline")
+    apps = []
+    monkeypatch.setattr(MotionPipeline, "from_pretrained", refuse)
+    monkeypatch.setattr(uvicorn.Server, "run", lambda self: apps.append(self.config.app))
+    assert main(["serve", "--checkpoint", str(checkpoint), "--port", "8123", "--allow-host", "motion.lan"]) == 0
+    worker = apps[0].state.worker
+    assert isinstance(worker, ProcessWorker) and worker.config.fps == 20.0 and worker.health()["state"] == "stopped"
+
+
+def test_sigterm_stops_the_worker_promptly(checkpoint, tmp_path):
+    port = free_port()
+    code = "import sys; from stablemofusion.cli.main import main; sys.exit(main())"
+    server = subprocess.Popen([sys.executable, "-c", code, "serve", "--checkpoint", str(checkpoint), "--port",
+                               str(port), "--threads", "1"], env={**os.environ, "OMP_NUM_THREADS": "1"},
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        pid = None
+        for _ in range(600):  # at most 120 s
+            time.sleep(0.2)
+            try:
+                r = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=2)
+            except httpx.TransportError:
+                continue
+            if r.status_code == 200:
+                pid = r.json()["worker"]["pid"]
+                break
+        assert pid is not None, "the server did not become ready"
+        t0 = time.monotonic()
+        server.send_signal(signal.SIGTERM)
+        server.wait(20)
+        assert time.monotonic() - t0 < 10
+        for _ in range(50):
+            if not _alive(pid):
+                break
+            time.sleep(0.1)
+        assert not _alive(pid)
+    finally:
+        if server.poll() is None:
+            server.kill()
+            server.wait(10)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:  # a zombie (exited, not yet reaped by init) counts as stopped
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ", 1)[1][0] != "Z"
+    except OSError:
+        return False

@@ -8,7 +8,9 @@ import re
 import warnings
 from pathlib import Path
 
-FORMATS = ("npy", "mp4", "gif", "bvh", "json")
+from .character import add_character_arguments, load_rig, write_character_files
+
+FORMATS = ("npy", "mp4", "gif", "bvh", "json", "glb")
 
 
 def add_parser(sub, name: str) -> None:
@@ -37,6 +39,7 @@ def add_parser(sub, name: str) -> None:
                    help="denoising engine (default auto: CUDA graphs on a GPU, the precomputed solver loop on a CPU; "
                         "docs/inference.md)")
     add_footskate_arguments(p)
+    add_character_arguments(p)  # --rig, --joint-map (cli/character.py)
     p.set_defaults(func=run)
 
 
@@ -134,6 +137,7 @@ def run(args: argparse.Namespace) -> None:
     if args.seconds is not None and not args.seconds > 0:
         raise SMFError(f"--seconds must be positive, got {args.seconds}")
 
+    rig = load_rig(args)  # --rig/--joint-map checked before the model loads
     from ..pipeline import LengthClampedWarning, MotionPipeline, OutOfDomainWarning
 
     options = footskate_options_from_args(args) if args.footskate != "off" else None
@@ -152,3 +156,4 @@ def run(args: argparse.Namespace) -> None:
         print(f"smf: warning: {w}")
     write_results(results, args.out, formats, pipe.skeleton,
                   {"sampler": args.sampler, "steps": args.steps, "guidance": args.guidance})
+    write_character_files(results, args.out, formats, rig, _slug)  # .glb and the rig's BVH (cli/character.py)

@@ -2,8 +2,10 @@
 HTTP bodies: bytes for each format (the server answers with them), and file writers built on them (the CLI).
 
 Formats (:data:`WRITERS`): ``npy`` (joints and features), ``bvh`` (the rigid body), ``json`` (joints and
-metadata), ``mp4`` / ``gif`` (a rendered video). A new format is one function decorated with
-``@writer("NAME")`` taking (result, stem, meta) and returning the paths it wrote.
+metadata), ``glb`` (glTF 2.0 binary: a skinned character with one animation), ``mp4`` / ``gif`` (a rendered
+video). A new format is one function decorated with ``@writer("NAME")`` taking (result, stem, meta) and
+returning the paths it wrote. With a :class:`Rig` (the user's BVH skeleton and its joint map), each result
+is also written on that skeleton as ``NAME_rig.bvh``.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import io
 import json
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -50,15 +53,44 @@ def npy_bytes(result: MotionResult, what: str = "joints") -> bytes:
     return buf.getvalue()
 
 
+def _rigid(result: MotionResult):
+    """The result's rigid body (the closed-form rigid pose of its joints without one)."""
+    return result.motion if result.motion is not None else rigid_pose(result.joints, _skeleton(result))
+
+
 def bvh_text(result: MotionResult) -> str:
-    """The BVH file of the result's rigid body (the closed-form rigid pose of its joints without one), so the
-    file reads back to ``result.joints``."""
-    motion = result.motion if result.motion is not None else rigid_pose(result.joints, _skeleton(result))
-    return rigid_bvh_text(motion, result.fps)
+    """The BVH file of the result's rigid body, so the file reads back to ``result.joints``."""
+    return rigid_bvh_text(_rigid(result), result.fps)
 
 
 def bvh_bytes(result: MotionResult) -> bytes:
     return bvh_text(result).encode("utf-8")
+
+
+def glb_bytes(result: MotionResult) -> bytes:
+    """The result as a binary glTF 2.0 file (pygltflib): named joint nodes with a skin and a capsule body, one
+    animation (a rotation per joint, the root's translation) at the result's frame rate; metres, Y up."""
+    from .motion.gltf import rigid_to_glb
+
+    return rigid_to_glb(_rigid(result), result.fps)
+
+
+@dataclass(frozen=True)
+class Rig:
+    """The user's skeleton: a BVH file's rest skeleton (``motion.bvh.BVH``) and the joint map from it to ours."""
+
+    bvh: object
+    joint_map: object
+
+
+def rig_bvh_text(result: MotionResult, rig: Rig) -> str:
+    """The result retargeted onto ``rig``: a BVH with the rig's joints, order, names, offsets and channels;
+    unmapped joints keep their rest pose; root height and stride scaled to the rig's legs."""
+    from .motion.retarget import retarget_onto_bvh, rig_bvh_text as rig_text
+
+    if result.joints.shape[1:] != (22, 3):
+        raise SMFError(f"retargeting onto a rig needs a 22-joint (HumanML3D) motion, got {result.joints.shape[1]} joints")
+    return rig_text(rig.bvh, retarget_onto_bvh(result.joints, rig.bvh, rig.joint_map), result.fps)
 
 
 def json_payload(result: MotionResult, **meta) -> dict:
@@ -70,7 +102,17 @@ def json_payload(result: MotionResult, **meta) -> dict:
 
 
 def json_bytes(result: MotionResult, **meta) -> bytes:
-    return (json.dumps(json_payload(result, **meta)) + "\n").encode("utf-8")
+    return _dumps(json_payload(result, **meta))
+
+
+def joints_json_bytes(joints: np.ndarray, fps: float) -> bytes:
+    """Joints (T, J, 3) of a motion read from a file, as the viewer reads them: fps, frames, joints."""
+    return _dumps({"fps": fps, "frames": len(joints), "joints": np.round(joints, JSON_DECIMALS).tolist()})
+
+
+def _dumps(body: dict) -> bytes:
+    """Compact JSON (C encoder), UTF-8, no NaN, one line."""
+    return (json.dumps(body, ensure_ascii=False, allow_nan=False, separators=(",", ":")) + "\n").encode("utf-8")
 
 
 # --- files ---
@@ -95,6 +137,18 @@ def write_bvh(result: MotionResult, stem: Path, meta: dict) -> list[Path]:
 @writer("json", ".json")
 def write_json(result: MotionResult, stem: Path, meta: dict) -> list[Path]:
     return [_write(OUTPUTS["json"](stem)[0], json_bytes(result, **meta))]
+
+
+@writer("glb", ".glb")
+def write_glb(result: MotionResult, stem: Path, meta: dict) -> list[Path]:
+    return [_write(OUTPUTS["glb"](stem)[0], glb_bytes(result))]
+
+
+RIG_SUFFIX = "_rig.bvh"
+
+
+def write_rig(result: MotionResult, stem: Path, rig: Rig) -> Path:
+    return _write(stem.with_name(stem.name + RIG_SUFFIX), rig_bvh_text(result, rig).encode("utf-8"))
 
 
 def _video(fmt: str) -> Writer:
@@ -127,29 +181,35 @@ def slug(text: str, index: int) -> str:
     return f"{index:03d}_{words or 'motion'}"
 
 
-def free_stem(stem: Path, formats: list[str], overwrite: bool = False) -> Path:
-    """``stem``, or ``stem-2``, ``stem-3``, ... the first whose files (for ``formats``) do not exist yet:
-    outputs are never overwritten silently (``overwrite`` True: ``stem`` as it is)."""
+def free_stem(stem: Path, formats: list[str], overwrite: bool = False, rig: bool = False) -> Path:
+    """``stem``, or ``stem-2``, ``stem-3``, ... the first whose files (for ``formats``, and the rig's BVH with
+    ``rig``) do not exist yet: outputs are never overwritten silently (``overwrite`` True: ``stem`` as it is)."""
+    def paths(c: Path) -> list[Path]:
+        return [p for f in formats for p in OUTPUTS[f](c)] + ([c.with_name(c.name + RIG_SUFFIX)] if rig else [])
+
     candidate, n = stem, 1
-    while not overwrite and any(p.exists() for f in formats for p in OUTPUTS[f](candidate)):
+    while not overwrite and any(p.exists() for p in paths(candidate)):
         n += 1
         candidate = stem.with_name(f"{stem.name}-{n}")
     return candidate
 
 
-def write_result(result: MotionResult, stem: Path, formats: list[str], meta: dict | None = None) -> list[Path]:
-    """Write ``result`` in each of ``formats`` beside ``stem`` (atomically); returns the paths written."""
-    return [p for f in formats for p in WRITERS[f](result, Path(stem), dict(meta or {}))]
+def write_result(result: MotionResult, stem: Path, formats: list[str], meta: dict | None = None,
+                 rig: Rig | None = None) -> list[Path]:
+    """Write ``result`` in each of ``formats`` beside ``stem`` (atomically), and on ``rig`` when given; returns
+    the paths written."""
+    paths = [p for f in formats for p in WRITERS[f](result, Path(stem), dict(meta or {}))]
+    return paths + ([write_rig(result, Path(stem), rig)] if rig is not None else [])
 
 
 def write_results(results: list[MotionResult], out: Path, formats: list[str], meta: dict | None = None, *,
-                  overwrite: bool = False) -> list[Path]:
+                  overwrite: bool = False, rig: Rig | None = None) -> list[Path]:
     """Write each result named from its prompt (``out/000_prompt.*``, a free name unless ``overwrite``);
     prints one line per motion; returns the stems."""
     stems = []
     for i, r in enumerate(results):
-        stem = free_stem(Path(out) / slug(r.prompt, i), formats, overwrite)
-        write_result(r, stem, formats, meta)
+        stem = free_stem(Path(out) / slug(r.prompt, i), formats, overwrite, rig is not None)
+        write_result(r, stem, formats, meta, rig)
         print(f"wrote {stem}.* ({r.frames} frames, {r.seconds:.1f} s)")
         stems.append(stem)
     return stems

@@ -54,4 +54,4 @@ def test_a_new_format_is_one_function(result, tmp_path):
         WRITERS.pop("txt"), OUTPUTS.pop("txt")
     with pytest.raises(SMFError, match="choose from"):
         parse_formats("npy,txt")
-    assert set(FORMATS) == {"npy", "bvh", "json", "mp4", "gif"}
+    assert set(FORMATS) == {"npy", "bvh", "json", "glb", "mp4", "gif"}

@@ -1,4 +1,5 @@
-"""`smf convert INPUT OUTPUT [--to joints|features]`: between joints .npy, features .npy and .bvh."""
+"""`smf convert INPUT OUTPUT [--to joints|features] [--rig RIG.bvh --joint-map MAP]`: between joints .npy,
+features .npy, .bvh and .glb, or onto the user's skeleton."""
 
 from __future__ import annotations
 
@@ -7,26 +8,47 @@ from pathlib import Path
 
 from ..errors import SMFError
 from ..motion.files import load_motion, save_motion
+from .character import add_character_arguments, load_rig
+
+OUTPUTS = (".npy", ".bvh", ".glb")
 
 
 def add_parser(sub, name: str) -> None:
-    p = sub.add_parser(name, help="convert between joints .npy, features .npy and .bvh",
-                       description="Convert a motion between joints .npy (T,J,3 metres), features .npy (T,263|251) "
-                                   "and BVH. A .npy output holds the other kind than the input unless --to says.")
-    p.add_argument("input", help="joints/features .npy, .bvh, or example:<name>")
-    p.add_argument("output", type=Path)
+    p = sub.add_parser(name, help="convert between joints .npy, features .npy, .bvh and .glb",
+                       description="Convert a motion between joints .npy (T,J,3 metres), features .npy (T,263|251), "
+                                   "BVH and glTF 2.0 binary (.glb: a skinned character with one animation). A .npy "
+                                   "output holds the other kind than the input unless --to says. With --rig and "
+                                   "--joint-map the .bvh output is the motion on that rig's skeleton.")
+    p.add_argument("input", help="joints/features .npy, .bvh (ours, or any with --joint-map), or example:<name>")
+    p.add_argument("output", type=Path, help="output file: .npy, .bvh or .glb")
     p.add_argument("--to", choices=["joints", "features"], default=None,
                    help="what a .npy output holds (default: features for a joints input, joints otherwise)")
-    p.add_argument("--joint-map", default=None,
-                   help="read a raw mocap .bvh input through a joint map: a built-in NAME (bandai-namco) or a JSON FILE")
+    add_character_arguments(p, reads_motion=True)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> None:
+    from ..io import atomic_path
+    from ..motion.files import rigid_pose
+    from ..output import glb_bytes, rig_bvh_text
+    from ..pipelines.result import MotionResult
+
     suffix = args.output.suffix.lower()
-    if suffix not in (".npy", ".bvh"):
-        raise SMFError(f"unsupported output extension '{args.output.suffix}'; use .npy or .bvh")
+    if suffix not in OUTPUTS:
+        raise SMFError(f"unsupported output extension '{args.output.suffix}'; use {', '.join(OUTPUTS)}")
+    rig = load_rig(args, args.input)
+    if rig is not None and suffix != ".bvh":
+        raise SMFError(f"--rig writes the rig's BVH: give an output ending in .bvh, not '{args.output.suffix}'")
     motion = load_motion(args.input, joint_map=args.joint_map)
+    if rig is not None or suffix == ".glb":
+        result = MotionResult(str(args.input), motion.features, motion.joints, motion.fps, None,
+                              rigid_pose(motion.joints, motion.skeleton))
+        data = rig_bvh_text(result, rig).encode("utf-8") if rig is not None else glb_bytes(result)
+        with atomic_path(args.output) as tmp:
+            tmp.write_bytes(data)
+        where = f"on {args.rig.name}" if rig is not None else "glb"
+        print(f"wrote {args.output} ({where}, {len(motion.joints)} frames)")
+        return
     if suffix == ".bvh":
         kind = "bvh"
     elif args.to is not None:

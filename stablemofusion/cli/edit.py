@@ -8,6 +8,7 @@ from pathlib import Path
 
 def add_parser(sub, name: str) -> None:
     from ..edit import EDIT_MODES, IMPOSE
+    from .character import add_character_arguments
     from .options import add_sampling_arguments
 
     p = sub.add_parser(name, help="edit a motion with text: keep part of it, generate the rest",
@@ -17,8 +18,6 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--motion", required=True,
                    help="joints (T,J,3) or features (T,D) .npy, a .bvh (ours, or any with --joint-map), or "
                         "example:NAME")
-    p.add_argument("--joint-map", default=None,
-                   help="read a raw mocap .bvh through a joint map: a built-in NAME (bandai-namco) or a JSON FILE")
     p.add_argument("--mode", required=True, choices=EDIT_MODES)
     p.add_argument("--keep-start", type=float, default=0.0, help="seconds kept at the start (prefix, inbetween)")
     p.add_argument("--keep-end", type=float, default=0.0, help="seconds kept at the end (suffix, inbetween)")
@@ -29,6 +28,7 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--impose", default="x0", choices=IMPOSE,
                    help="keep the known part in the x0 prediction (default) or in the noisy sample")
     add_sampling_arguments(p)
+    add_character_arguments(p, reads_motion=True)
     p.set_defaults(func=run)
 
 
@@ -40,9 +40,11 @@ def run(args: argparse.Namespace) -> None:
     from ..motion.files import load_motion
     from ..output import parse_formats, write_results
     from ..pipelines.edit import check_edit_inputs
+    from .character import load_rig
     from .options import load_pipeline, output_meta, sampling_kwargs
 
     formats = parse_formats(args.format)
+    rig = load_rig(args, args.motion)
     if not args.text.strip():
         raise SMFError("the prompt is empty")
     for flag in ("fps", "seconds"):
@@ -68,4 +70,4 @@ def run(args: argparse.Namespace) -> None:
                        seconds=args.seconds, path=path, impose=args.impose, **kwargs)
     write_results([result], args.out, formats,
                   {"edit": args.mode, "impose": args.impose, "keep_start": args.keep_start, "keep_end": args.keep_end,
-                   **output_meta(args)}, overwrite=args.overwrite)
+                   **output_meta(args)}, overwrite=args.overwrite, rig=rig)

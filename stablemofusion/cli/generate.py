@@ -8,6 +8,7 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
+    from .character import add_character_arguments
     from .options import add_sampling_arguments
 
     p = sub.add_parser(name, help="generate motions from text",
@@ -21,6 +22,7 @@ def add_parser(sub, name: str) -> None:
                         "4 s for a model without one); not with --timeline, whose segments give their own")
     p.add_argument("--batch-size", type=int, default=32)
     add_sampling_arguments(p)
+    add_character_arguments(p, reads_motion=False)
     p.set_defaults(func=run)
 
 
@@ -57,9 +59,11 @@ def read_prompts(args) -> list[str]:
 def run(args: argparse.Namespace) -> None:
     from ..output import parse_formats, write_results
     from ..pipeline import LengthClampedWarning, OutOfDomainWarning
+    from .character import load_rig
     from .options import load_pipeline, output_meta, sampling_kwargs
 
     formats = parse_formats(args.format)
+    rig = load_rig(args)  # checked before the model loads
     prompts = read_prompts(args)
     kwargs = sampling_kwargs(args)
     pipe = load_pipeline(args)
@@ -75,4 +79,4 @@ def run(args: argparse.Namespace) -> None:
     shown = (LengthClampedWarning, OutOfDomainWarning)
     for w in dict.fromkeys(str(c.message) for c in caught if issubclass(c.category, shown)):
         print(f"smf: warning: {w}")
-    write_results(results, args.out, formats, output_meta(args), overwrite=args.overwrite)
+    write_results(results, args.out, formats, output_meta(args), overwrite=args.overwrite, rig=rig)

@@ -46,7 +46,7 @@ def example_path(name: str) -> Path:
 def load_motion(path: str | Path, skeleton: str | Skeleton | None = None, joint_map: str | None = None) -> Motion:
     """Read a joints `.npy`, a features `.npy`, a `.bvh` written with our skeleton's joint names, or a
     packaged example given as ``example:<name>``; ``joint_map`` (a built-in name such as 'bandai-namco', or a
-    JSON file) reads a `.bvh` of another skeleton (raw mocap) onto ours."""
+    JSON file) reads a `.bvh` of another skeleton (raw mocap) onto ours (a `.bvh` of ours is read as it is)."""
     if isinstance(path, str) and path.startswith("example:"):
         path = example_path(path[len("example:"):])
     path = Path(path)
@@ -54,16 +54,8 @@ def load_motion(path: str | Path, skeleton: str | Skeleton | None = None, joint_
         raise SMFError(f"unsupported motion file extension '{path.suffix}' for {path}; use .npy or .bvh")
     if not path.is_file():
         raise SMFError(f"no such file: {path}")
-    if joint_map is not None:
-        from .retarget import JointMap, retarget_bvh
-
-        if path.suffix.lower() != ".bvh":
-            raise SMFError(f"--joint-map is for .bvh motions, not {path.name}")
-        jm = JointMap.named(joint_map)
-        sk = get_skeleton(jm.skeleton)
-        return Motion(retarget_bvh(path, jm), sk, sk.fps)
     if path.suffix.lower() == ".bvh":
-        return _load_bvh(path, skeleton)
+        return _load_bvh(path, skeleton, joint_map)
     try:
         arr = np.load(path, allow_pickle=False)
     except Exception as e:  # noqa: BLE001 - numpy raises many types for broken files
@@ -97,13 +89,19 @@ def _kind_for(shape: tuple[int, ...], sk: Skeleton) -> tuple[Skeleton, str]:
     return sk, kind
 
 
-def _load_bvh(path: Path, skeleton: str | Skeleton | None) -> Motion:
+def _load_bvh(path: Path, skeleton: str | Skeleton | None, joint_map: str | None) -> Motion:
     bvh = read_bvh(path)
     candidates = [get_skeleton(skeleton)] if skeleton is not None else [get_skeleton("humanml3d"), get_skeleton("kit")]
     for sk in candidates:
         if sorted(bvh.names) == sorted(sk.joint_names):  # BVH lists joints depth-first, we index by SMPL order
             order = [list(bvh.names).index(n) for n in sk.joint_names]
             return Motion(resample(forward_kinematics(bvh)[:, order], bvh.fps, sk.fps), sk, sk.fps)
+    if joint_map is not None:
+        from .retarget import JointMap, retarget_bvh
+
+        jm = JointMap.named(joint_map)
+        sk = get_skeleton(jm.skeleton)
+        return Motion(retarget_bvh(bvh, jm), sk, sk.fps)
     raise SMFError(
         f"{path}: BVH joints {bvh.names[:3]}... are not a {'/'.join(s.name for s in candidates)} skeleton; "
         "read it through a joint map with --joint-map NAME|FILE (built-in: bandai-namco; format in "

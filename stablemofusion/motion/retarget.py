@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SMFError
-from .bvh import BVH, forward_kinematics, read_bvh
+from .bvh import BVH, UNIT_SCALES, forward_kinematics, read_bvh
 from .files import resample
 from .skeleton import Skeleton, get_skeleton
 
@@ -64,7 +64,7 @@ class JointMap:
         """A joint map shipped with the package, e.g. 'bandai-namco'."""
         res = resources.files("stablemofusion") / "assets" / "joint_maps" / f"{name}.json"
         if not res.is_file():
-            raise SMFError(f"no built-in joint map named {name!r}")
+            raise SMFError(f"no joint map file or built-in map named {name!r}; built-in: {', '.join(builtin_joint_maps())}")
         return JointMap.from_dict(json.loads(res.read_text(encoding="utf-8")), "humanml3d", name)
 
     @staticmethod
@@ -93,3 +93,98 @@ def retarget_bvh(bvh: BVH | str | Path, joint_map: JointMap, *, fps: float | Non
     sk = get_skeleton(joint_map.skeleton)
     joints = joint_map.apply(forward_kinematics(bvh), list(bvh.names), where)
     return resample(joints, bvh.fps, fps or sk.fps)
+
+
+# --- onto a user's skeleton (the reverse direction: our motion -> their BVH rig); math in .rig -------------
+
+def builtin_joint_maps() -> list[str]:
+    """Names of the joint maps shipped with the package (assets/joint_maps/*.json)."""
+    folder = resources.files("stablemofusion") / "assets" / "joint_maps"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".json"))
+
+
+def rig_from_bvh(bvh: BVH) -> "Rig":
+    """The rest skeleton of a BVH file as a :class:`~stablemofusion.motion.rig.Rig` (metres)."""
+    from .rig import Rig
+
+    return Rig(list(bvh.names), bvh.parents, bvh.offsets)
+
+
+def _carrier(bvh: BVH, pelvis: int) -> int:
+    """The joint whose position channels carry the path: the pelvis's own where it has them (Bandai-Namco's
+    Hips), else the root's."""
+    for j in (pelvis, 0):
+        if sum(c.endswith("position") for c in bvh.channels[j]) == 3:
+            return j
+    raise SMFError(f"rig: neither {bvh.names[pelvis]!r} nor the root {bvh.names[0]!r} has 3 position channels")
+
+
+def retarget_onto_bvh(joints: np.ndarray, rig: BVH, joint_map: JointMap):
+    """Our joints (T, 22, 3) metres -> :class:`~stablemofusion.motion.rig.RigMotion` on ``rig``'s skeleton."""
+    from .rig import retarget, targets_from_sources
+
+    if joint_map.skeleton != "humanml3d":
+        raise SMFError(f"retargeting onto a rig needs a HumanML3D joint map, got {joint_map.skeleton}")
+    targets = targets_from_sources(list(rig.names), list(joint_map.sources))
+    pelvis = int(np.flatnonzero(targets == 0)[0]) if (targets == 0).any() else 0
+    return retarget(joints, rig_from_bvh(rig), targets, carrier=_carrier(rig, pelvis))
+
+
+def rig_bvh_text(rig: BVH, motion, fps: float, precision: int = 6) -> str:
+    """The BVH text of a :class:`~stablemofusion.motion.rig.RigMotion` on ``rig``: the template's joints, order,
+    names, offsets, end sites, channel layout and unit; rotations in each joint's own channel order."""
+    from scipy.spatial.transform import Rotation
+
+    unit = UNIT_SCALES[rig.unit]
+    T, R = motion.rotations.shape[:2]
+    columns = []
+    for j, chans in enumerate(rig.channels):
+        rot = [c[0] for c in chans if c.endswith("rotation")]
+        if len(rot) == 3:
+            euler = Rotation.from_matrix(motion.rotations[:, j]).as_euler("".join(rot), degrees=True)
+        elif not np.allclose(motion.rotations[:, j], np.eye(3), atol=1e-6):
+            raise SMFError(f"rig: joint {rig.names[j]!r} must turn but has {len(rot)} rotation channel(s), not 3")
+        k = 0
+        for c in chans:
+            if c.endswith("position"):
+                columns.append(motion.translations[:, j, "XYZ".index(c[0])] / unit)
+            else:
+                columns.append(euler[:, k] if len(rot) == 3 else np.zeros(T))
+                k += 1
+    data = np.round(np.stack(columns, -1) if columns else np.zeros((T, 0)), precision) + 0.0
+
+    def num(v) -> str:
+        return " ".join(f"{x + 0.0:.{precision}f}" for x in np.round(np.asarray(v) / unit, precision))
+
+    children: list[list[int]] = [[] for _ in range(R)]
+    for j in range(1, R):
+        children[rig.parents[j]].append(j)
+    out = ["HIERARCHY"]
+
+    def emit(j: int, depth: int) -> None:
+        ind = "\t" * depth
+        out.extend([f"{ind}{'ROOT' if j == 0 else 'JOINT'} {rig.names[j]}", f"{ind}{{",
+                    f"{ind}\tOFFSET {num(rig.offsets[j])}", f"{ind}\tCHANNELS {len(rig.channels[j])} "
+                    + " ".join(rig.channels[j])])
+        for c in children[j]:
+            emit(c, depth + 1)
+        if j in rig.end_sites:
+            out.extend([f"{ind}\tEnd Site", f"{ind}\t{{", f"{ind}\t\tOFFSET {num(rig.end_sites[j])}", f"{ind}\t}}"])
+        out.append(f"{ind}}}")
+
+    emit(0, 0)
+    row = " ".join([f"%.{precision}f"] * data.shape[1])
+    out += ["MOTION", f"Frames: {T}", f"Frame Time: {1.0 / fps:.9g}"]
+    out += [row % tuple(r) for r in data.tolist()]
+    return "\n".join(out) + "\n"
+
+
+def save_rig_bvh(joints: np.ndarray, rig: str | Path | BVH, joint_map: str | Path | JointMap, path: str | Path,
+                 fps: float = 20.0) -> None:
+    """Retarget our joints (T, 22, 3) metres at ``fps`` onto ``rig`` (a BVH file or object) with ``joint_map``
+    (a JointMap, a JSON path or a built-in name) and write the rig's BVH to ``path``, atomically."""
+    from ..io import write_text
+
+    rig = rig if isinstance(rig, BVH) else read_bvh(rig)
+    jmap = joint_map if isinstance(joint_map, JointMap) else JointMap.named(joint_map)
+    write_text(path, rig_bvh_text(rig, retarget_onto_bvh(joints, rig, jmap), fps))

@@ -30,7 +30,7 @@ from .convert import check_suffix, convert_upload
 from .errors import ServeError, log_event
 from .guard import Guard
 from .limits import MAX_BODY_BYTES
-from .output import MOTION_FORMATS
+from .output import motion_response
 from .worker import Job, ThreadWorker
 
 VIEWER = Path(__file__).resolve().parents[1] / "assets" / "viewer"
@@ -59,7 +59,7 @@ async def answer(request: Request, batcher: DynamicBatcher, job: Job, format: st
             work.cancel()
     if not work.done() or work.cancelled():
         return error(499, "the client disconnected")
-    return MOTION_FORMATS[format](work.result(), job.seed)  # a ServeError of the job propagates
+    return motion_response(work.result(), format)  # a ServeError of the job propagates
 
 
 def _install_error_handlers(app: FastAPI) -> None:

@@ -10,10 +10,11 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from .errors import ServeError
+from .output import MOTION_FORMATS
 from .limits import MAX_GUIDANCE, MAX_PROMPT_CHARS, MAX_SEED, MAX_SEGMENTS, MAX_STEPS, MAX_TIMELINE_SECONDS
 from .worker import Job
 
-FORMATS = ("json", "bvh", "npy")
+FORMATS = tuple(MOTION_FORMATS)  # json, bvh, npy, glb
 STRICT = ConfigDict(extra="forbid", strict=True)  # {"seed": true} and {"seconds": "4"} are errors
 
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from .errors import ServeError
 from .limits import (MAX_ABS_METRES, MAX_ABS_VALUE, MAX_CONVERT_SECONDS, MAX_FRAME_TIME_S, MIN_FRAME_TIME_S)
-from .output import json_joints
+from ..output import joints_json_bytes
 
 SUFFIXES = (".bvh", ".npy")
 _MOTION = re.compile(rb"^[ \t]*MOTION[ \t]*\r?$", re.M)
@@ -40,7 +40,7 @@ def convert_upload(data: bytes, filename: str) -> bytes:
         raise ServeError(422, f"{filename}: longer than {MAX_CONVERT_SECONDS:g} s")
     if not (np.isfinite(joints).all() and np.abs(joints).max(initial=0.0) <= MAX_ABS_METRES):
         raise ServeError(422, f"{filename}: joint positions are not finite or farther than {MAX_ABS_METRES:g} m")
-    return json_joints(fps, joints)
+    return joints_json_bytes(joints, fps)
 
 
 def _check_bvh(data: bytes, filename: str) -> None:

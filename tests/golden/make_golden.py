@@ -69,7 +69,8 @@ def http_body() -> dict:
     from stablemofusion.serve.app import create_app
 
     pipe = MotionPipeline.from_pretrained(device="cpu")
-    with TestClient(create_app(pipe)) as client:
+    # the server checks the Host header (loopback names); the request as any local client sends it
+    with TestClient(create_app(pipe), base_url="http://127.0.0.1") as client:
         res = client.post("/v1/generate", json={"prompt": "a person walks forward", "seconds": 2.0, "seed": 3})
         assert res.status_code == 200, res.text
         return res.json()

@@ -136,3 +136,38 @@ def test_dropping_a_local_npy_shows_it_and_bad_files_show_an_error(page):
     page.wait_for_function("document.getElementById('status').className === 'error'", timeout=30_000)
     assert "only .bvh and .npy" in page.inner_text("#status")
     assert [m for m in page.logs if "pageerror" in m] == []
+
+
+def test_the_character_glb_is_shown_in_step_with_the_skeleton(page, tmp_path):
+    """The generated motion's .glb (GLTFLoader) plays in step with the JSON joints, and a dropped .glb plays too."""
+    page.fill("#prompt", "a person walks forward")
+    page.fill("#seconds", "2")
+    page.click("#generate")
+    page.wait_for_function("window.smf.ready && window.smf.character !== null", timeout=60_000)
+    page.click("#play")  # pause
+    page.evaluate("window.smf.setFrame(25)")
+    glb = np.array(page.evaluate("window.smf.glbJoints(25)"))
+    json_joints = np.array(page.evaluate("Array.from(window.smf.joints.subarray(25 * 66, 26 * 66))")).reshape(22, 3)
+    assert np.abs(glb - json_joints).max() < 1e-3  # the glTF node tree gives the same joints (1 mm)
+    page.wait_for_timeout(200)
+    with_body = shot(page)
+    page.uncheck("#body")
+    page.wait_for_timeout(200)
+    assert (np.abs(with_body - shot(page)).sum(-1) > 60).sum() > 200  # the body was on screen
+    page.check("#body")
+    page.wait_for_timeout(200)
+    assert not page.is_disabled("#glb")
+    data = page.evaluate("""async () => {
+        const res = await fetch('/v1/generate?format=glb', {method: 'POST', headers: {'Content-Type': 'application/json'},
+            body: JSON.stringify({prompt: 'a person bows', seconds: 3, seed: 1})});
+        return Array.from(new Uint8Array(await res.arrayBuffer()));
+    }""")
+    assert bytes(data[:4]) == b"glTF"
+    page.evaluate("""async (bytes) => {
+        const dt = new DataTransfer();
+        dt.items.add(new File([new Uint8Array(bytes)], 'bow.glb'));
+        window.dispatchEvent(new DragEvent('drop', {dataTransfer: dt, bubbles: true, cancelable: true}));
+    }""", data)
+    page.wait_for_function("window.smf.ready && window.smf.frames === 60", timeout=30_000)
+    assert "bow.glb: 60 frames" in page.inner_text("#status")
+    assert [m for m in page.logs if "pageerror" in m] == []

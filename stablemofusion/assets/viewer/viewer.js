@@ -1,6 +1,7 @@
 // stablemofusion viewer: a three.js skeleton player for the HTTP API (POST /v1/generate, /v1/timeline, /v1/convert).
 import * as THREE from 'three';
 import { OrbitControls } from '/viewer/vendor/OrbitControls.js';
+import { loadGlb, glbJoints } from '/viewer/glb.js';
 
 const PARENTS = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19];
 const LEFT = new Set([1, 4, 7, 10, 13, 16, 18, 20]);
@@ -9,9 +10,14 @@ const FEET = [7, 10, 8, 11]; // left ankle, left toe, right ankle, right toe
 const CONTACT_HEIGHT = 0.05; // m above the joint's lowest point in the motion
 const CONTACT_SPEED = 0.5; // m/s
 const COLORS = { left: 0x1f77b4, right: 0xd62728, spine: 0x333333, contact: 0x2ca02c };
+const JOINT_NAMES = ['pelvis', 'left_hip', 'right_hip', 'spine1', 'left_knee', 'right_knee', 'spine2', 'left_ankle',
+  'right_ankle', 'spine3', 'left_foot', 'right_foot', 'neck', 'left_collar', 'right_collar', 'head', 'left_shoulder',
+  'right_shoulder', 'left_elbow', 'right_elbow', 'left_wrist', 'right_wrist']; // the .glb's joint nodes
+const DOWNLOADS = { bvh: 'motion.bvh', npy: 'motion_joints.npy', glb: 'motion.glb' };
 
 const $ = (id) => document.getElementById(id);
-const state = { joints: null, frames: 0, fps: 20, frame: 0, playing: true, contacts: null, request: null, ready: false };
+const state = { joints: null, frames: 0, fps: 20, frame: 0, playing: true, contacts: null, request: null, ready: false,
+  character: null };
 window.smf = state; // for tests and the console
 
 // scene
@@ -26,6 +32,10 @@ camera.position.set(3, 1.7, 4.5);
 const controls = new OrbitControls(camera, renderer.domElement);
 controls.target.set(0, 0.9, 0);
 scene.add(floorGrid(10, 0.5));
+scene.add(new THREE.HemisphereLight(0xffffff, 0x888880, 2.0));
+const sun = new THREE.DirectionalLight(0xffffff, 1.5);
+sun.position.set(2, 5, 3);
+scene.add(sun);
 
 // A floor grid of short segments (every line cut at each crossing): software WebGL (SwiftShader) drops a
 // whole line that passes behind the camera, which hid the near half of a plain GridHelper.
@@ -133,6 +143,7 @@ function setFrame(t) {
   controls.target.z += dz;
   camera.position.x += dx;
   camera.position.z += dz;
+  if (state.character) state.character.mixer.setTime(state.frame / state.fps);
   $('scrub').value = String(state.frame);
   $('frame').textContent = `frame ${state.frame + 1} / ${state.frames} (${(state.frame / state.fps).toFixed(2)} s)`;
 }
@@ -206,8 +217,8 @@ $('form').addEventListener('submit', async (ev) => {
     state.request = { ...body, seed: m.seed };
     state.endpoint = endpoint;
     setMotion(m.joints, m.frames, m.fps, `"${m.prompt}": ${m.frames} frames, seed ${m.seed}`);
-    $('bvh').disabled = false;
-    $('npy').disabled = false;
+    for (const f of Object.keys(DOWNLOADS)) $(f).disabled = false;
+    await showCharacter();
   } catch (e) {
     status(e.message, true);
   } finally {
@@ -232,15 +243,39 @@ async function download(format) {
       { 'Content-Type': 'application/json' });
     const a = document.createElement('a');
     a.href = URL.createObjectURL(await res.blob());
-    a.download = format === 'bvh' ? 'motion.bvh' : 'motion_joints.npy';
+    a.download = DOWNLOADS[format];
     a.click();
     URL.revokeObjectURL(a.href);
   } catch (e) {
     status(e.message, true);
   }
 }
-$('bvh').addEventListener('click', () => download('bvh'));
-$('npy').addEventListener('click', () => download('npy'));
+for (const f of Object.keys(DOWNLOADS)) $(f).addEventListener('click', () => download(f));
+
+// the skinned character: the same request as a .glb (or a dropped .glb), loaded with three.js's GLTFLoader and
+// played in step with the skeleton
+function dropCharacter() {
+  if (state.character) scene.remove(state.character.root);
+  state.character = null;
+}
+async function setCharacter(buffer) {
+  dropCharacter();
+  state.character = await loadGlb(scene, buffer);
+  state.character.root.visible = $('body').checked;
+  setFrame(state.frame);
+}
+async function showCharacter() {
+  dropCharacter();
+  if (!$('body').checked || !state.request) return;
+  const res = await post(`${state.endpoint}?format=glb`, JSON.stringify(state.request),
+    { 'Content-Type': 'application/json' });
+  await setCharacter(await res.arrayBuffer());
+}
+$('body').addEventListener('change', () => {
+  if (state.character) state.character.root.visible = $('body').checked;
+  else showCharacter().catch((e) => status(e.message, true));
+});
+window.smf.glbJoints = (f) => (state.character ? glbJoints(state.character, JOINT_NAMES, f) : null);
 
 // drop a local .bvh or .npy: the server reads it (never unpickled) and returns its joints
 window.addEventListener('dragover', (ev) => { ev.preventDefault(); document.body.classList.add('dragging'); });
@@ -253,12 +288,22 @@ window.addEventListener('drop', async (ev) => {
   state.ready = false;
   status(`reading ${file.name}...`);
   try {
+    if (file.name.toLowerCase().endsWith('.glb')) {  // read here: the character and its joints, frame by frame
+      state.request = null;
+      await setCharacter(await file.arrayBuffer());
+      const c = state.character;
+      const frames = c.frames || Math.round(c.duration * c.fps) + 1;
+      const joints = Array.from({ length: frames }, (_, f) => glbJoints(c, JOINT_NAMES, f));
+      for (const f of Object.keys(DOWNLOADS)) $(f).disabled = true;
+      setMotion(joints, frames, c.fps, `${file.name}: ${frames} frames`);
+      return;
+    }
+    dropCharacter();
     const res = await post(`/v1/convert?filename=${encodeURIComponent(file.name)}`, await file.arrayBuffer(),
       { 'Content-Type': 'application/octet-stream' });
     const m = await res.json();
     state.request = null;
-    $('bvh').disabled = true;
-    $('npy').disabled = true;
+    for (const f of Object.keys(DOWNLOADS)) $(f).disabled = true;
     setMotion(m.joints, m.frames, m.fps, `${file.name}: ${m.frames} frames`);
   } catch (e) {
     status(e.message, true);

@@ -1,0 +1,93 @@
+"""stablemofusion for Blender: text to motion on the selected armature.
+
+Install: Edit > Preferences > Add-ons > Install..., pick a zip of this folder (or copy the folder into
+Blender's scripts/addons), enable "Animation: stablemofusion". The panel is in the 3D view's sidebar (N),
+tab "Motion". See docs/character.md.
+"""
+
+bl_info = {
+    "name": "stablemofusion",
+    "author": "stablemofusion contributors",
+    "version": (0, 1, 0),
+    "blender": (3, 4, 0),
+    "location": "View3D > Sidebar > Motion",
+    "description": "Generate a human motion from text and apply it to the selected armature (Mixamo, "
+                   "Bandai-Namco or our own joint names) or to a new skeleton",
+    "category": "Animation",
+}
+
+import bpy  # noqa: E402
+from bpy.props import EnumProperty, FloatProperty, IntProperty, StringProperty  # noqa: E402
+
+from . import motion  # noqa: E402
+
+
+class SMF_PG_settings(bpy.types.PropertyGroup):
+    prompt: StringProperty(name="Prompt", default="a person walks forward")
+    seconds: FloatProperty(name="Seconds", default=4.0, min=2.0, max=9.8)
+    seed: IntProperty(name="Seed", default=0, min=0)
+    backend: EnumProperty(name="Run", items=[
+        ("AUTO", "Auto", "in Blender when the stablemofusion package is importable, else the server"),
+        ("LOCAL", "In Blender", "the stablemofusion package imported into Blender's Python"),
+        ("SERVER", "Server", "a running `smf serve`")], default="AUTO")
+    server: StringProperty(name="Server", default="http://127.0.0.1:8000")
+
+
+class SMF_OT_generate(bpy.types.Operator):
+    """Generate a motion from the prompt and apply it to the selected armature (or a new skeleton)"""
+
+    bl_idname = "smf.generate_motion"
+    bl_label = "Generate motion"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        s = context.scene.smf
+        if not s.prompt.strip():
+            self.report({"ERROR"}, "the prompt is empty")
+            return {"CANCELLED"}
+        try:
+            joints, fps, source = motion.generate_joints(s.prompt.strip(), s.seconds, s.seed, s.server, s.backend)
+            arm = context.active_object
+            if arm is None or arm.type != "ARMATURE" or not arm.select_get():
+                arm = motion.create_our_armature(joints)
+            if context.mode != "OBJECT":
+                bpy.ops.object.mode_set(mode="OBJECT")
+            used = motion.apply_motion(arm, joints, fps, action_name=s.prompt.strip()[:60])
+        except motion.MotionError as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"{len(joints)} frames at {fps:g} fps from {source} on {arm.name} (joint map {used})")
+        return {"FINISHED"}
+
+
+class SMF_PT_panel(bpy.types.Panel):
+    bl_label = "stablemofusion"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Motion"
+
+    def draw(self, context):
+        s = context.scene.smf
+        col = self.layout.column()
+        col.prop(s, "prompt")
+        col.prop(s, "seconds")
+        col.prop(s, "seed")
+        col.prop(s, "backend")
+        if s.backend != "LOCAL":
+            col.prop(s, "server")
+        col.operator(SMF_OT_generate.bl_idname, icon="ARMATURE_DATA")
+
+
+CLASSES = (SMF_PG_settings, SMF_OT_generate, SMF_PT_panel)
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+    bpy.types.Scene.smf = bpy.props.PointerProperty(type=SMF_PG_settings)
+
+
+def unregister():
+    del bpy.types.Scene.smf
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

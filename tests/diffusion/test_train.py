@@ -121,3 +121,68 @@ def test_text_augmentation_encodes_perturbed_captions_afresh(corpus, text_cache,
                                                          min_frames=16, text_augment=0.5),
                    progress=False, text_cache=text_cache)
     assert len(losses) == 2 and all(np.isfinite(losses))
+
+
+def test_learning_rate_schedules():
+    from stablemofusion.diffusion.train import learning_rate
+
+    step = TrainConfig(lr=1e-3, lr_decay=0.5, lr_decay_every=10)
+    assert [learning_rate(step, s) for s in (0, 9, 10, 25)] == pytest.approx([1e-3, 1e-3, 5e-4, 2.5e-4])
+    warm = TrainConfig(lr=1e-3, warmup=4, lr_schedule="cosine", steps=104, min_lr=1e-4)
+    assert learning_rate(warm, 0) == pytest.approx(2.5e-4) and learning_rate(warm, 3) == pytest.approx(1e-3)
+    assert learning_rate(warm, 54) == pytest.approx(5.5e-4) and learning_rate(warm, 104) == pytest.approx(1e-4)
+    wsd = TrainConfig(lr=1e-3, lr_schedule="wsd", steps=100, decay_steps=20, min_lr=0.0)
+    assert learning_rate(wsd, 79) == pytest.approx(1e-3) and learning_rate(wsd, 90) == pytest.approx(5e-4)
+    assert learning_rate(wsd, 100) == pytest.approx(0.0)
+    with pytest.raises(SMFError, match="lr-schedule"):
+        from stablemofusion.diffusion.train import check_train_config
+
+        check_train_config(TrainConfig(lr_schedule="linear"))
+
+
+def test_label_balance_repeats_rare_labels_with_distinct_crops(corpus):
+    from collections import Counter
+
+    from stablemofusion.data.batches import _draws, label_repeats
+    from stablemofusion.data.dataset import MotionTextDataset
+    from stablemofusion.diffusion.train import label_balance
+
+    assert label_repeats(["a"] * 8 + ["b"] * 2, 1.0, 16) == (1,) * 8 + (4, 4)
+    assert label_repeats(["a"] * 8 + ["b"] * 2, 0.5, 16) == (1,) * 8 + (2, 2)
+    assert label_repeats(["a"] * 100 + ["b"], 1.0, 16)[-1] == 16  # capped
+    ds = MotionTextDataset(corpus, "train", seed=0, min_frames=16)
+    repeats = label_balance(corpus, ds, 1.0)
+    assert len(repeats) == len(ds) and max(repeats) > 1
+    draws = _draws(0, sum(repeats), len(ds), 0, None, 0, repeats)  # one whole epoch
+    assert Counter(i for _, i, _ in draws) == {i: r for i, r in enumerate(repeats)}
+    i = repeats.index(max(repeats))
+    crops = set()
+    for c in range(repeats[i]):
+        ds.set_epoch(0, c)
+        item = ds[i]
+        crops.add((item["frames"], item["caption"]))
+    assert len(crops) > 1  # each copy is its own draw of crop and caption
+    assert label_balance(corpus, ds, 0.0) is None
+
+
+def test_self_evaluation_goes_into_eval_jsonl_and_the_curve(corpus, text_cache, tmp_path):
+    calls = []
+
+    def on_eval(run, step):
+        calls.append((run, step))
+        return {"probe_all_content_acc": 0.1 * step, "val_fid": 10.0 / step}
+
+    cfg = TrainConfig(preset="tiny", steps=6, batch_size=4, checkpoint_every=6, min_frames=16)
+    losses = train(corpus, tmp_path / "run", cfg, progress=False, text_cache=text_cache, eval_every=3, on_eval=on_eval)
+    plain = train(corpus, tmp_path / "plain", cfg, progress=False, text_cache=text_cache)
+    assert losses == plain  # evaluating does not change training
+    assert calls == [(tmp_path / "run", 3), (tmp_path / "run", 6)]
+    rows = [json.loads(r) for r in (tmp_path / "run" / "eval.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in rows] == [3, 6] and rows[1]["val_fid"] == pytest.approx(10 / 6)
+    log = (tmp_path / "run" / "log.csv").read_text().splitlines()
+    assert all(float(r.split(",")[4]) > 0 for r in log[1:])  # samples/s
+    out = tmp_path / "curve.png"
+    assert main(["curve", str(tmp_path / "run"), "--out", str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(["curve", str(tmp_path / "nothing"), "--out", str(out)]) == 2
+    assert main(["curve", str(tmp_path / "run"), "--out", str(tmp_path / "curve.jpg")]) == 2

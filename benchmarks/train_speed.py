@@ -3,6 +3,13 @@
 Usage: python benchmarks/train_speed.py [--preset small] [--batch-size 64] [--steps 20] [--device cpu|cuda]
        [--bf16] [--compile] [--fused]   (what `smf train --mixed-precision bf16 --compile` uses on a GPU)
 Random normalised features and text tokens (the data pipeline is timed separately by the loader).
+
+With ``--data CORPUS`` it runs the real training loop (`smf train`'s own code: batches, text cache, caption
+augmentation, EMA) for each ``--recipe`` in turn, ``--rounds`` times interleaved (so a busy machine slows
+each alike), and prints the median of `smf train`'s own samples/s (log.csv) over the steps after the first
+few. Recipes: ``session5`` (the shipped model's: fp32, captions perturbed with probability 0.5) and
+``v2`` (bf16 autocast, captions perturbed with probability 0.1, label balancing). The text cache is warmed
+first, so neither pays for encoding the corpus's captions.
 """
 
 import argparse
@@ -27,7 +34,50 @@ p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu
 p.add_argument("--bf16", action="store_true", help="autocast to bfloat16 (GPU)")
 p.add_argument("--compile", action="store_true", help="torch.compile the forward")
 p.add_argument("--fused", action="store_true", help="fused AdamW (CUDA)")
+p.add_argument("--data", default=None, help="a corpus: time the real training loop for each --recipe")
+p.add_argument("--recipe", action="append", default=None, help="session5 | v2 (repeatable)")
+p.add_argument("--rounds", type=int, default=2)
+p.add_argument("--text-cache", default=None, help="text cache folder (default: a temporary one)")
+p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
 a = p.parse_args()
+if a.threads:
+    torch.set_num_threads(a.threads)
+
+RECIPES = {"session5": ["--mixed-precision", "no", "--text-augment", "0.5", "--bucket", "16"],
+           "v2": ["--mixed-precision", "bf16", "--text-augment", "0.1", "--bucket", "16", "--balance", "0.5"]}
+
+
+def real_loop() -> None:
+    """`smf train` itself, one process per run (accelerate's precision is fixed per process)."""
+    import os
+    import statistics
+    import subprocess
+    import sys
+    import tempfile
+
+    skip = 3
+    cache = a.text_cache or tempfile.mkdtemp(prefix="smf-text-")
+    rates: dict[str, list[float]] = {r: [] for r in a.recipe or ["session5", "v2"]}
+    for rnd in range(a.rounds):
+        for name in rates:
+            with tempfile.TemporaryDirectory() as out:
+                cmd = [sys.executable, "-m", "stablemofusion.cli.main", "train", "--data", a.data, "--out", out,
+                       "--preset", a.preset, "--steps", str(a.steps + skip), "--batch-size", str(a.batch_size),
+                       "--seed", str(rnd), "--checkpoint-every", str(10**9), "--text-cache", cache, "--no-progress",
+                       *(["--threads", str(a.threads)] if a.threads else []), *RECIPES[name]]
+                subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=os.environ)
+                rows = (Path(out) / "log.csv").read_text().splitlines()[1 + skip:]
+                rates[name] += [float(r.split(",")[4]) for r in rows]
+    print(json.dumps({"preset": a.preset, "threads": a.threads or torch.get_num_threads(), "batch_size": a.batch_size,
+                      "steps_per_round": a.steps, "rounds": a.rounds, "cpu": platform.processor(),
+                      "samples_per_s": {k: round(statistics.median(v), 1) for k, v in rates.items()}}))
+
+
+if a.data:
+    from pathlib import Path
+
+    real_loop()
+    raise SystemExit
 
 torch.manual_seed(0)
 dev = torch.device(a.device)

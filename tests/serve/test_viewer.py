@@ -75,18 +75,25 @@ def bone_pixels(image: np.ndarray) -> int:
     return int((blue | red).sum())
 
 
+def generate_and_pause(page, frame: int, body: bool) -> None:
+    """Generate 'a person walks forward' for 2 s (with or without the skinned body), pause at ``frame``."""
+    page.set_checked("#body", body)
+    page.fill("#prompt", "a person walks forward")
+    page.fill("#seconds", "2")
+    page.click("#generate")
+    page.wait_for_function("window.smf.ready && (window.smf.character !== null) === " + str(body).lower(),
+                           timeout=60_000)
+    page.click("#play")  # pause
+    page.evaluate(f"window.smf.setFrame({frame})")
+    page.wait_for_timeout(200)
+
+
 def test_generate_draws_the_skeleton_and_scrubbing_moves_it(page):
     page.wait_for_timeout(300)
     empty = shot(page)
     assert bone_pixels(empty) == 0
-    page.fill("#prompt", "a person walks forward")
-    page.fill("#seconds", "2")
     page.select_option("#footskate", "off")
-    page.click("#generate")
-    page.wait_for_function("window.smf && window.smf.ready", timeout=60_000)
-    page.click("#play")  # pause
-    page.evaluate("window.smf.setFrame(0)")
-    page.wait_for_timeout(200)
+    generate_and_pause(page, 0, body=False)  # the skeleton alone
     first = shot(page)
     dark = lambda im: int((im.sum(-1) < 200).sum())  # noqa: E731  (the joints' spheres)
     assert bone_pixels(first) > 20 and dark(first) > dark(empty) + 100
@@ -140,16 +147,10 @@ def test_dropping_a_local_npy_shows_it_and_bad_files_show_an_error(page):
 
 def test_the_character_glb_is_shown_in_step_with_the_skeleton(page, tmp_path):
     """The generated motion's .glb (GLTFLoader) plays in step with the JSON joints, and a dropped .glb plays too."""
-    page.fill("#prompt", "a person walks forward")
-    page.fill("#seconds", "2")
-    page.click("#generate")
-    page.wait_for_function("window.smf.ready && window.smf.character !== null", timeout=60_000)
-    page.click("#play")  # pause
-    page.evaluate("window.smf.setFrame(25)")
+    generate_and_pause(page, 25, body=True)
     glb = np.array(page.evaluate("window.smf.glbJoints(25)"))
     json_joints = np.array(page.evaluate("Array.from(window.smf.joints.subarray(25 * 66, 26 * 66))")).reshape(22, 3)
     assert np.abs(glb - json_joints).max() < 1e-3  # the glTF node tree gives the same joints (1 mm)
-    page.wait_for_timeout(200)
     with_body = shot(page)
     page.uncheck("#body")
     page.wait_for_timeout(200)

@@ -1,5 +1,5 @@
-"""The Blender add-on (blender/stablemofusion_addon): its copies of the package's retargeting math and joint
-maps are the package's own; headless in Debian's Blender it installs from a zip, asks a (stand-in) `smf serve`
+"""The Blender add-on (`smf addon`: stablemofusion/assets/blender_addon with the package's retargeting math and
+joint maps in one zip); headless in Debian's Blender it installs from a zip, asks a (stand-in) `smf serve`
 for a motion and the armature's bones follow it: a Mixamo-style armature, and our own skeleton it creates."""
 
 from __future__ import annotations
@@ -8,33 +8,38 @@ import json
 import shutil
 import subprocess
 import threading
-import zipfile
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from stablemofusion.cli.main import main
 from stablemofusion.motion.bvh import read_bvh
 from stablemofusion.motion.files import load_motion, rigid_pose
 from stablemofusion.motion.retarget import JointMap
 from stablemofusion.motion.skeleton import HUMANML3D
 
 REPO = Path(__file__).resolve().parents[1]
-ADDON = REPO / "blender" / "stablemofusion_addon"
+ADDON = REPO / "stablemofusion" / "assets" / "blender_addon"
 PACKAGE = REPO / "stablemofusion"
 MIXAMO_RIG = REPO / "tests" / "data" / "mixamo_tpose.bvh"
 LIMBS = ((16, 18), (18, 20), (17, 19), (19, 21), (1, 4), (4, 7), (2, 5), (5, 8))
 FRAMES = (1, 30, 60, 118)  # Blender frames (1-based): motion frames 0, 29, 59, 117
 
 
-def test_addon_copies_are_the_package_files():
-    assert (ADDON / "rig.py").read_bytes() == (PACKAGE / "motion" / "rig.py").read_bytes(), \
-        "copy stablemofusion/motion/rig.py to blender/stablemofusion_addon/rig.py"
-    package_maps = sorted(p.name for p in (PACKAGE / "assets" / "joint_maps").glob("*.json"))
-    assert package_maps == sorted(p.name for p in (ADDON / "joint_maps").glob("*.json"))
-    for name in package_maps:
-        assert (ADDON / "joint_maps" / name).read_bytes() == (PACKAGE / "assets" / "joint_maps" / name).read_bytes()
+def test_addon_zip_holds_the_package_files(tmp_path):
+    import zipfile
+
+    out = tmp_path / "addon.zip"
+    assert main(["addon", "--out", str(out)]) == 0
+    with zipfile.ZipFile(out) as z:
+        names = set(z.namelist())
+        assert z.read("stablemofusion_addon/rig.py") == (PACKAGE / "motion" / "rig.py").read_bytes()
+        maps = sorted(p.name for p in (PACKAGE / "assets" / "joint_maps").glob("*.json"))
+        assert {f"stablemofusion_addon/joint_maps/{m}" for m in maps} <= names
+        assert {"stablemofusion_addon/__init__.py", "stablemofusion_addon/motion.py"} <= names
+    assert main(["addon", "--out", str(tmp_path / "addon.tar")]) == 2
     text = (ADDON / "motion.py").read_text()
     for name in HUMANML3D.joint_names:
         assert f'"{name}"' in text
@@ -148,10 +153,7 @@ def test_addon_headless_in_blender(tmp_path):
     threading.Thread(target=server.serve_forever, daemon=True).start()
     try:
         zip_path = tmp_path / "stablemofusion_addon.zip"
-        with zipfile.ZipFile(zip_path, "w") as z:
-            for f in sorted(ADDON.rglob("*")):
-                if f.is_file() and "__pycache__" not in f.parts:
-                    z.write(f, f.relative_to(ADDON.parent))
+        assert main(["addon", "--out", str(zip_path)]) == 0
         script, out, rig_json = tmp_path / "run.py", tmp_path / "out.json", tmp_path / "rig.json"
         script.write_text(SCRIPT)
         rig_json.write_text(json.dumps(_armature(read_bvh(MIXAMO_RIG))))

@@ -28,6 +28,7 @@ COMMANDS = {
     "export": "export",
     "ablate": "ablate",
     "serve": "serve",
+    "addon": "addon",
 }
 
 

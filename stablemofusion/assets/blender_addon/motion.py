@@ -1,6 +1,6 @@
 """The add-on's work, apart from its UI: get a motion (in-process or from `smf serve`), build the selected
-armature's rig, retarget with the package's own math (``rig.py``, a copy of stablemofusion/motion/rig.py)
-and write the keys. Blender is Z up; our motions are Y up: a vector (x, y, z) of ours is (x, -z, y) here."""
+armature's rig, retarget with the package's own math (``rig.py``: stablemofusion/motion/rig.py, which `smf
+addon` puts in the zip) and write the keys. Blender is Z up; our motions are Y up: a vector (x, y, z) of ours is (x, -z, y) here."""
 
 from __future__ import annotations
 

@@ -22,7 +22,8 @@ class MonitorConfig:
     probe: Path  # labelled prompt file (JSON lines, eval/prompts.py)
     classifier: Path  # `smf train-classifier` folder
     evaluator: Path | None = None  # `smf train-evaluator` folder (FID); None = probe only
-    fid_items: int = 256  # validation items for FID (whole batches of 32)
+    fid_items: int = 256  # validation items for FID (whole R-precision batches)
+    batch_size: int = 32  # R-precision batch (the protocol's 32)
     split: str = "val"
     seed: int = 0
 
@@ -39,8 +40,8 @@ class TrainingMonitor:
                 raise SMFError(f"no such {what}: {path}")
         if cfg.evaluator is not None and not Path(cfg.evaluator).is_dir():
             raise SMFError(f"no such evaluator folder: {cfg.evaluator}")
-        if cfg.fid_items < 32:
-            raise SMFError(f"--fid-items must be at least one batch (32), got {cfg.fid_items}")
+        if cfg.fid_items < cfg.batch_size:
+            raise SMFError(f"--fid-items must be at least one batch ({cfg.batch_size}), got {cfg.fid_items}")
         self.data, self.cfg = Path(data), cfg
         self.classifier = load_classifier(cfg.classifier)
         self.labels = corpus_labels(data)
@@ -50,7 +51,7 @@ class TrainingMonitor:
         if cfg.evaluator is not None:
             from .evaluator import load_evaluator
 
-            self.evaluator = load_evaluator(cfg.evaluator)
+            self.evaluator, _ = load_evaluator(cfg.evaluator)
 
     def __call__(self, run: Path, step: int) -> dict:
         """Figures of the checkpoint in ``run``: probe content/style accuracy overall and per dataset, and
@@ -71,7 +72,7 @@ class TrainingMonitor:
         from .protocol import EmbeddingModel, EvalConfig, evaluate
 
         cfg = EvalConfig(replications=1, mm_captions=0, max_items=self.cfg.fid_items, split=self.cfg.split,
-                         seed=self.cfg.seed)
+                         seed=self.cfg.seed, batch_size=self.cfg.batch_size)
         res = evaluate(pipe, EmbeddingModel(self.evaluator, pipe.text_cache), self.data, cfg, progress=False)
         gen = res["rows"]["Generated"]
         return {"val_fid": round(float(gen["fid"][0]), 4), "val_top3": round(float(gen["top3"][0]), 4)}

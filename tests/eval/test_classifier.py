@@ -9,25 +9,13 @@ import pytest
 from stablemofusion.cli.main import main
 from stablemofusion.data.dataset import MotionTextDataset
 from stablemofusion.eval.classifier import (
-    ClassifierTrainConfig,
     corpus_labels,
     dataset_labels,
     label_accuracy,
     load_classifier,
     real_accuracy,
-    train_classifier,
 )
 from stablemofusion.eval.prompts import format_prompt_accuracy, load_prompts, prompt_accuracy
-
-
-@pytest.fixture(scope="module")
-def classifier_dir(eval_corpus, tmp_path_factory):
-    import torch
-
-    torch.set_num_threads(1)
-    out = tmp_path_factory.mktemp("classifier") / "cl"
-    train_classifier(eval_corpus, out, ClassifierTrainConfig(steps=60, batch_size=16), progress=False)
-    return out
 
 
 def test_label_accuracy_known_answers():

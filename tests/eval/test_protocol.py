@@ -2,13 +2,11 @@
 
 import json
 
-import numpy as np
 import pytest
 import torch
 
 from stablemofusion.cli.main import main
 from stablemofusion.eval.ablation import min_steps_within
-from stablemofusion.eval.evaluator import Evaluator, EvaluatorConfig, save_evaluator
 from stablemofusion.eval.protocol import EmbeddingModel, EvalConfig, draw_items, evaluate, markdown_table
 from stablemofusion.data.dataset import MotionTextDataset
 from stablemofusion.pipeline import MotionPipeline
@@ -16,16 +14,6 @@ from stablemofusion.text.cache import TextEmbeddingCache
 
 CFG = dict(replications=2, batch_size=4, diversity_times=5, mm_captions=2, mm_repeats=4, mm_times=2, steps=2,
            gen_batch=8)
-
-
-@pytest.fixture(scope="module")
-def evaluator_dir(eval_corpus, tmp_path_factory):
-    torch.manual_seed(0)
-    ds = MotionTextDataset(eval_corpus, "train", feat_bias=1.0)
-    ev = Evaluator(EvaluatorConfig(conv_dim=32, motion_hidden=32, text_hidden=32, out_dim=16), ds.mean, ds.std)
-    path = tmp_path_factory.mktemp("ev") / "evaluator"
-    save_evaluator(path, ev, {"text_encoder": "minilm"})
-    return path
 
 
 @pytest.fixture(scope="module")

@@ -157,43 +157,49 @@ def retarget_22_to_23(joints22, *, bone_lengths: bool = True):
     Differentiable for torch inputs.
     """
     x = to_underpressure_frame(joints22)
-    spine = x[..., list(_SPINE), :]
-    seg = _length(spine[..., 1:, :] - spine[..., :-1, :])  # (..., T, 4) metres
+    spine = x[..., list(_SPINE), :]  # (..., T, 5, 3)
+    step = spine[..., 1:, :] - spine[..., :-1, :]
+    seg = _length(step)  # (..., T, 4) metres
     cum = torch.cumsum(seg, -1)
-    total = cum[..., -1:]
-    out: list[torch.Tensor | None] = [None] * 23
-    for j, src in _DIRECT.items():
-        out[j] = x[..., src, :]
     starts = torch.cat([cum[..., :1] * 0, cum[..., :-1]], -1)
-    for k, f in enumerate(_spine_fractions()):
-        target = total * float(f)  # (..., T, 1) arc length along the chain
-        pt = spine[..., 0, :]
-        for s in range(4):  # piecewise: pick the segment holding the target arc length
-            w = (target - starts[..., s:s + 1]) / seg[..., s:s + 1].clamp(min=1e-8)
-            inside = ((w >= 0) & (w <= 1)) if s < 3 else (w >= 0)
-            cand = spine[..., s, :] + w.clamp(0, 1) * (spine[..., s + 1, :] - spine[..., s, :])
-            pt = torch.where(inside, cand, pt)
-        out[1 + k] = pt
-    y = torch.stack(out, -2)
+    # every spine joint k at once: its arc length along the chain, its position on each of the 4 segments
+    target = cum[..., -1:] * torch.as_tensor(_spine_fractions(), dtype=x.dtype, device=x.device)  # (..., T, 4)
+    w = (target[..., :, None] - starts[..., None, :]) / seg[..., None, :].clamp(min=1e-8)  # (..., T, k, segment)
+    inside = (w >= 0) & ((w <= 1) | _LAST_SEGMENT.to(x.device))
+    cand = spine[..., None, :-1, :] + w.clamp(0, 1)[..., None] * step[..., None, :, :]  # (..., T, k, segment, 3)
+    pt = spine[..., None, 0, :].expand(cand.shape[:-2] + (3,))
+    for s in range(4):  # the last segment holding the target arc length wins
+        pt = torch.where(inside[..., s, None], cand[..., s, :], pt)
+    direct = x[..., list(_DIRECT.values()), :]
+    y = torch.cat([direct[..., :1, :], pt, direct[..., 1:, :]], -2)  # _DIRECT lists joints 0, 5..22 in order
     if not bone_lengths:
         return y
     rest = torch.as_tensor(UP_REST, dtype=y.dtype, device=y.device)
-    lens = _length(rest[1:] - rest[list(UP_PARENTS[1:])])
-    parts: list[torch.Tensor | None] = [None] * 23
+    lens = _length(rest[1:] - rest[list(UP_PARENTS[1:])])  # (22,) bone into joints 1..22
     leg_src = _length(y[..., 16, :] - y[..., 15, :]) + _length(y[..., 17, :] - y[..., 16, :])
     scale = float(lens[15] + lens[16]) / leg_src.mean(-1, keepdim=True)
-    parts[0] = y[..., 0, :] * scale[..., None]
-    for j in range(1, 23):
-        p = UP_PARENTS[j]
-        d = y[..., j, :] - y[..., p, :]
-        if j in (18, 22):  # our flat-foot ankle->toe bone points further down than theirs
-            d = _pitch_up(d, FOOT_PITCH_OFFSET)
-        parts[j] = parts[p] + d / _length(d)[..., None].clamp(min=1e-8) * lens[j - 1]
-    z = torch.stack(parts, -2)
+    d = y[..., 1:, :] - y[..., list(UP_PARENTS[1:]), :]  # (..., T, 22, 3) bones into joints 1..22
+    feet = _pitch_up(d[..., [17, 21], :], FOOT_PITCH_OFFSET)  # our flat-foot ankle->toe bone points further down
+    d = torch.cat([d[..., :17, :], feet[..., :1, :], d[..., 18:21, :], feet[..., 1:, :]], -2)
+    bones = d / _length(d)[..., None].clamp(min=1e-8) * lens[:, None]
+    z = y[..., :1, :] * scale[..., None, None] + torch.einsum("jb,...bc->...jc", _ANCESTORS.to(bones), bones)
     # floor: keep our lowest foot height (ours: min over the toe joints ~ floor contact) -> same for theirs
     shift = _lowest(x[..., [10, 11], 2]) - _lowest(z[..., [18, 22], 2])  # (..., 1, 1)
     zero = torch.zeros_like(shift)
     return z + torch.stack([zero, zero, shift], -1)
+
+
+def _ancestors() -> torch.Tensor:
+    """(23, 22): 1 where the bone into joint b + 1 lies on the path from the root to joint j."""
+    a = torch.zeros(23, 22, dtype=torch.float64)
+    for j in range(1, 23):
+        a[j] = a[UP_PARENTS[j]]
+        a[j, j - 1] = 1.0
+    return a
+
+
+_ANCESTORS = _ancestors()
+_LAST_SEGMENT = torch.tensor([False, False, False, True])
 
 
 def _pitch_up(d: torch.Tensor, angle: float) -> torch.Tensor:

@@ -19,7 +19,9 @@ import torch
 from torch import nn
 
 from ..errors import SMFError
+from ..motion.arrays import numpy_edge, to_torch
 from ..motion.files import resample
+from ..motion.rotation import qrot
 
 UP_FPS = 100.0
 UP_JOINTS = (
@@ -105,21 +107,18 @@ def load_underpressure(path: str | Path) -> UnderPressureNet:
     return net.eval()
 
 
+@numpy_edge
 def forward_kinematics_23(angles, skeleton, trajectory):
     """UnderPressure FK: global quaternions (F, 23, 4) w,x,y,z, rest positions (23, 3) or (1, 23, 3),
     root translation (F, 3) or (F, 1, 3) -> global positions (F, 23, 3). numpy or torch."""
-    from ..motion.rotation import qrot
-
-    is_t = isinstance(angles, torch.Tensor)
-    lib = torch if is_t else np
     rest = skeleton.reshape(23, 3)
     traj = trajectory.reshape(-1, 1, 3)
-    parts = [rest[None, 0].expand(angles.shape[0], 3) if is_t else np.broadcast_to(rest[0], (angles.shape[0], 3))]
+    frames = angles.shape[0]
+    parts = [rest[0].expand(frames, 3)]
     for j in range(1, 23):
         p = UP_PARENTS[j]
-        parts.append(parts[p] + qrot(angles[:, p], (rest[j] - rest[p]).expand(angles.shape[0], 3) if is_t
-                                     else np.broadcast_to(rest[j] - rest[p], (angles.shape[0], 3))))
-    return lib.stack(parts, 1) + traj
+        parts.append(parts[p] + qrot(angles[:, p], (rest[j] - rest[p]).expand(frames, 3)))
+    return torch.stack(parts, 1) + traj
 
 
 def to_underpressure_frame(x):
@@ -147,6 +146,7 @@ def _spine_fractions() -> np.ndarray:
     return np.cumsum(seg)[:4] / seg.sum()
 
 
+@numpy_edge
 def retarget_22_to_23(joints22, *, bone_lengths: bool = True):
     """Our joints (..., T, 22, 3) (m, Y up) -> UnderPressure joints (..., T, 23, 3) (m, Z up). numpy or torch.
 
@@ -156,104 +156,91 @@ def retarget_22_to_23(joints22, *, bone_lengths: bool = True):
     foot joint keeps its height above y = 0, shifted by the rest foot-joint height difference).
     Differentiable for torch inputs.
     """
-    is_t = isinstance(joints22, torch.Tensor)
-    lib = torch if is_t else np
     x = to_underpressure_frame(joints22)
-    spine = x[..., list(_SPINE), :]
-    seg = lib.linalg.norm(spine[..., 1:, :] - spine[..., :-1, :], axis=-1) if not is_t else \
-        torch.linalg.vector_norm(spine[..., 1:, :] - spine[..., :-1, :], dim=-1)
-    cum = lib.cumsum(seg, -1)
-    total = cum[..., -1:]
-    out = [None] * 23
-    for j, src in _DIRECT.items():
-        out[j] = x[..., src, :]
-    starts = lib.concatenate([cum[..., :1] * 0, cum[..., :-1]], -1) if not is_t else torch.cat([cum[..., :1] * 0, cum[..., :-1]], -1)
-    for k, f in enumerate(_spine_fractions()):
-        target = total * float(f)  # (..., T, 1) arc length along the chain
-        pt = spine[..., 0, :]
-        for s in range(4):  # piecewise: pick the segment holding the target arc length
-            w = ((target - starts[..., s:s + 1]) / seg[..., s:s + 1].clamp(min=1e-8) if is_t else
-                 (target - starts[..., s:s + 1]) / np.maximum(seg[..., s:s + 1], 1e-8))
-            inside = ((w >= 0) & (w <= 1)) if s < 3 else (w >= 0)
-            w = w.clamp(0, 1) if is_t else np.clip(w, 0, 1)
-            cand = spine[..., s, :] + w * (spine[..., s + 1, :] - spine[..., s, :])
-            pt = lib.where(inside, cand, pt)
-        out[1 + k] = pt
-    y = lib.stack(out, -2)
+    spine = x[..., list(_SPINE), :]  # (..., T, 5, 3)
+    step = spine[..., 1:, :] - spine[..., :-1, :]
+    seg = _length(step)  # (..., T, 4) metres
+    cum = torch.cumsum(seg, -1)
+    starts = torch.cat([cum[..., :1] * 0, cum[..., :-1]], -1)
+    # every spine joint k at once: its arc length along the chain, its position on each of the 4 segments
+    target = cum[..., -1:] * torch.as_tensor(_spine_fractions(), dtype=x.dtype, device=x.device)  # (..., T, 4)
+    w = (target[..., :, None] - starts[..., None, :]) / seg[..., None, :].clamp(min=1e-8)  # (..., T, k, segment)
+    inside = (w >= 0) & ((w <= 1) | _LAST_SEGMENT.to(x.device))
+    cand = spine[..., None, :-1, :] + w.clamp(0, 1)[..., None] * step[..., None, :, :]  # (..., T, k, segment, 3)
+    pt = spine[..., None, 0, :].expand(cand.shape[:-2] + (3,))
+    for s in range(4):  # the last segment holding the target arc length wins
+        pt = torch.where(inside[..., s, None], cand[..., s, :], pt)
+    direct = x[..., list(_DIRECT.values()), :]
+    y = torch.cat([direct[..., :1, :], pt, direct[..., 1:, :]], -2)  # _DIRECT lists joints 0, 5..22 in order
     if not bone_lengths:
         return y
-    rest = torch.as_tensor(UP_REST, dtype=y.dtype, device=y.device) if is_t else UP_REST
-    lens = (torch.linalg.vector_norm(rest[1:] - rest[list(UP_PARENTS[1:])], dim=-1) if is_t else
-            np.linalg.norm(rest[1:] - rest[list(UP_PARENTS[1:])], axis=-1))
-    parts = [None] * 23
-    leg_src = _norm(y[..., 16, :] - y[..., 15, :], is_t) + _norm(y[..., 17, :] - y[..., 16, :], is_t)
-    leg_dst = float(lens[15] + lens[16])
-    scale = leg_dst / leg_src.mean(-1, keepdim=True) if is_t else leg_dst / leg_src.mean(-1, keepdims=True)
-    root = y[..., 0, :] * scale[..., None]
-    parts[0] = root
-    for j in range(1, 23):
-        p = UP_PARENTS[j]
-        d = y[..., j, :] - y[..., p, :]
-        if j in (18, 22):  # our flat-foot ankle->toe bone points further down than theirs
-            d = _pitch_up(d, FOOT_PITCH_OFFSET, is_t)
-        parts[j] = parts[p] + d / _norm(d, is_t)[..., None].clamp(min=1e-8) * lens[j - 1] if is_t else \
-            parts[p] + d / np.maximum(_norm(d, is_t)[..., None], 1e-8) * lens[j - 1]
-    z = lib.stack(parts, -2)
+    rest = torch.as_tensor(UP_REST, dtype=y.dtype, device=y.device)
+    lens = _length(rest[1:] - rest[list(UP_PARENTS[1:])])  # (22,) bone into joints 1..22
+    leg_src = _length(y[..., 16, :] - y[..., 15, :]) + _length(y[..., 17, :] - y[..., 16, :])
+    scale = float(lens[15] + lens[16]) / leg_src.mean(-1, keepdim=True)
+    d = y[..., 1:, :] - y[..., list(UP_PARENTS[1:]), :]  # (..., T, 22, 3) bones into joints 1..22
+    feet = _pitch_up(d[..., [17, 21], :], FOOT_PITCH_OFFSET)  # our flat-foot ankle->toe bone points further down
+    d = torch.cat([d[..., :17, :], feet[..., :1, :], d[..., 18:21, :], feet[..., 1:, :]], -2)
+    bones = d / _length(d)[..., None].clamp(min=1e-8) * lens[:, None]
+    z = y[..., :1, :] * scale[..., None, None] + torch.einsum("jb,...bc->...jc", _ANCESTORS.to(bones), bones)
     # floor: keep our lowest foot height (ours: min over the toe joints ~ floor contact) -> same for theirs
-    src_floor = _min_tf(x[..., [10, 11], 2], is_t)
-    dst_floor = _min_tf(z[..., [18, 22], 2], is_t)
-    return z + _zvec(src_floor - dst_floor, is_t)
+    shift = _lowest(x[..., [10, 11], 2]) - _lowest(z[..., [18, 22], 2])  # (..., 1, 1)
+    zero = torch.zeros_like(shift)
+    return z + torch.stack([zero, zero, shift], -1)
 
 
-def _pitch_up(d, angle: float, is_t: bool):
+def _ancestors() -> torch.Tensor:
+    """(23, 22): 1 where the bone into joint b + 1 lies on the path from the root to joint j."""
+    a = torch.zeros(23, 22, dtype=torch.float64)
+    for j in range(1, 23):
+        a[j] = a[UP_PARENTS[j]]
+        a[j, j - 1] = 1.0
+    return a
+
+
+_ANCESTORS = _ancestors()
+_LAST_SEGMENT = torch.tensor([False, False, False, True])
+
+
+def _pitch_up(d: torch.Tensor, angle: float) -> torch.Tensor:
     """Raise the pitch of Z-up direction vectors (..., 3) by ``angle`` radians, keeping their heading."""
-    lib = torch if is_t else np
-    hx, hy, hz = d[..., 0], d[..., 1], d[..., 2]
-    hn = lib.sqrt(hx * hx + hy * hy + 1e-12)
-    pitch = lib.arctan2(hz, hn) + angle
-    n = lib.sqrt(hn * hn + hz * hz)
-    c = lib.cos(pitch) * n / hn
-    return lib.stack([hx * c, hy * c, lib.sin(pitch) * n], -1)
+    hx, hy, hz = d.unbind(-1)
+    hn = torch.sqrt(hx * hx + hy * hy + 1e-12)
+    pitch = torch.atan2(hz, hn) + angle
+    n = torch.sqrt(hn * hn + hz * hz)
+    c = torch.cos(pitch) * n / hn
+    return torch.stack([hx * c, hy * c, torch.sin(pitch) * n], -1)
 
 
-def _norm(v, is_t: bool):
-    return torch.linalg.vector_norm(v, dim=-1) if is_t else np.linalg.norm(v, axis=-1)
+def _length(v: torch.Tensor) -> torch.Tensor:
+    """(..., 3) -> (...) Euclidean length."""
+    return torch.linalg.vector_norm(v, dim=-1)
 
 
-def _min_tf(h, is_t: bool):
-    """Minimum over time and the listed joints, keeping (..., 1, 1)."""
-    if is_t:
-        return h.amin(dim=(-2, -1), keepdim=True)
-    return h.min(axis=(-2, -1), keepdims=True)
+def _lowest(h: torch.Tensor) -> torch.Tensor:
+    """Minimum over time and the listed joints (..., T, K) -> (..., 1, 1)."""
+    return h.amin(dim=(-2, -1), keepdim=True)
 
 
-def _zvec(shift, is_t: bool):
-    """(..., 1, 1) vertical shift -> broadcastable (..., 1, 1, 3)."""
-    if is_t:
-        zero = torch.zeros_like(shift)
-        return torch.stack([zero, zero, shift], -1)
-    zero = np.zeros_like(shift)
-    return np.stack([zero, zero, shift], -1)
-
-
+@numpy_edge
 def resample_time(x, src_fps: float, dst_fps: float):
-    """Linear resampling along axis 0 (numpy) or axis -3 of (..., T, J, C) torch tensors."""
-    if not isinstance(x, torch.Tensor):
-        return resample(np.asarray(x), src_fps, dst_fps)
-    T = x.shape[-3]
+    """Linear resampling of a motion over the same duration: along axis -3 of (..., T, J, C) (axis 0 of
+    (T,) or (T, C)), from ``src_fps`` to ``dst_fps``. numpy or torch, differentiable for torch."""
+    axis = x.dim() - 3 if x.dim() >= 3 else 0
+    T = x.shape[axis]
     if abs(src_fps - dst_fps) < 1e-9 or T < 2:
         return x
     n = int(np.floor((T - 1) / src_fps * dst_fps + 1e-9)) + 1
-    pos = torch.arange(n, dtype=torch.float64) / dst_fps * src_fps
+    pos = torch.arange(n, dtype=torch.float64, device=x.device) / dst_fps * src_fps
     i0 = torch.clamp(pos.floor().long(), max=T - 2)
-    w = (pos - i0).to(x.dtype).reshape(-1, 1, 1)
-    return x[..., i0, :, :] * (1 - w) + x[..., i0 + 1, :, :] * w
+    w = (pos - i0).to(x.dtype).reshape((-1,) + (1,) * (x.dim() - axis - 1))
+    return x.index_select(axis, i0) * (1 - w) + x.index_select(axis, i0 + 1) * w
 
 
 @torch.no_grad()
 def vgrf_from_joints23(net: UnderPressureNet, joints23) -> np.ndarray:
     """UnderPressure joints (T, 23, 3) at 100 fps -> vGRF (T, 2, 16) (body weight, foot 0 = left)."""
-    x = torch.as_tensor(np.asarray(joints23), dtype=torch.float32)[None]
+    x = to_torch(joints23, torch.float32)[None]
     return net(x)[0].double().numpy()
 
 

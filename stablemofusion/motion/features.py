@@ -16,6 +16,7 @@ import torch
 from scipy.ndimage import gaussian_filter1d
 
 from ..errors import MotionFormatError
+from .arrays import numpy_edge
 from .rotation import cont6d_to_matrix, qbetween, qinv, qmul, qrot, quat_to_cont6d, quat_to_matrix, yaw_quat
 from .skeleton import Skeleton, get_skeleton
 
@@ -122,15 +123,16 @@ def inverse_kinematics(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d
     if root is None:
         root = facing_quat(joints, sk, official_ik=True, smooth=20.0 if smooth_forward else 0.0)
         root[0] = (1.0, 0.0, 0.0, 0.0)
+    # Every bone p -> c of a chain at once: its swing from the rest direction, relative to the swing of the
+    # bone before it in the chain (the root rotation for a chain's first bone).
+    bones = [(p, c, i == 0) for chain in sk.chains for i, (p, c) in enumerate(zip(chain[:-1], chain[1:]))]
+    parent, child, first = (np.array(v) for v in zip(*bones))
+    swings = np.zeros(joints.shape[:-1] + (4,))
+    swings[:, child] = qbetween(sk.offsets_array[child], _unit(joints[:, child] - joints[:, parent]))
+    acc = np.where(first[:, None], root[:, None], swings[:, parent])
     quats = np.zeros(joints.shape[:-1] + (4,))
     quats[:, 0] = root
-    raw = sk.offsets_array
-    for chain in sk.chains:
-        acc = root
-        for p, c in zip(chain[:-1], chain[1:]):
-            swing = qbetween(np.broadcast_to(raw[c], (len(joints), 3)), _unit(joints[:, c] - joints[:, p]))
-            quats[:, c] = qmul(qinv(acc), swing)
-            acc = swing
+    quats[:, child] = qmul(qinv(acc), swings[:, child])
     return quats
 
 
@@ -203,17 +205,20 @@ def features_from_joints(joints: np.ndarray, skeleton: str | Skeleton = "humanml
     ], axis=-1)
 
 
-def _check_features(features, sk: Skeleton):
+def _check_features(features: np.ndarray | torch.Tensor, sk: Skeleton) -> None:
     shape = tuple(features.shape)
     if len(shape) < 2 or shape[-1] != sk.feature_dim:
         raise MotionFormatError(f"expected features of shape (..., T, {sk.feature_dim}), got {shape}")
-    finite = torch.isfinite(features).all() if isinstance(features, torch.Tensor) else np.isfinite(features).all()
-    if not bool(finite):
+    # A finite sum means every value is finite (NaN and inf propagate); only a non-finite sum (or an overflow)
+    # needs the element-wise look. Written with operators so that it reads numpy arrays and tensors alike.
+    if not bool(abs(features.sum()) < float("inf")) and not bool((abs(features) < float("inf")).all()):
         raise MotionFormatError("features contain NaN or inf")
 
 
+@numpy_edge(numpy_dtype=torch.float64)
 def root_from_features(features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Integrate root yaw and position: (..., T, D) -> yaw quaternions (..., T, 4), root (..., T, 3)."""
+    """Integrate root yaw and position: (..., T, D) -> yaw quaternions (..., T, 4), root (..., T, 3) in metres
+    (numpy in: float64 numpy out)."""
     yaw_vel = features[..., 0]
     angle = torch.zeros_like(yaw_vel)
     angle[..., 1:] = yaw_vel[..., :-1]
@@ -228,50 +233,52 @@ def root_from_features(features: torch.Tensor) -> tuple[torch.Tensor, torch.Tens
     return quat, root
 
 
+@numpy_edge(numpy_dtype=torch.float64)
 def joints_from_features(features, skeleton: str | Skeleton = "humanml3d"):
-    """Features (..., T, D) -> joint positions (..., T, J, 3), through the root-relative positions.
+    """Features (..., T, D) -> joint positions (..., T, J, 3) in metres, through the root-relative positions.
 
     Accepts numpy arrays (returns numpy, float64 math) or torch tensors (returns torch, same dtype/device,
     differentiable).
     """
     sk = get_skeleton(skeleton)
-    _check_features(features, sk)
-    is_numpy = not isinstance(features, torch.Tensor)
-    x = torch.from_numpy(np.asarray(features, dtype=np.float64)) if is_numpy else features
+    x = features
+    _check_features(x, sk)
     quat, root = root_from_features(x)
     J = sk.num_joints
     local = x[..., 4:4 + 3 * (J - 1)].reshape(x.shape[:-1] + (J - 1, 3))
     world = qrot(qinv(quat)[..., None, :].expand(local.shape[:-1] + (4,)), local)
     world = torch.cat([world[..., :1] + root[..., None, [0]], world[..., 1:2], world[..., 2:] + root[..., None, [2]]], -1)
-    out = torch.cat([root[..., None, :], world], dim=-2)
-    return out.numpy() if is_numpy else out
+    return torch.cat([root[..., None, :], world], dim=-2)
 
 
+@numpy_edge(numpy_dtype=torch.float64)
 def joints_from_rotations(features: np.ndarray, skeleton: str | Skeleton = "humanml3d",
                           lengths: np.ndarray | None = None) -> np.ndarray:
     """Features (T, D) -> joints (T, J, 3) through the rotation channels instead of the positions: the root
     path, then each bone of ``lengths`` (J,) metres (default: the skeleton's target lengths) along the
-    direction its chain of 6D rotations gives (HumanML3D's forward kinematics). Exact for real features."""
+    direction its chain of 6D rotations gives (HumanML3D's forward kinematics). Exact for real features.
+    numpy in: float64 math, numpy out; torch in: torch out."""
     sk = get_skeleton(skeleton)
-    _check_features(features, sk)
-    x = torch.from_numpy(np.asarray(features, dtype=np.float64))
+    x = features
+    _check_features(x, sk)
     if lengths is None:
         if sk.bone_lengths is None:
             raise MotionFormatError(f"the {sk.name} skeleton has no target bone lengths; pass lengths")
-        lengths = np.asarray(sk.bone_lengths)
+        lengths = sk.bone_lengths
     quat, root = root_from_features(x)
     T, J = len(x), sk.num_joints
-    local = cont6d_to_matrix(x[:, feature_slices(sk).rotations].reshape(T, J - 1, 6)).numpy()
-    pos = np.zeros((T, J, 3))
-    pos[:, 0] = root.numpy()
-    raw = sk.offsets_array * np.asarray(lengths, dtype=np.float64)[:, None]
-    root_m = quat_to_matrix(quat).numpy()
+    local = cont6d_to_matrix(x[:, feature_slices(sk).rotations].reshape(T, J - 1, 6))
+    raw = torch.as_tensor(sk.offsets_array, dtype=x.dtype, device=x.device) * \
+        torch.as_tensor(lengths, dtype=x.dtype, device=x.device)[:, None]
+    pos: list[torch.Tensor | None] = [None] * J
+    pos[0] = root
+    root_m = quat_to_matrix(quat)
     for chain in sk.chains:
         acc = root_m
         for p, c in zip(chain[:-1], chain[1:]):
             acc = acc @ local[:, c - 1]
-            pos[:, c] = pos[:, p] + acc @ raw[c]
-    return pos
+            pos[c] = pos[p] + acc @ raw[c]
+    return torch.stack(pos, 1)
 
 
 def features_in_frames_of(joints: np.ndarray, reference: np.ndarray, skeleton: str | Skeleton = "humanml3d", *,
@@ -292,7 +299,7 @@ def features_in_frames_of(joints: np.ndarray, reference: np.ndarray, skeleton: s
         raise MotionFormatError(f"{len(pos)} frames of joints but {len(ref)} of reference features")
     if rotations not in ("ik", "keep"):
         raise MotionFormatError(f"rotations must be 'ik' or 'keep', got {rotations!r}")
-    quat = root_from_features(torch.from_numpy(ref))[0].numpy()  # (T, 4) world -> body frame
+    quat = root_from_features(ref)[0]  # (T, 4) world -> body frame
     s = feature_slices(sk)
     T, J = pos.shape[:2]
     ext = np.concatenate([pos, 2 * pos[-1:] - pos[-2:-1]])  # one extrapolated frame for the last velocity
@@ -310,14 +317,19 @@ def features_in_frames_of(joints: np.ndarray, reference: np.ndarray, skeleton: s
     return out
 
 
+def _signs(values: list[float], like: torch.Tensor) -> torch.Tensor:
+    return torch.tensor(values, dtype=like.dtype, device=like.device)
+
+
+@numpy_edge
 def mirror_joints(joints, skeleton: str | Skeleton = "humanml3d"):
     """Left/right mirror (..., J, 3): negate X and swap left and right joints (HumanML3D's M-copies)."""
     sk = get_skeleton(skeleton)
     out = joints[..., sk.mirror_permutation, :]
-    sign = [-1.0, 1.0, 1.0]
-    return out * (torch.tensor(sign, dtype=out.dtype, device=out.device) if isinstance(out, torch.Tensor) else np.array(sign))
+    return out * _signs([-1.0, 1.0, 1.0], out)
 
 
+@numpy_edge
 def mirror_features(features, skeleton: str | Skeleton = "humanml3d"):
     """Mirror features (..., D) directly, equal to features_from_joints(mirror_joints(joints)).
 
@@ -328,21 +340,18 @@ def mirror_features(features, skeleton: str | Skeleton = "humanml3d"):
     J = sk.num_joints
     s = feature_slices(sk)
     perm = sk.mirror_permutation
+    if not features.is_floating_point():
+        features = features.float()
     lead = features.shape[:-1]
-    if isinstance(features, torch.Tensor):
-        out = features.clone()
-        flip = lambda n, signs: torch.tensor(signs * n, dtype=features.dtype, device=features.device)  # noqa: E731
-    else:
-        out = np.array(features, dtype=np.float64 if np.asarray(features).dtype == np.float64 else np.float32)
-        flip = lambda n, signs: np.array(signs * n)  # noqa: E731
+    out = features.clone()
     out[..., 0] = -features[..., 0]
     out[..., 1] = -features[..., 1]
     ric = features[..., s.positions].reshape(lead + (J - 1, 3))[..., perm[1:] - 1, :]
-    out[..., s.positions] = (ric * flip(1, [-1.0, 1.0, 1.0])).reshape(lead + (-1,))
+    out[..., s.positions] = (ric * _signs([-1.0, 1.0, 1.0], out)).reshape(lead + (-1,))
     rot = features[..., s.rotations].reshape(lead + (J - 1, 6))[..., perm[1:] - 1, :]
-    out[..., s.rotations] = (rot * flip(1, [1.0, -1.0, -1.0, -1.0, 1.0, 1.0])).reshape(lead + (-1,))
+    out[..., s.rotations] = (rot * _signs([1.0, -1.0, -1.0, -1.0, 1.0, 1.0], out)).reshape(lead + (-1,))
     vel = features[..., s.velocities].reshape(lead + (J, 3))[..., perm, :]
-    out[..., s.velocities] = (vel * flip(1, [-1.0, 1.0, 1.0])).reshape(lead + (-1,))
+    out[..., s.velocities] = (vel * _signs([-1.0, 1.0, 1.0], out)).reshape(lead + (-1,))
     c = s.contacts.start
     out[..., c:c + 2] = features[..., c + 2:c + 4]
     out[..., c + 2:c + 4] = features[..., c:c + 2]

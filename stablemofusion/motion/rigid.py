@@ -15,7 +15,7 @@ each bone over the input's frames (also the fallback for skeletons without targe
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Callable
 
@@ -45,6 +45,9 @@ class RigidMotion:
     rotations: np.ndarray
     root: np.ndarray
     skeleton: str = "humanml3d"
+    # the joints of (offsets, rotations, root) when already known (the batched fit computes them for all
+    # motions at once); used while those three are the same arrays (treat them as read-only)
+    _known: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.root)
@@ -56,11 +59,24 @@ class RigidMotion:
 
     def joints(self) -> np.ndarray:
         """(T, J, 3) joint positions in metres."""
+        known = self._known
+        if known is not None and known[0] is self.offsets and known[1] is self.rotations and known[2] is self.root:
+            return known[3].copy()
         return rigid_batch.positions_of_pose(self.offsets, self.rotations, self.root, self.skeleton)
+
+    def with_joints(self, joints: np.ndarray) -> "RigidMotion":
+        """This motion, remembering ``joints`` (T, J, 3) as its forward kinematics (the caller computed them)."""
+        self._known = (self.offsets, self.rotations, self.root, joints)
+        return self
 
     def translated(self, shift: np.ndarray) -> "RigidMotion":
         """The same motion moved by ``shift`` (3,) metres."""
-        return replace(self, root=self.root + np.asarray(shift, dtype=np.float64))
+        shift = np.asarray(shift, dtype=np.float64)
+        moved = replace(self, root=self.root + shift)
+        known = self._known
+        if known is not None and known[0] is self.offsets and known[1] is self.rotations and known[2] is self.root:
+            moved.with_joints(known[3] + shift)
+        return moved
 
 
 def forward_kinematics(offsets: torch.Tensor, rotations: torch.Tensor, root: torch.Tensor,
@@ -255,8 +271,10 @@ def fit_rigid_many(targets: list[np.ndarray], skeleton: str | Skeleton = "humanm
         np.concatenate([x if b is None else np.asarray(b, dtype=np.float64) for x, b in zip(xs, begins)])
     fitted = rigid_batch.fit_bodies(stacked, starts_at, lengths, config.iterations, sk, begin)
     offsets, rotations = rigid_batch.pose_of_joints(fitted, starts_at, sk, lengths)
+    root = fitted[:, 0].copy()
+    joints = rigid_batch.positions_of_pose(rigid_batch.per_frame(offsets, starts_at, len(fitted)), rotations, root, sk)
     ends = np.append(starts_at[1:], len(fitted))
-    return [RigidMotion(offsets[i], rotations[a:b], fitted[a:b, 0].copy(), sk.name)
+    return [RigidMotion(offsets[i], rotations[a:b], root[a:b], sk.name).with_joints(joints[a:b])
             for i, (a, b) in enumerate(zip(starts_at, ends))]
 
 

@@ -112,7 +112,7 @@ def branch_frames(joints: np.ndarray, t: Tree) -> np.ndarray:
     x = _unit(joints[:, ch[:, 1]] - joints[:, ch[:, 0]])
     y = (joints[:, ch[:, 2]] - joints[:, b]) * np.sign(t.rest[ch[:, 2], 1])[:, None]
     y = _unit(y - (y * x).sum(-1, keepdims=True) * x)
-    return np.stack([x, y, np.cross(x, y)], axis=-1)
+    return np.stack([x, y, cross(x, y)], axis=-1)
 
 
 def branch_offsets(joints: np.ndarray, frames: np.ndarray, starts: np.ndarray, t: Tree,
@@ -129,31 +129,44 @@ def branch_offsets(joints: np.ndarray, frames: np.ndarray, starts: np.ndarray, t
     return mean
 
 
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b over the last axis (..., 3) (numpy's np.cross is slow on small arrays)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def polar_rotation(k: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     """The rotation R (N, 3, 3) maximising tr(R^T k), k (N, 3, 3): the orthogonal polar factor of k, by scaled
     Newton steps X <- (g X + X^-T / g) / 2. Frames where det(k) <= 0 (no proper rotation is the polar
     factor: degenerate, never met on a body) keep ``fallback`` (N, 3, 3)."""
     x = k
+    ok = None
     for _ in range(POLAR_STEPS):
         a, b, c = x[..., :, 0], x[..., :, 1], x[..., :, 2]
-        cof = np.stack([np.cross(b, c), np.cross(c, a), np.cross(a, b)], axis=-1)  # det(x) x^-T
+        cof = np.stack([cross(b, c), cross(c, a), cross(a, b)], axis=-1)  # det(x) x^-T
         det = (a * cof[..., :, 0]).sum(-1)[..., None, None]
-        safe = np.where(det > 0, det, 1.0)
-        g = np.abs(safe) ** (-1.0 / 3.0)
+        ok = det > 0 if ok is None else ok  # the sign of det(k), kept by every step
+        safe = np.where(ok, det, 1.0)
+        g = safe ** (-1.0 / 3.0)
         x = 0.5 * (g * x + cof / (safe * g))
-    ok = np.linalg.det(k)[..., None, None] > 0
     return np.where(ok, x, fallback)
 
 
 @dataclass
 class Body:
-    """The state of the fit: joints (N, J, 3) metres, branch orientations (N, B, 3, 3) and their children's
-    rest offsets per frame (N, B, 3, 3; rows: the children), bone lengths per frame (N, J) metres."""
+    """The state of the fit, joint-major: joints (J, N, 3) metres, branch orientations (N, B, 3, 3), their
+    children's rest offsets per frame (B, 3, N, 3; the children, then frames), bone lengths (J, N, 1) metres."""
 
     joints: np.ndarray
     frames: np.ndarray
     offsets: np.ndarray
     lengths: np.ndarray
+
+
+def _rotate(r: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """r (N, 3, 3) applied to v (..., N, 3)."""
+    return (r * v[..., None, :]).sum(-1)
 
 
 def closed_form_body(targets: np.ndarray, starts: np.ndarray, lengths: np.ndarray,
@@ -165,57 +178,66 @@ def closed_form_body(targets: np.ndarray, starts: np.ndarray, lengths: np.ndarra
     t = tree(skeleton)
     frames = branch_frames(targets, t)
     offsets = per_frame(branch_offsets(targets, frames, starts, t, lengths), starts, len(targets))
-    length = per_frame(lengths, starts, len(targets))
-    bones = length[..., None] * _unit(targets - targets[:, t.parents])
+    offsets = np.ascontiguousarray(offsets.transpose(1, 2, 0, 3))  # (B, 3, N, 3)
+    length = np.ascontiguousarray(per_frame(lengths, starts, len(targets)).T[..., None])  # (J, N, 1)
+    tj = np.ascontiguousarray(targets.transpose(1, 0, 2))
+    bones = length * _unit(tj - tj[t.parents])
     for i, ch in enumerate(t.branch_children):
-        bones[:, ch] = np.einsum("nij,ncj->nci", frames[:, i], offsets[:, i])
-    bones[:, 0] = targets[:, 0]
-    return Body(t.subtree.T @ bones, frames, offsets, length)  # each joint: root plus the bones above it
+        bones[ch] = _rotate(frames[:, i], offsets[i])
+    bones[0] = tj[0]
+    return Body(_spread(t.subtree.T, bones), frames, offsets, length)  # each joint: root plus the bones above it
+
+
+def _spread(weights: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """weights (K, J) @ x (J, N, 3) -> (K, N, 3): one matrix product over all frames."""
+    return (weights @ x.reshape(len(x), -1)).reshape((len(weights),) + x.shape[1:])
 
 
 def sweep(body: Body, targets: np.ndarray, t: Tree) -> Body:
-    """One top-down sweep of exact block updates (module docstring); returns the updated body."""
-    x = body.joints + (targets - body.joints).mean(1, keepdims=True)  # the root block
+    """One top-down sweep of exact block updates (module docstring) towards joint-major targets (J, N, 3);
+    returns the updated body."""
+    x = body.joints + (targets - body.joints).mean(0)  # the root block
     frames = body.frames.copy()
     mean_of = t.subtree / t.sizes[:, None]  # (J, J): mean over a joint's subtree
     for free, branch_ids in t.levels:
         for i in branch_ids:
             b, ch = t.branches[i], t.branch_children[i]
-            want = x[:, ch] + mean_of[ch] @ (targets - x) - x[:, b][:, None]  # (N, 3, 3): child, xyz
-            k = np.einsum("c,nci,ncj->nij", t.sizes[ch], want, body.offsets[:, i])
+            want = x[ch] + _spread(mean_of[ch], targets - x) - x[b]  # (3, N, 3): child, frame, xyz
+            k = sum(n * want[c][:, :, None] * body.offsets[i, c][:, None, :] for c, n in enumerate(t.sizes[ch]))
             frames[:, i] = polar_rotation(k, frames[:, i])
-            moved = x[:, b][:, None] + np.einsum("nij,ncj->nci", frames[:, i], body.offsets[:, i])
-            x = x + t.subtree[ch].T @ (moved - x[:, ch])
+            moved = x[b] + _rotate(frames[:, i], body.offsets[i])
+            x = x + _spread(t.subtree[ch].T, moved - x[ch])
         if len(free):
             parent = t.parents[free]
-            want = x[:, free] + mean_of[free] @ (targets - x) - x[:, parent]
-            moved = x[:, parent] + body.lengths[:, free][..., None] * _unit(want)
-            x = x + t.subtree[free].T @ (moved - x[:, free])
+            want = x[free] + _spread(mean_of[free], targets - x) - x[parent]
+            moved = x[parent] + body.lengths[free] * _unit(want)
+            x = x + _spread(t.subtree[free].T, moved - x[free])
     return Body(x, frames, body.offsets, body.lengths)
 
 
 def fit_bodies(targets: np.ndarray, starts: np.ndarray, lengths: np.ndarray, sweeps: int,
                skeleton: str | Skeleton = "humanml3d", begin: np.ndarray | None = None) -> np.ndarray:
     """Rigid joints (N, J, 3) metres fitted to ``targets`` (N, J, 3) with bone ``lengths`` (M, J) per motion:
-    the closed-form body of ``begin``
-    (default: the targets), then ``sweeps`` block sweeps towards the targets."""
+    the closed-form body of ``begin`` (default: the targets), then ``sweeps`` block sweeps towards the
+    targets."""
     t = tree(skeleton)
     body = closed_form_body(targets if begin is None else begin, starts, lengths, skeleton)
+    tj = np.ascontiguousarray(targets.transpose(1, 0, 2))
     for _ in range(sweeps):
-        body = sweep(body, targets, t)
-    return body.joints
+        body = sweep(body, tj, t)
+    return np.ascontiguousarray(body.joints.transpose(1, 0, 2))
 
 
 def _shortest_arc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(..., 3, 3) rotation taking unit vectors a onto b (..., 3) by the shortest arc, from the normalised
     quaternion (1 + a.b, a x b) so it stays orthonormal near a half turn; opposite vectors get the half turn
     about an axis perpendicular to a."""
-    q = np.concatenate([1.0 + (a * b).sum(-1, keepdims=True), np.cross(a, b)], -1)
+    q = np.concatenate([1.0 + (a * b).sum(-1, keepdims=True), cross(a, b)], -1)
     flip = q[..., 0] < 1e-6
     if flip.any():
         a_f = a[flip]
         e = np.eye(3)[np.argmin(np.abs(a_f), axis=-1)]  # the basis vector least aligned with a
-        q[flip] = np.concatenate([np.zeros(a_f.shape[:-1] + (1,)), np.cross(a_f, e)], -1)
+        q[flip] = np.concatenate([np.zeros(a_f.shape[:-1] + (1,)), cross(a_f, e)], -1)
     return quat_to_matrix(q / np.linalg.norm(q, axis=-1, keepdims=True))
 
 
@@ -262,15 +284,16 @@ def pose_of_joints(joints: np.ndarray, starts: np.ndarray, skeleton: str | Skele
 
 def positions_of_pose(offsets: np.ndarray, local: np.ndarray, root: np.ndarray,
                       skeleton: str | Skeleton = "humanml3d") -> np.ndarray:
-    """Forward kinematics: rest offsets (J, 3) metres, local rotations (N, J, 3, 3), root (N, 3) metres ->
-    joints (N, J, 3) metres, one depth of the tree at a time."""
+    """Forward kinematics: rest offsets (J, 3) (or per frame (N, J, 3)) metres, local rotations (N, J, 3, 3),
+    root (N, 3) metres -> joints (N, J, 3) metres, one depth of the tree at a time."""
     t = tree(skeleton)
+    offsets = np.broadcast_to(offsets, local.shape[:-1])
     glob = np.empty_like(local)
     pos = np.empty(local.shape[:-1])
     glob[:, 0], pos[:, 0] = local[:, 0], root
     for d in range(1, t.depth.max() + 1):
         js = np.flatnonzero(t.depth == d)
         ps = t.parents[js]
-        pos[:, js] = pos[:, ps] + np.einsum("nkij,kj->nki", glob[:, ps], offsets[js])
+        pos[:, js] = pos[:, ps] + (glob[:, ps] * offsets[:, js, None, :]).sum(-1)
         glob[:, js] = glob[:, ps] @ local[:, js]
     return pos

@@ -30,6 +30,7 @@ from .skeleton import Skeleton, get_skeleton
 
 BONE_LENGTHS = ("dataset", "median")
 CM = 100.0  # the optimisation works in centimetres, so squared errors are O(1)
+COLLAPSED_M = 1e-6  # a frame whose every bone is shorter than this (m) has no pose to fit
 BRANCH_SCALE = 15.0  # cm: about the lever of a branching joint's children (hips, spine, neck, collars)
 
 # (X (T, J, 3) positions in cm, root_shift (T, 3) cm) -> scalar loss; see :func:`optimise_pose`
@@ -242,6 +243,10 @@ def _checked_targets(targets: np.ndarray, sk: Skeleton) -> np.ndarray:
         raise SMFError(f"expected joints of shape (T, {sk.num_joints}, 3), got {tuple(x.shape)}")
     if not np.isfinite(x).all():
         raise SMFError("joints contain NaN or inf")
+    collapsed = bone_lengths(x, sk)[:, 1:].max(-1) < COLLAPSED_M
+    if collapsed.any():
+        raise SMFError(f"the joints of {int(collapsed.sum())} frames (first: {int(np.argmax(collapsed))}) all sit on one "
+                       "point: no skeleton can be fitted to them")
     return x
 
 

@@ -5,7 +5,10 @@ Starts the server (shipped model unless --checkpoint) as a subprocess on a free 
 again one at a time; prints JSON: errors, wall time, throughput (requests/s), p50/p99 latency, and the
 batch sizes the server formed. Loopback only; the server is stopped at the end.
 
-    python benchmarks/serve_load.py --requests 200 [--seconds 4] [--footskate off]
+    python benchmarks/serve_load.py --requests 200 [--seconds 4] [--footskate off] [--no-one-by-one]
+
+With --reference, the pipeline's own batch-32 end-to-end throughput (one process, the same threads, text
+cached, motions/s) is measured first and the server's concurrent throughput is reported as a ratio of it.
 """
 
 from __future__ import annotations
@@ -47,16 +50,38 @@ async def one(client: httpx.AsyncClient, body: dict) -> tuple[float, bool]:
     return time.perf_counter() - t, ok
 
 
-async def run(base: str, bodies: list[dict]) -> dict:
+def pipeline_reference(args, bodies: list[dict], batch: int = 32, repeats: int = 3) -> float:
+    """Motions/s of the pipeline itself on batches of ``batch`` of the same requests (best of ``repeats``)."""
+    import torch
+
+    from stablemofusion.pipeline import MotionPipeline
+
+    torch.set_num_threads(args.threads)
+    pipe = MotionPipeline.from_pretrained(args.checkpoint, device="cpu")
+    items = bodies[:batch]
+    call = lambda: pipe([b["prompt"] for b in items], seconds=args.seconds, seed=[b["seed"] for b in items],  # noqa: E731
+                        footskate=args.footskate, batch_size=batch)
+    call()  # warm-up: text cache
+    best = float("inf")
+    for _ in range(repeats):
+        t = time.perf_counter()
+        call()
+        best = min(best, time.perf_counter() - t)
+    return len(items) / best
+
+
+async def run(base: str, bodies: list[dict], one_by_one: bool = True) -> dict:
     limits = httpx.Limits(max_connections=len(bodies) + 8)
     async with httpx.AsyncClient(base_url=base, timeout=600, limits=limits) as client:
         t = time.perf_counter()
         out = await asyncio.gather(*[one(client, b) for b in bodies])
         concurrent = summary([d for d, ok in out if ok], time.perf_counter() - t, sum(not ok for _, ok in out))
+        health = (await client.get("/v1/health")).json()
+        if not one_by_one:
+            return {"concurrent": concurrent, "health": health}
         t = time.perf_counter()
         seq = [await one(client, b) for b in bodies]
         sequential = summary([d for d, ok in seq if ok], time.perf_counter() - t, sum(not ok for _, ok in seq))
-        health = (await client.get("/v1/health")).json()
     return {"concurrent": concurrent, "one_by_one": sequential,
             "speed_up": round(concurrent["throughput_rps"] / sequential["throughput_rps"], 2), "health": health}
 
@@ -68,7 +93,12 @@ def main() -> None:
     ap.add_argument("--footskate", default="off")
     ap.add_argument("--checkpoint", default=None)
     ap.add_argument("--threads", type=int, default=2, help="torch threads of the server (default 2)")
+    ap.add_argument("--no-one-by-one", action="store_true", help="skip the one-by-one pass")
+    ap.add_argument("--reference", action="store_true", help="measure the pipeline's own batch-32 throughput first")
     args = ap.parse_args()
+    bodies = [{"prompt": PROMPTS[i % len(PROMPTS)], "seconds": args.seconds, "seed": i, "footskate": args.footskate}
+              for i in range(args.requests)]
+    reference = pipeline_reference(args, bodies) if args.reference else None
     port = free_port()
     cmd = [sys.executable, "-m", "stablemofusion.cli.main", "serve", "--port", str(port), "--device", "cpu",
            "--threads", str(args.threads)]
@@ -89,10 +119,11 @@ def main() -> None:
             raise SystemExit("server did not start: " + server.stderr.read().decode()[-500:])
         warm = {"prompt": PROMPTS[0], "seconds": args.seconds, "seed": 0, "footskate": args.footskate}
         httpx.post(base + "/v1/generate", json=warm, timeout=600)  # text encoder, first forward, torch.optim
-        bodies = [{"prompt": PROMPTS[i % len(PROMPTS)], "seconds": args.seconds, "seed": i, "footskate": args.footskate}
-                  for i in range(args.requests)]
-        report = asyncio.run(run(base, bodies))
+        report = asyncio.run(run(base, bodies, not args.no_one_by_one))
         report.update({"seconds": args.seconds, "footskate": args.footskate, "server_threads": args.threads})
+        if reference is not None:
+            report["pipeline_batch32_motions_per_s"] = round(reference, 2)
+            report["ratio"] = round(report["concurrent"]["throughput_rps"] / reference, 3)
         print(json.dumps(report, indent=1))
     finally:
         server.terminate()

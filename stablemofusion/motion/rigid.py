@@ -15,7 +15,7 @@ each bone over the input's frames (also the fallback for skeletons without targe
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Callable
 
@@ -23,12 +23,14 @@ import numpy as np
 import torch
 
 from ..errors import SMFError
+from . import rigid_batch
 from .features import bone_lengths, features_in_frames_of, joints_from_features, joints_from_rotations
-from .rotation import cont6d_to_matrix, quat_to_matrix
+from .rotation import cont6d_to_matrix
 from .skeleton import Skeleton, get_skeleton
 
 BONE_LENGTHS = ("dataset", "median")
 CM = 100.0  # the optimisation works in centimetres, so squared errors are O(1)
+COLLAPSED_M = 1e-6  # a frame whose every bone is shorter than this (m) has no pose to fit
 BRANCH_SCALE = 15.0  # cm: about the lever of a branching joint's children (hips, spine, neck, collars)
 
 # (X (T, J, 3) positions in cm, root_shift (T, 3) cm) -> scalar loss; see :func:`optimise_pose`
@@ -44,6 +46,9 @@ class RigidMotion:
     rotations: np.ndarray
     root: np.ndarray
     skeleton: str = "humanml3d"
+    # the joints of (offsets, rotations, root) when already known (the batched fit computes them for all
+    # motions at once); used while those three are the same arrays (treat them as read-only)
+    _known: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.root)
@@ -55,15 +60,24 @@ class RigidMotion:
 
     def joints(self) -> np.ndarray:
         """(T, J, 3) joint positions in metres."""
-        sk = get_skeleton(self.skeleton)
-        with torch.no_grad():
-            x = forward_kinematics(torch.from_numpy(self.offsets), torch.from_numpy(self.rotations),
-                                   torch.from_numpy(self.root), sk.parents)
-        return x.numpy()
+        known = self._known
+        if known is not None and known[0] is self.offsets and known[1] is self.rotations and known[2] is self.root:
+            return known[3].copy()
+        return rigid_batch.positions_of_pose(self.offsets, self.rotations, self.root, self.skeleton)
+
+    def with_joints(self, joints: np.ndarray) -> "RigidMotion":
+        """This motion, remembering ``joints`` (T, J, 3) as its forward kinematics (the caller computed them)."""
+        self._known = (self.offsets, self.rotations, self.root, joints)
+        return self
 
     def translated(self, shift: np.ndarray) -> "RigidMotion":
         """The same motion moved by ``shift`` (3,) metres."""
-        return replace(self, root=self.root + np.asarray(shift, dtype=np.float64))
+        shift = np.asarray(shift, dtype=np.float64)
+        moved = replace(self, root=self.root + shift)
+        known = self._known
+        if known is not None and known[0] is self.offsets and known[1] is self.rotations and known[2] is self.root:
+            moved.with_joints(known[3] + shift)
+        return moved
 
 
 def forward_kinematics(offsets: torch.Tensor, rotations: torch.Tensor, root: torch.Tensor,
@@ -105,36 +119,6 @@ def choose_bone_lengths(joints: np.ndarray, skeleton: str | Skeleton = "humanml3
     return np.median(bone_lengths(np.asarray(joints, dtype=np.float64), sk), axis=0)
 
 
-def _branch_frame(joints: np.ndarray, sk: Skeleton, joint: int, children: list[int]) -> np.ndarray:
-    """(T, 3, 3) orientation of a branching joint: X from its -X child to its +X child, Y towards the
-    remaining (up or down) child, Z = X x Y."""
-    raw = sk.offsets_array
-    pos_x = [c for c in children if raw[c][0] > 0]
-    neg_x = [c for c in children if raw[c][0] < 0]
-    other = [c for c in children if raw[c][0] == 0]
-    if len(pos_x) != 1 or len(neg_x) != 1 or len(other) != 1:
-        raise SMFError(f"cannot orient branching joint {sk.joint_names[joint]}")
-    x = joints[:, pos_x[0]] - joints[:, neg_x[0]]
-    x /= np.linalg.norm(x, axis=-1, keepdims=True) + 1e-12
-    y = (joints[:, other[0]] - joints[:, joint]) * np.sign(raw[other[0]][1])
-    y -= (y * x).sum(-1, keepdims=True) * x
-    y /= np.linalg.norm(y, axis=-1, keepdims=True) + 1e-12
-    return np.stack([x, y, np.cross(x, y)], axis=-1)
-
-
-def _shortest_arc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(T, 3, 3) rotation taking unit vectors a onto b (T, 3) by the shortest arc, built from the normalised
-    quaternion (1 + a.b, a x b) so it stays orthonormal near a half turn; opposite vectors (no unique shortest
-    arc) get the half turn about an axis perpendicular to a."""
-    q = np.concatenate([1.0 + (a * b).sum(-1, keepdims=True), np.cross(a, b)], -1)
-    flip = q[..., 0] < 1e-6
-    if flip.any():
-        a_f = a[flip]
-        e = np.eye(3)[np.argmin(np.abs(a_f), axis=-1)]  # the basis vector least aligned with a
-        q[flip] = np.concatenate([np.zeros((len(a_f), 1)), np.cross(a_f, e)], -1)
-    return quat_to_matrix(q / np.linalg.norm(q, axis=-1, keepdims=True))
-
-
 def pose_from_joints(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d",
                      lengths: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Closed-form inverse kinematics: joints (T, J, 3) -> (rest offsets (J, 3), local rotations (T, J, 3, 3)).
@@ -143,39 +127,13 @@ def pose_from_joints(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d",
     are the children's mean position in that frame; every other bone lies along the skeleton's rest
     direction, and turns by the shortest rotation from its parent-rotated rest direction, so the twist of
     each limb follows its parent. Leaf joints keep their parent's rotation. Bone ``lengths`` (J,) default
-    to each bone's mean length. Exact for a rigid input with those lengths.
+    to each bone's mean length. Exact for a rigid input with those lengths (:func:`rigid_batch.pose_of_joints`
+    on one motion).
     """
-    sk = get_skeleton(skeleton)
     joints = np.asarray(joints, dtype=np.float64)
-    T, J = joints.shape[:2]
-    parents = sk.parents
-    children = {j: [c for c in range(J) if parents[c] == j] for j in range(J)}
-    raw = sk.offsets_array
-    offsets = np.zeros((J, 3))
-    glob = np.zeros((T, J, 3, 3))
-    for j in range(J):  # joints are in topological order
-        parent_rot = glob[:, parents[j]] if parents[j] >= 0 else np.broadcast_to(np.eye(3), (T, 3, 3))
-        kids = children[j]
-        if len(kids) > 1:
-            glob[:, j] = _branch_frame(joints, sk, j, kids)
-            for c in kids:
-                local = np.einsum("tij,ti->tj", glob[:, j], joints[:, c] - joints[:, j]).mean(0)
-                if lengths is not None:
-                    local = local / max(np.linalg.norm(local), 1e-12) * lengths[c]
-                offsets[c] = local
-        elif len(kids) == 1:
-            c = kids[0]
-            bone = joints[:, c] - joints[:, j]
-            length = np.linalg.norm(bone, axis=-1)
-            offsets[c] = raw[c] * (length.mean() if lengths is None else lengths[c])
-            rest_dir = np.einsum("tij,j->ti", parent_rot, raw[c])
-            glob[:, j] = _shortest_arc(rest_dir, bone / np.maximum(length, 1e-12)[:, None]) @ parent_rot
-        else:
-            glob[:, j] = parent_rot
-    local = glob.copy()
-    for j in range(1, J):
-        local[:, j] = np.swapaxes(glob[:, parents[j]], -1, -2) @ glob[:, j]
-    return offsets, local
+    per_motion = None if lengths is None else np.asarray(lengths, dtype=np.float64)[None]
+    offsets, local = rigid_batch.pose_of_joints(joints, np.zeros(1, dtype=int), skeleton, per_motion)
+    return offsets[0], local
 
 
 def global_rotations(motion: RigidMotion) -> np.ndarray:
@@ -246,6 +204,8 @@ def optimise_pose(motion: RigidMotion, loss: PoseLoss, iterations: int) -> Rigid
 
 
 FIT_STARTS = ("rotations", "positions")
+FIT_METHODS = ("sweeps", "lbfgs")  # exact block sweeps, batched over all motions; or L-BFGS per motion
+DEFAULT_ITERATIONS = {"sweeps": 4, "lbfgs": 20}
 FEATURE_ROTATIONS = ("ik", "keep")
 
 
@@ -255,11 +215,17 @@ class RigidFitConfig:
     and writes it back as features (:func:`rigid_to_features`)."""
 
     bone_lengths: str = "dataset"  # one of BONE_LENGTHS
-    iterations: int = 20  # L-BFGS iterations (0: the closed-form start only)
+    iterations: int | None = None  # sweeps or L-BFGS iterations (0: the closed-form start only; None: the
+    # method's default, DEFAULT_ITERATIONS)
     start: str = "positions"  # closed-form start from the positions, or from the joints the rotation channels describe
     rotations: str = "keep"  # feature rotation channels: the model's own ("keep"), or "ik" of the rigid joints
+    method: str = "sweeps"  # one of FIT_METHODS
 
     def __post_init__(self):
+        if self.method not in FIT_METHODS:
+            raise SMFError(f"method must be one of {', '.join(FIT_METHODS)}, got {self.method!r}")
+        if self.iterations is None:
+            object.__setattr__(self, "iterations", DEFAULT_ITERATIONS[self.method])
         if self.bone_lengths not in BONE_LENGTHS:
             raise SMFError(f"bone lengths must be one of {', '.join(BONE_LENGTHS)}, got {self.bone_lengths!r}")
         if self.start not in FIT_STARTS:
@@ -271,35 +237,77 @@ class RigidFitConfig:
 DEFAULT_FIT = RigidFitConfig()
 
 
-def fit_rigid(targets: np.ndarray, skeleton: str | Skeleton = "humanml3d", config: RigidFitConfig = DEFAULT_FIT, *,
-              start: np.ndarray | None = None) -> RigidMotion:
-    """Fit a rigid skeleton to joint positions ``targets`` (T, J, 3) metres: bone lengths by
-    ``config.bone_lengths``; rotations start from the closed-form pose of ``start`` (T, J, 3) (default: the
-    targets themselves), then L-BFGS minimises the mean squared distance of every joint to its target."""
-    sk = get_skeleton(skeleton)
+def _checked_targets(targets: np.ndarray, sk: Skeleton) -> np.ndarray:
     x = np.asarray(targets, dtype=np.float64)
     if x.ndim != 3 or x.shape[1:] != (sk.num_joints, 3) or len(x) < 1:
         raise SMFError(f"expected joints of shape (T, {sk.num_joints}, 3), got {tuple(x.shape)}")
     if not np.isfinite(x).all():
         raise SMFError("joints contain NaN or inf")
-    lengths = choose_bone_lengths(x, sk, config.bone_lengths)
-    offsets, rotations = pose_from_joints(x if start is None else start, sk, lengths)
-    motion = RigidMotion(offsets, rotations, x[:, 0].copy(), sk.name)
-    target = torch.as_tensor(x * CM, dtype=torch.float64)
-    return optimise_pose(motion, lambda X, _: ((X - target) ** 2).sum(-1).mean(), config.iterations)
+    collapsed = bone_lengths(x, sk)[:, 1:].max(-1) < COLLAPSED_M
+    if collapsed.any():
+        raise SMFError(f"the joints of {int(collapsed.sum())} frames (first: {int(np.argmax(collapsed))}) all sit on one "
+                       "point: no skeleton can be fitted to them")
+    return x
+
+
+def fit_rigid_many(targets: list[np.ndarray], skeleton: str | Skeleton = "humanml3d",
+                   config: RigidFitConfig = DEFAULT_FIT, *, starts: list[np.ndarray | None] | None = None
+                   ) -> list[RigidMotion]:
+    """Fit one rigid skeleton to each motion's joint positions ``targets[i]`` (T_i, J, 3) metres, all motions at
+    once: bone lengths by ``config.bone_lengths``; the closed-form pose of ``starts[i]`` (T_i, J, 3) (default:
+    the targets themselves), then ``config.iterations`` block sweeps (``method="sweeps"``, vectorised over
+    every frame of every motion; :mod:`stablemofusion.motion.rigid_batch`) or L-BFGS steps per motion
+    (``"lbfgs"``) towards the targets. A motion's result does not depend on the others."""
+    sk = get_skeleton(skeleton)
+    xs = [_checked_targets(x, sk) for x in targets]
+    begins = [None] * len(xs) if starts is None else list(starts)
+    lengths = np.stack([choose_bone_lengths(x, sk, config.bone_lengths) for x in xs])  # (M, J)
+    if config.method == "lbfgs":
+        out = []
+        for x, begin, length in zip(xs, begins, lengths):
+            offsets, rotations = pose_from_joints(x if begin is None else begin, sk, length)
+            target = torch.as_tensor(x * CM, dtype=torch.float64)
+            out.append(optimise_pose(RigidMotion(offsets, rotations, x[:, 0].copy(), sk.name),
+                                     lambda X, _, t=target: ((X - t) ** 2).sum(-1).mean(), config.iterations))
+        return out
+    starts_at = np.cumsum([0] + [len(x) for x in xs[:-1]])
+    stacked = np.concatenate(xs)
+    begin = None if all(b is None for b in begins) else \
+        np.concatenate([x if b is None else np.asarray(b, dtype=np.float64) for x, b in zip(xs, begins)])
+    fitted = rigid_batch.fit_bodies(stacked, starts_at, lengths, config.iterations, sk, begin)
+    offsets, rotations = rigid_batch.pose_of_joints(fitted, starts_at, sk, lengths)
+    root = fitted[:, 0].copy()
+    joints = rigid_batch.positions_of_pose(rigid_batch.per_frame(offsets, starts_at, len(fitted)), rotations, root, sk)
+    ends = np.append(starts_at[1:], len(fitted))
+    return [RigidMotion(offsets[i], rotations[a:b], root[a:b], sk.name).with_joints(joints[a:b])
+            for i, (a, b) in enumerate(zip(starts_at, ends))]
+
+
+def fit_rigid(targets: np.ndarray, skeleton: str | Skeleton = "humanml3d", config: RigidFitConfig = DEFAULT_FIT, *,
+              start: np.ndarray | None = None) -> RigidMotion:
+    """Fit a rigid skeleton to joint positions ``targets`` (T, J, 3) metres (:func:`fit_rigid_many` of one)."""
+    return fit_rigid_many([targets], skeleton, config, starts=[start])[0]
+
+
+def rigid_from_features_many(features: list[np.ndarray], skeleton: str | Skeleton = "humanml3d",
+                             config: RigidFitConfig = DEFAULT_FIT) -> list[RigidMotion]:
+    """The rigid bodies that a model's features (T_i, D) describe, fitted together: their joint positions are
+    the targets, and the joints their rotation channels describe (with the chosen bone lengths) the start
+    (``config.start``)."""
+    sk = get_skeleton(skeleton)
+    fs = [np.asarray(f, dtype=np.float64) for f in features]
+    targets = [joints_from_features(f, sk) for f in fs]
+    starts = None
+    if config.start == "rotations":
+        starts = [joints_from_rotations(f, sk, choose_bone_lengths(x, sk, config.bone_lengths))
+                  for f, x in zip(fs, targets)]
+    return fit_rigid_many(targets, sk, config, starts=starts)
 
 
 def rigid_from_features(features: np.ndarray, skeleton: str | Skeleton = "humanml3d",
                         config: RigidFitConfig = DEFAULT_FIT) -> RigidMotion:
-    """The rigid body that a model's features (T, D) describe: their joint positions are the targets, and the
-    joints their rotation channels describe (with the chosen bone lengths) the start (``config.start``)."""
-    sk = get_skeleton(skeleton)
-    f = np.asarray(features, dtype=np.float64)
-    targets = joints_from_features(f, sk)
-    start = None
-    if config.start == "rotations":
-        start = joints_from_rotations(f, sk, choose_bone_lengths(targets, sk, config.bone_lengths))
-    return fit_rigid(targets, sk, config, start=start)
+    """The rigid body that a model's features (T, D) describe (:func:`rigid_from_features_many` of one)."""
+    return rigid_from_features_many([features], skeleton, config)[0]
 
 
 def rigid_to_features(motion: RigidMotion, reference: np.ndarray,

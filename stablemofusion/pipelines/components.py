@@ -15,7 +15,7 @@ from ..diffusion.engine import SolverEngine, check_engine
 from ..diffusion.solvers import SolverTable, solver_table
 from ..errors import SMFError
 from ..models.base import TextCondition
-from ..motion.rigid import DEFAULT_FIT, RigidFitConfig, RigidMotion, rigid_from_features, rigid_to_features
+from ..motion.rigid import DEFAULT_FIT, RigidFitConfig, RigidMotion, rigid_from_features_many, rigid_to_features
 from ..motion.skeleton import get_skeleton
 from ..text.frozen import sentence_embedding
 from ..text.known import ACTIONS_FILE, DomainCheck, KnownActions
@@ -169,19 +169,28 @@ class Components:
         """The final stage of one motion's raw features (T, D): the rigid fit, the footskate cleanup in 'post'
         mode (on the rigid body), and the body written back as features that decode to it exactly.
         Returns (features (T, D) float64, rigid motion); with the rigid stage off the raw features and None."""
+        return self.finish_many([features], footskate, footskate_options)[0]
+
+    def finish_many(self, features: list[np.ndarray], footskate: str = "off",
+                    footskate_options=None) -> list[tuple[np.ndarray, RigidMotion | None]]:
+        """:meth:`finish` of several motions' raw features (T_i, D), their rigid fits done together (one
+        vectorised fit of all their frames; each motion's result is the one it gets alone)."""
         check_footskate(footskate)
-        f = np.asarray(features, dtype=np.float64)
+        fs = [np.asarray(f, dtype=np.float64) for f in features]
         if self.rigid is None:
-            return f, None
+            return [(f, None) for f in fs]
         if footskate == "post":
             from ..footskate import FootskateOptions
             from ..footskate.cleanup import cleanup_features
 
             options = footskate_options or FootskateOptions()
-            return cleanup_features(f, options.config, vgrf_model=options.vgrf_model, fps=self.fps, rigid=self.rigid)
-        motion = rigid_from_features(f, self.skeleton, self.rigid)
-        motion, f = rigid_to_features(motion, f, self.rigid)
-        return f, motion
+            return [cleanup_features(f, options.config, vgrf_model=options.vgrf_model, fps=self.fps, rigid=self.rigid)
+                    for f in fs]
+        out = []
+        for motion, f in zip(rigid_from_features_many(fs, self.skeleton, self.rigid), fs):
+            moved, written = rigid_to_features(motion, f, self.rigid)
+            out.append((written, moved))
+        return out
 
 
 class _LazyEncoder:

@@ -64,9 +64,10 @@ class TextToMotionPipeline:
             idx = short[start:start + settings.batch_size]
             batch_seed = [seed[i] for i in idx] if per_item else base + k
             raw = sample(c, [prompts[i] for i in idx], [lengths[i] for i in idx], settings, batch_seed)
-            # 5. post-process: the final stage of each motion
-            for j, i in enumerate(idx):
-                f, motion = c.finish(raw[j, :lengths[i]].numpy(), settings.footskate, settings.footskate_options)
+            # 5. post-process: the final stage of the batch's motions (their rigid fits together)
+            finished = c.finish_many([raw[j, :lengths[i]].numpy() for j, i in enumerate(idx)], settings.footskate,
+                                     settings.footskate_options)
+            for (f, motion), i in zip(finished, idx):
                 results[i] = MotionResult.build(prompts[i], f, motion, c.skeleton, c.fps,
                                                 seed[i] if per_item else batch_seed, domains[i])
         return results

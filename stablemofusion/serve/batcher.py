@@ -49,12 +49,21 @@ class DynamicBatcher:
         return await future
 
     async def _gather(self) -> list:
+        """The next batch: the first job, every job already waiting (however long the window has run: under
+        load the queue fills while the worker generates, and a busy event loop must not cut a batch short),
+        and those that arrive within ``wait_ms`` of the first, up to ``max_batch``."""
         loop = asyncio.get_running_loop()
         batch = [await self._queue.get()]
         deadline = loop.time() + self.wait
         while len(batch) < self.max_batch:
+            if not self._queue.empty():
+                batch.append(self._queue.get_nowait())
+                continue
+            remaining = deadline - loop.time()
+            if remaining <= 0:
+                break
             try:
-                batch.append(await asyncio.wait_for(self._queue.get(), max(0.0, deadline - loop.time())))
+                batch.append(await asyncio.wait_for(self._queue.get(), remaining))
             except asyncio.TimeoutError:
                 break
         return batch

@@ -99,6 +99,8 @@ class KnownActions:
 
     def similarities(self, prompts: list[str]) -> torch.Tensor:
         """(B, A) largest cosine similarity of each prompt to each action's examples."""
+        if self._emb is None:
+            self._emb = self.embed([e for examples in self.actions.values() for e in examples])
         return self._similarities(self.embed(list(prompts)))
 
     def _similarities(self, emb: torch.Tensor) -> torch.Tensor:
@@ -109,6 +111,8 @@ class KnownActions:
         return best.scatter_reduce(1, self._owner.expand(len(emb), -1), sims, reduce="amax")
 
     def check_many(self, prompts: list[str]) -> list[DomainCheck]:
+        if self._emb is None:  # the examples first, as before: a prompt equal to one keeps the same encoding batch
+            self._emb = self.embed([e for examples in self.actions.values() for e in examples])
         emb = self.embed(list(prompts))
         sims = self._similarities(emb)
         scores = None if self.detector is None else self.detector.scores(emb)

@@ -117,6 +117,7 @@ class DomainDetector:
                 "scale": repr(self.scale), "encoder": self.encoder}
         with atomic_path(Path(path)) as tmp:
             save_file(tensors, str(tmp), metadata=meta)
+            tmp.chmod(0o644)  # a release file, readable like the rest of the folder
 
     @classmethod
     def load(cls, path: str | Path) -> "DomainDetector":

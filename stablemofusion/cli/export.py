@@ -5,10 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-# Calibrated with benchmarks/ood_threshold.py on the lexicon's held-out phrasings (in domain) and
-# benchmarks/ood_calibration.txt (out of domain); not on the free-form dev set.
-OOD_THRESHOLD = 0.56
-
 
 def add_parser(sub, name: str) -> None:
     p = sub.add_parser(name, help="write a release folder (EMA weights in fp16, config, Mean/Std, model card)",
@@ -18,10 +14,16 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--card", type=Path, default=None, help="model card (markdown) copied in as MODEL_CARD.md")
     p.add_argument("--dtype", default="float16", choices=("float16", "bfloat16", "float32"))
     p.add_argument("--lexicon", default=None,
-                   help="corpus lexicon (e.g. bandai) whose actions the model knows: writes actions.json, so prompts "
-                        "far from them get an out-of-domain warning")
-    p.add_argument("--ood-threshold", type=float, default=OOD_THRESHOLD,
-                   help=f"similarity below which a prompt is out of domain (default {OOD_THRESHOLD})")
+                   help="corpus lexicon (e.g. bandai) whose actions the model knows: writes actions.json and the "
+                        "out-of-domain detector ood.safetensors, so prompts unlike the training captions get a warning")
+    p.add_argument("--corpus", type=Path, default=None,
+                   help="corpus folder whose train-split captions the detector learns as in domain (default: captions "
+                        "made from the lexicon's grammar, as the corpus's are)")
+    p.add_argument("--text-cache", type=Path, default=None,
+                   help="text embedding cache folder of the training run, read (never written) to skip encoding")
+    p.add_argument("--ood-flag-rate", type=float, default=None,
+                   help="share of held-out in-domain prompts the detector's threshold flags (default: the calibrated "
+                        "FLAG_RATE of stablemofusion.text.domain)")
     p.set_defaults(func=run)
 
 
@@ -36,13 +38,44 @@ def run(args: argparse.Namespace) -> None:
         if not args.card.is_file():
             raise SMFError(f"no such model card: {args.card}")
         extra["MODEL_CARD.md"] = args.card.read_text(encoding="utf-8")
-    if args.lexicon is not None:
-        import json
+    known = None
+    if args.lexicon is not None:  # built first: a failure leaves no half-written release
+        from ..diffusion.checkpoint import load_checkpoint
 
-        from ..data.lexicon import known_actions, load_lexicon
-        from ..text.known import ACTIONS_FILE
-
-        extra[ACTIONS_FILE] = json.dumps(known_actions(load_lexicon(args.lexicon), args.ood_threshold), indent=1) + "\n"
+        known = build_known_actions(args.lexicon, load_checkpoint(args.checkpoint).config.text_encoder,
+                                    corpus=args.corpus, text_cache=args.text_cache, flag_rate=args.ood_flag_rate)
     out = export_checkpoint(args.checkpoint, args.out, dtype=getattr(torch, args.dtype), extra_files=extra)
+    if known is not None:
+        known.save(out, about=ABOUT)
     size = sum(f.stat().st_size for f in out.iterdir())
     print(f"exported {args.checkpoint} -> {out} ({size / 1e6:.1f} MB)")
+
+
+ABOUT = ("closest actions: example sentences per action from the lexicon's training phrasings; out of domain: the "
+         "detector's calibrated in-domain score (similarity) below threshold (stablemofusion.text.domain)")
+
+
+def build_known_actions(lexicon: str, encoder: str, *, corpus: Path | None = None, text_cache: Path | None = None,
+                        flag_rate: float | None = None, progress: bool = True):
+    """The :class:`~stablemofusion.text.known.KnownActions` of a model trained on ``lexicon``'s corpus with the
+    text encoder ``encoder``: its actions' example sentences and a trained, calibrated out-of-domain detector."""
+    from ..data.lexicon import known_actions, load_lexicon
+    from ..errors import SMFError
+    from ..text.cache import LRUTextCache, TextEmbeddingCache
+    from ..text.domain import FLAG_RATE, DomainDetector, build_detector, corpus_captions, lexicon_captions
+    from ..text.frozen import load_text_encoder
+    from ..text.known import KnownActions
+
+    if corpus is not None and not corpus.is_dir():
+        raise SMFError(f"no such corpus folder: {corpus}")
+    captions = corpus_captions(corpus) if corpus is not None else lexicon_captions(lexicon)
+    if text_cache is not None:
+        # read only: pending rows are never flushed into the training run's cache
+        cache = TextEmbeddingCache(text_cache, load_text_encoder(encoder), flush_every=1 << 62)
+    else:
+        cache = LRUTextCache(load_text_encoder(encoder), maxsize=len(captions) + 20_000)
+    detector: DomainDetector = build_detector(captions, cache, lexicon=lexicon,
+                                              flag_rate=FLAG_RATE if flag_rate is None else flag_rate,
+                                              encoder=encoder, progress=progress)
+    return KnownActions(known_actions(load_lexicon(lexicon), DomainDetector.THRESHOLD)["actions"],
+                        DomainDetector.THRESHOLD, cache, detector=detector)

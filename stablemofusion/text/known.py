@@ -1,11 +1,14 @@
 """Out-of-domain check: how close a prompt is to the actions a model was trained on.
 
-A model folder may hold ``actions.json``: ``{"threshold": float, "actions": {label: [example sentences]}}``
-(written by ``smf export --lexicon NAME`` from the corpus lexicon). A prompt's similarity to an action is
-the largest cosine similarity between its sentence embedding (the frozen encoder's mean-pooled, normalised
-token states, :func:`~stablemofusion.text.frozen.sentence_embedding`) and those of the action's examples.
-Below ``threshold`` the prompt is out of domain: the pipeline still generates, and warns naming the closest
-actions it knows.
+A model folder may hold ``actions.json``: ``{"threshold": float, "actions": {label: [example sentences]},
+"detector": {"file": "ood.safetensors"}}`` (written by ``smf export --lexicon NAME``). A prompt's similarity
+to an action is the largest cosine similarity between its sentence embedding (the frozen encoder's
+mean-pooled, normalised token states, :func:`~stablemofusion.text.frozen.sentence_embedding`) and those of
+the action's examples: the ``closest`` actions. The check's ``similarity`` is the detector's calibrated
+in-domain score (:mod:`.domain`: a classifier on the sentence embedding, trained on every training caption
+against foreign captions); an older file without ``detector`` uses the closest action's similarity. Below
+``threshold`` the prompt is out of domain: the pipeline still generates, and warns naming the closest actions
+it knows.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from pathlib import Path
 import torch
 
 from ..errors import SMFError
+from .domain import DETECTOR_FILE, DomainDetector
 from .frozen import sentence_embedding
 
 ACTIONS_FILE = "actions.json"
@@ -24,7 +28,9 @@ ACTIONS_FILE = "actions.json"
 
 @dataclass(frozen=True)
 class DomainCheck:
-    """``similarity`` to the closest known action, the ``closest`` (label, similarity) pairs, best first."""
+    """``similarity``: the in-domain score (the detector's, or the closest action's cosine similarity for an
+    actions file without a detector); ``closest``: the (label, cosine similarity) of the closest actions, best
+    first."""
 
     similarity: float
     closest: tuple[tuple[str, float], ...]
@@ -47,10 +53,12 @@ class DomainCheck:
 class KnownActions:
     """The actions of a model and their example sentences, embedded once through ``text_cache``."""
 
-    def __init__(self, actions: dict[str, list[str]], threshold: float, text_cache, top: int = 3):
+    def __init__(self, actions: dict[str, list[str]], threshold: float, text_cache, top: int = 3,
+                 detector: DomainDetector | None = None):
         if not actions or any(not v for v in actions.values()):
             raise SMFError("actions.json: every action needs at least one example sentence")
         self.actions, self.threshold, self.text_cache, self.top = actions, float(threshold), text_cache, top
+        self.detector = detector
         self._emb: torch.Tensor | None = None
         self._owner = torch.tensor([i for i, examples in enumerate(actions.values()) for _ in examples])
 
@@ -59,9 +67,28 @@ class KnownActions:
         path = Path(path)
         try:
             d = json.loads(path.read_text(encoding="utf-8"))
-            return cls({k: list(v) for k, v in d["actions"].items()}, float(d["threshold"]), text_cache)
+            actions, threshold = {k: list(v) for k, v in d["actions"].items()}, float(d["threshold"])
+            detector_file = d["detector"]["file"] if d.get("detector") is not None else None
         except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as e:
             raise SMFError(f"{path}: not an actions file ({e})") from None
+        detector = None
+        if detector_file is not None:
+            if Path(detector_file).name != detector_file:
+                raise SMFError(f"{path}: the detector must be a file beside it, not {detector_file!r}")
+            detector = DomainDetector.load(path.parent / detector_file)
+        return cls(actions, threshold, text_cache, detector=detector)
+
+    def save(self, folder: str | Path, about: str = "") -> Path:
+        """Write ``actions.json`` (and the detector's file beside it) into ``folder``; returns the json path."""
+        from ..io import write_text
+
+        folder = Path(folder)
+        d = {"about": about, "threshold": self.threshold, "actions": self.actions}
+        if self.detector is not None:
+            self.detector.save(folder / DETECTOR_FILE)
+            d["detector"] = {"file": DETECTOR_FILE}
+        write_text(folder / ACTIONS_FILE, json.dumps(d, indent=1) + "\n")
+        return folder / ACTIONS_FILE
 
     def embed(self, texts: list[str]) -> torch.Tensor:
         out = []
@@ -74,18 +101,28 @@ class KnownActions:
         """(B, A) largest cosine similarity of each prompt to each action's examples."""
         if self._emb is None:
             self._emb = self.embed([e for examples in self.actions.values() for e in examples])
-        sims = self.embed(list(prompts)) @ self._emb.T  # (B, E)
-        best = torch.full((len(prompts), len(self.actions)), -1.0)
-        return best.scatter_reduce(1, self._owner.expand(len(prompts), -1), sims, reduce="amax")
+        return self._similarities(self.embed(list(prompts)))
+
+    def _similarities(self, emb: torch.Tensor) -> torch.Tensor:
+        if self._emb is None:
+            self._emb = self.embed([e for examples in self.actions.values() for e in examples])
+        sims = emb @ self._emb.T  # (B, E)
+        best = torch.full((len(emb), len(self.actions)), -1.0)
+        return best.scatter_reduce(1, self._owner.expand(len(emb), -1), sims, reduce="amax")
 
     def check_many(self, prompts: list[str]) -> list[DomainCheck]:
-        sims = self.similarities(prompts)
+        if self._emb is None:  # the examples first, as before: a prompt equal to one keeps the same encoding batch
+            self._emb = self.embed([e for examples in self.actions.values() for e in examples])
+        emb = self.embed(list(prompts))
+        sims = self._similarities(emb)
+        scores = None if self.detector is None else self.detector.scores(emb)
         labels = list(self.actions)
         out = []
-        for row in sims:
+        for b, row in enumerate(sims):
             order = torch.argsort(row, descending=True)[: self.top]
             closest = tuple((labels[int(i)], float(row[i])) for i in order)
-            out.append(DomainCheck(closest[0][1], closest, closest[0][1] < self.threshold))
+            score = closest[0][1] if scores is None else float(scores[b])
+            out.append(DomainCheck(score, closest, score < self.threshold))
         return out
 
     def check(self, prompt: str) -> DomainCheck:

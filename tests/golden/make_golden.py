@@ -61,14 +61,14 @@ def outputs(pipe) -> dict[str, np.ndarray]:
     return out
 
 
-def http_body() -> dict:
+def http_body(**pipeline_kwargs) -> dict:
     """The JSON body of POST /v1/generate (FastAPI TestClient, a thread executor)."""
     from fastapi.testclient import TestClient
 
     from stablemofusion.pipeline import MotionPipeline
     from stablemofusion.serve.app import create_app
 
-    pipe = MotionPipeline.from_pretrained(device="cpu")
+    pipe = MotionPipeline.from_pretrained(device="cpu", **pipeline_kwargs)
     # the server checks the Host header (loopback names); the request as any local client sends it
     with TestClient(create_app(pipe), base_url="http://127.0.0.1") as client:
         res = client.post("/v1/generate", json={"prompt": "a person walks forward", "seconds": 2.0, "seed": 3})

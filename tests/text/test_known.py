@@ -1,11 +1,13 @@
-"""The out-of-domain check: similarity to the actions a model knows, the one-line warning, and where it
-shows up (pipeline result, `smf generate` output and JSON)."""
+"""The out-of-domain check: similarity to the actions a model knows, the detector (stablemofusion.text.domain),
+the one-line warning, and where it shows up (pipeline result, `smf generate` output and JSON)."""
 
 import json
+import shutil
 import warnings
 
 import numpy as np
 import pytest
+import torch
 
 from stablemofusion.cli.main import main
 from stablemofusion.data.lexicon import known_actions, load_lexicon
@@ -13,7 +15,9 @@ from stablemofusion.errors import SMFError
 from stablemofusion.pipeline import MotionPipeline, OutOfDomainWarning
 from stablemofusion.text.cache import LRUTextCache
 from stablemofusion.text.frozen import load_text_encoder
+from stablemofusion.text.domain import DETECTOR_FILE, DomainDetector, train_classifier
 from stablemofusion.text.known import ACTIONS_FILE, KnownActions
+from stablemofusion.pipeline import default_model_path
 
 THRESHOLD = 0.56  # smf export's default
 
@@ -86,8 +90,113 @@ def test_generate_cli_prints_one_warning_line_and_writes_similarity(checkpoint_w
     assert d["out_of_domain"] is True and 0 < d["similarity"] < THRESHOLD and len(d["closest_actions"]) == 3
 
 
-def test_export_writes_actions(checkpoint_with_actions, tmp_path):
+def test_export_writes_actions_and_detector(checkpoint_with_actions, tmp_path, monkeypatch, cache):
+    import stablemofusion.text.domain as domain
+
+    # a small detector: few foreign and held-out captions, one epoch, a two-clip corpus
+    monkeypatch.setattr(domain, "FOREIGN_PER_PHRASE", 1)
+    monkeypatch.setattr(domain, "HELDOUT_PER_PAIR", 1)
+    monkeypatch.setattr(domain, "EPOCHS", 1)
+    corpus = tmp_path / "corpus"
+    (corpus / "texts").mkdir(parents=True)
+    (corpus / "train.txt").write_text("000000\n000001\n")
+    (corpus / "texts" / "000000.txt").write_text("a man walks forward#a/DET man/NOUN#0.0#0.0\n"
+                                                "a person strolls ahead#a/DET#0.0#0.0\n")
+    (corpus / "texts" / "000001.txt").write_text("someone waves both hands#someone/PRON#0.0#0.0\n")
     assert main(["export", "--checkpoint", str(checkpoint_with_actions), "--out", str(tmp_path / "rel"),
-                 "--lexicon", "bandai"]) == 0
+                 "--lexicon", "bandai", "--corpus", str(corpus)]) == 0
     d = json.loads((tmp_path / "rel" / ACTIONS_FILE).read_text())
-    assert d["threshold"] == THRESHOLD and len(d["actions"]["walk"]) >= 25
+    assert d["threshold"] == DomainDetector.THRESHOLD and len(d["actions"]["walk"]) >= 25
+    assert d["detector"]["file"] == DETECTOR_FILE and (tmp_path / "rel" / DETECTOR_FILE).is_file()
+    known = KnownActions.load(tmp_path / "rel" / ACTIONS_FILE, cache)
+    assert known.detector is not None and 0 < known.check("a person walks forward").similarity < 1
+
+
+# ------------------------------------------------------------------------------- the detector (ood.safetensors)
+
+def test_detector_save_load_round_trip(tmp_path):
+    g = torch.Generator().manual_seed(0)
+    inside = torch.nn.functional.normalize(torch.randn(64, 384, generator=g) + 2, dim=1)
+    outside = torch.nn.functional.normalize(torch.randn(64, 384, generator=g) - 2, dim=1)
+    det = DomainDetector.calibrate(train_classifier(inside, outside, epochs=3), inside, 0.05)
+    s = det.scores(torch.cat([inside, outside]))
+    assert (s[:64] > 0.5).float().mean() >= 0.9 and (s[64:] < 0.5).all()  # the two clouds apart
+    det.save(tmp_path / DETECTOR_FILE)
+    back = DomainDetector.load(tmp_path / DETECTOR_FILE)
+    assert back.offset == det.offset and back.scale == det.scale and back.encoder == "minilm"
+    assert torch.allclose(back.scores(torch.cat([inside, outside])), s, atol=2e-3)  # float16 weights
+    known = KnownActions({"walk": ["a person walks"]}, 0.5, None, detector=det)
+    known.save(tmp_path)
+    assert json.loads((tmp_path / ACTIONS_FILE).read_text())["detector"] == {"file": DETECTOR_FILE}
+
+
+def test_bad_detector_files(tmp_path, cache):
+    (tmp_path / DETECTOR_FILE).write_bytes(b"not safetensors")
+    with pytest.raises(SMFError, match="not an out-of-domain detector"):
+        DomainDetector.load(tmp_path / DETECTOR_FILE)
+    (tmp_path / ACTIONS_FILE).write_text(json.dumps({"actions": {"walk": ["a person walks"]}, "threshold": 0.5,
+                                                     "detector": {"file": "../elsewhere.safetensors"}}))
+    with pytest.raises(SMFError, match="beside it"):
+        KnownActions.load(tmp_path / ACTIONS_FILE, cache)
+
+
+@pytest.fixture(scope="module")
+def shipped(cache):
+    """The default model's actions.json with its detector."""
+    path = default_model_path() / ACTIONS_FILE
+    known = KnownActions.load(path, cache)
+    assert known.detector is not None
+    return known
+
+
+FOREIGN = ("a man plays the saxophone on a street corner", "a woman rides a camel across the desert",
+           "a boy does a backflip off the diving board", "a person knits a sweater on the sofa")
+# in-domain paraphrases built from the lexicon's held-out words (never seen in training), long and styled
+PARAPHRASES = ("an old man ambles straight ahead", "a tired woman saunters forward at an easy pace",
+               "she lopes forward like a sprinter", "a man in a red jacket raises both arms heavenward",
+               "a happy child bids adieu with one hand")
+
+
+def test_shipped_detector_known_answers(shipped):
+    for prompt in FOREIGN:
+        d = shipped.check(prompt)
+        assert d.out_of_domain and d.similarity < 0.5, (prompt, d)
+    for prompt in PARAPHRASES:
+        d = shipped.check(prompt)
+        assert not d.out_of_domain and d.similarity >= 0.5, (prompt, d)
+
+
+def test_shipped_detector_file_is_small():
+    folder = default_model_path()
+    assert (folder / DETECTOR_FILE).stat().st_size < 400_000 and (folder / ACTIONS_FILE).stat().st_size < 100_000
+
+
+@pytest.fixture(scope="module")
+def checkpoint_with_detector(tmp_path_factory, save_tiny_checkpoint):
+    path = save_tiny_checkpoint(tmp_path_factory.mktemp("ood-det") / "ck", np.zeros(263), np.ones(263))
+    for name in (ACTIONS_FILE, DETECTOR_FILE):
+        shutil.copy(default_model_path() / name, path / name)
+    return path
+
+
+def test_detector_warning_and_fields_keep_their_shape(checkpoint_with_detector, checkpoint_with_actions, tmp_path,
+                                                      capsys):
+    """The CLI warning line and the JSON fields are the same with the detector as with the old actions file."""
+    fields = {}
+    for name, ck in (("detector", checkpoint_with_detector), ("old", checkpoint_with_actions)):
+        out = tmp_path / name
+        assert main(["generate", FOREIGN[0], "--checkpoint", str(ck), "--seconds", "2", "--steps", "2",
+                     "--format", "json", "--out", str(out)]) == 0
+        lines = [x for x in capsys.readouterr().out.splitlines() if x.startswith("smf: warning:")]
+        assert len(lines) == 1 and "is not like anything this model was trained on" in lines[0]
+        assert "closest actions it knows" in lines[0]
+        (json_file,) = out.glob("*.json")
+        d = json.loads(json_file.read_text())
+        fields[name] = {k: type(d[k]) for k in ("similarity", "out_of_domain", "closest_actions", "warning")}
+        assert d["out_of_domain"] is True and 0 <= d["similarity"] < 1 and len(d["closest_actions"]) == 3
+    assert fields["detector"] == fields["old"]
+    pipe = MotionPipeline.from_pretrained(checkpoint_with_detector, device="cpu")
+    assert pipe.known_actions.detector is not None
+    d = pipe.known_actions.check("a person walks forward")
+    assert not d.out_of_domain and d.closest[0][0] == "walk"
+    assert set(d.to_dict("a person walks forward")) == {"similarity", "out_of_domain", "closest_actions"}

@@ -197,8 +197,10 @@ class ProcessWorker:
         return future
 
     def health(self) -> dict:
-        pid = self._proc.pid if self._proc is not None and self._proc.is_alive() else None
-        return {"state": self._state, "pid": pid, "model_loaded": self._loaded, "warm": self._warm,
+        alive = self._proc is not None and self._proc.is_alive()
+        # between the worker's death and the supervisor noticing it, it is not ready (never a stale "ready")
+        state = "restarting" if self._state == "ready" and not alive else self._state
+        return {"state": state, "pid": self._proc.pid if alive else None, "model_loaded": self._loaded, "warm": self._warm,
                 "busy": self._busy, "restarts": self._restarts}
 
     def close(self) -> None:

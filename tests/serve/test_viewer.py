@@ -171,3 +171,27 @@ def test_the_character_glb_is_shown_in_step_with_the_skeleton(page, tmp_path):
     page.wait_for_function("window.smf.ready && window.smf.frames === 60", timeout=30_000)
     assert "bow.glb: 60 frames" in page.inner_text("#status")
     assert [m for m in page.logs if "pageerror" in m] == []
+
+
+def test_live_mode_keeps_moving_and_a_new_prompt_changes_it(page, tmp_path):
+    """Live: the character keeps moving on the WebSocket stream; a new prompt and Enter reach the server and
+    its frames (the next prompt_index) are shown; unchecking live stops the stream and leaves it to scrub."""
+    page.fill("#prompt", "a person walks forward")
+    page.check("#live")
+    page.wait_for_function("window.smf.live && window.smf.live.received >= 30", timeout=60_000)
+    assert page.inner_text("#generate") == "Send"
+    first = page.evaluate("window.smf.frame + window.smf.live.offset")
+    page.wait_for_timeout(600)
+    assert page.evaluate("window.smf.frame + window.smf.live.offset") > first  # the play clock runs
+    assert bone_pixels(shot(page)) > 20
+    page.fill("#prompt", "a person waves both hands")
+    page.press("#prompt", "Enter")
+    page.wait_for_function("window.smf.live.index === 1", timeout=30_000)
+    page.wait_for_timeout(1500)  # the new prompt's frames on screen
+    assert 'live: "a person waves both hands"' in page.inner_text("#status")
+    page.screenshot(path=str(tmp_path / "live.png"))
+    page.uncheck("#live")
+    page.wait_for_function("window.smf.live === null && !document.getElementById('scrub').disabled", timeout=10_000)
+    assert "live stream ended" in page.inner_text("#status")
+    assert page.inner_text("#generate") == "Generate"
+    assert [m for m in page.logs if "pageerror" in m or "error" in m.split(":")[0]] == []

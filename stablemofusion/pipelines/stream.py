@@ -33,7 +33,8 @@ from .sample import sample
 from .settings import Settings, base_seed, check_text
 
 STREAM_KEEP = 20  # frames of the motion so far each window keeps as its start (1 s at 20 fps)
-STREAM_CHUNK = 10  # frames each window adds (0.5 s at 20 fps): how soon a new prompt can start
+STREAM_CHUNK = 12  # frames each window adds (0.6 s at 20 fps): with the kept second and the dropped tail a
+# window is 40 frames, the shipped model's shortest motion, so a window costs no more than a shorter chunk's
 
 
 @dataclass(frozen=True)

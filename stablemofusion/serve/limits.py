@@ -40,8 +40,10 @@ WARM_STEPS = 2  # the warm-up generation before the worker reports ready
 
 # live streams (WebSocket /v1/stream: serve/stream.py)
 MAX_STREAMS = 4  # live streams at once (`smf serve --max-streams`); one more is told so and closed
-STREAM_LEAD_S = 1.0  # frames are never sent more than this far ahead of their play time
-STREAM_REFILL_S = 0.5  # the next window is made when the frames sent ahead play for less than this
+STREAM_LEAD_S = 1.5  # frames are never sent more than this far ahead of their play time
+STREAM_REFILL_S = 0.4  # the next window is made when the frames sent ahead play for less than this, or less
+STREAM_REFILL_FACTOR = 2.0  # than this many times the slowest of the stream's recent windows (a loaded CPU)
+STREAM_RECENT_WINDOWS = 5
 MAX_STREAM_SECONDS = 1800.0  # a stream ends (with an error message) after this much motion
 STREAM_START_TIMEOUT_S = 30.0  # the first prompt must arrive within this after connecting
 MAX_STREAM_MESSAGE_BYTES = 4096  # one client message (uvicorn's ws_max_size: larger ones close the socket)

@@ -12,7 +12,8 @@ could hold a live stream up for seconds): :class:`ThreadStreamWorker` on a threa
 `smf serve`, :class:`StreamProcessWorker`, a supervised process like the batch worker. The event loop's
 :class:`StreamHub` gathers the windows every connection needs into one worker call (windows of several
 streams are denoised as one batch), and each connection (:class:`StreamSession`) is paced by the clock:
-it asks for its next window when the frames it has sent play for less than STREAM_REFILL_S, and never sends
+it asks for its next window when the frames it has sent play for less than STREAM_REFILL_S (or twice its
+recent windows' time, when the CPU is loaded: later prompts on screen, but no late frames), and never sends
 frames more than STREAM_LEAD_S ahead of their play time. At most ``max_streams`` streams at once.
 """
 
@@ -33,8 +34,8 @@ from pydantic import BaseModel, Field
 from .checks import STRICT, check_prompt, parse_body
 from .errors import ServeError, log_event
 from .limits import (MAX_GUIDANCE, MAX_SEED, MAX_STREAM_MESSAGE_BYTES, MAX_STREAM_MESSAGES, MAX_STREAM_SECONDS,
-                     MAX_STREAMS, STREAM_DECIMALS, STREAM_LEAD_S, STREAM_MESSAGE_WINDOW_S, STREAM_REFILL_S,
-                     STREAM_START_TIMEOUT_S, WARM_STEPS)
+                     MAX_STREAMS, STREAM_DECIMALS, STREAM_LEAD_S, STREAM_MESSAGE_WINDOW_S, STREAM_RECENT_WINDOWS,
+                     STREAM_REFILL_FACTOR, STREAM_REFILL_S, STREAM_START_TIMEOUT_S, WARM_STEPS)
 from .worker import Failure, ProcessWorker
 
 TRY_LATER = 1013  # WebSocket close code: the server is at its stream limit
@@ -276,9 +277,11 @@ class StreamSession:
         self.prompts = 0  # prompt messages so far (the next one's prompt_index)
         self.index = -1  # the prompt_index of the frames being made
         self.stopped = False  # the client said stop, or left
+        self.last_chunk = 0  # frames of the last window
         self.wake = asyncio.Event()
         self._send_lock = asyncio.Lock()
         self._recent: deque[float] = deque()
+        self._window_s: deque[float] = deque(maxlen=STREAM_RECENT_WINDOWS)  # wall time of recent windows
 
     async def send(self, message: dict) -> None:
         async with self._send_lock:
@@ -338,6 +341,13 @@ class StreamSession:
             except asyncio.TimeoutError:
                 pass
 
+    def refill_s(self, sent: int) -> float:
+        """How far ahead of play time the next window is asked for: STREAM_REFILL_S, more when recent windows
+        were slow, never so much that a window's frames would pass STREAM_LEAD_S."""
+        slow = STREAM_REFILL_FACTOR * max(self._window_s, default=0.0)
+        chunk_s = self.last_chunk / self.fps
+        return min(max(STREAM_REFILL_S, slow), STREAM_LEAD_S - chunk_s)
+
     async def play(self) -> None:
         """Wait for the first prompt, then make window after window until the client stops or leaves."""
         deadline = time.monotonic() + STREAM_START_TIMEOUT_S
@@ -349,7 +359,7 @@ class StreamSession:
         start, sent = None, 0  # the play clock (when frame 0 was sent) and the frames sent
         while not self.stopped:
             if start is not None:  # 1. pace: the next window when what was sent plays for less than the refill
-                await self._sleep(sent / self.fps - (time.monotonic() - start) - STREAM_REFILL_S)
+                await self._sleep(sent / self.fps - (time.monotonic() - start) - self.refill_s(sent))
                 if self.stopped:
                     break
                 if sent / self.fps >= MAX_STREAM_SECONDS:
@@ -358,7 +368,9 @@ class StreamSession:
             job, self.pending = self.pending or StreamJob(self.sid), None  # 2. the window, with the latest prompt
             if job.prompt is not None:
                 self.index = self.pending_index
+            asked = time.monotonic()
             outcome = await self.hub.window(job)
+            self._window_s.append(time.monotonic() - asked)
             if isinstance(outcome, Failure):
                 await self.error(outcome.message)
                 await self.ws.close(SERVER_ERROR)
@@ -372,6 +384,7 @@ class StreamSession:
             await self.send({"type": "frames", "start": outcome.start, "fps": self.fps, "prompt_index": self.index,
                              "joints": np.round(outcome.joints.astype(np.float64), STREAM_DECIMALS).tolist()})
             sent += n
+            self.last_chunk = n
 
 
 async def serve_stream(ws, hub: StreamHub, fps: float) -> None:

@@ -23,10 +23,10 @@ from websockets.exceptions import ConnectionClosed, InvalidStatus  # noqa: E402
 def test_the_generator_api_makes_contiguous_chunks_that_follow_the_prompt(pipe):
     s = pipe.stream("a person walks forward", seed=3)
     chunks = [next(s), next(s), s.send("a person waves both hands"), next(s)]
-    assert [c.start for c in chunks] == [0, 10, 20, 30]
+    assert [c.start for c in chunks] == [0, 12, 24, 36]
     assert [c.prompt_index for c in chunks] == [0, 0, 1, 1]
     assert [c.prompt for c in chunks][2] == "a person waves both hands"
-    assert all(c.joints.shape == (10, 22, 3) and np.isfinite(c.joints).all() for c in chunks)
+    assert all(c.joints.shape == (12, 22, 3) and np.isfinite(c.joints).all() for c in chunks)
     again = pipe.stream("a person walks forward", seed=3)
     assert np.allclose(next(again).joints, chunks[0].joints)  # window j uses seed + j
     with pytest.raises(SMFError):
@@ -86,8 +86,8 @@ def test_protocol_frames_prompt_index_errors_and_stop(server):
     with ws_client.connect(url, open_timeout=10) as ws:
         ws.send(json.dumps({"prompt": "a person walks forward", "seed": 1}))
         first = frames(ws, 2)
-        assert [m["start"] for m in first] == [0, 10] and first[0]["fps"] == 20
-        assert first[0]["prompt_index"] == 0 and np.array(first[0]["joints"]).shape == (10, 22, 3)
+        assert [m["start"] for m in first] == [0, 12] and first[0]["fps"] == 20
+        assert first[0]["prompt_index"] == 0 and np.array(first[0]["joints"]).shape == (12, 22, 3)
         for bad, why in [("not json", "not valid JSON"), (json.dumps({"prompt": "x", "bogus": 1}), "bogus"),
                          (json.dumps({"prompt": ""}), "prompt must have 1 to 300"), (json.dumps({"seed": 2}), "prompt"),
                          (json.dumps({"stop": False}), "stop"), (json.dumps([1]), "")]:
@@ -99,7 +99,7 @@ def test_protocol_frames_prompt_index_errors_and_stop(server):
         ws.send(json.dumps({"prompt": "a person waves both hands", "guidance": 3.0}))
         got = frames(ws, 6)
         starts = [m["start"] for m in first + got]
-        assert starts == list(range(0, 10 * len(starts), 10))  # contiguous, nothing lost to the errors
+        assert starts == list(range(0, 12 * len(starts), 12))  # contiguous, nothing lost to the errors
         assert [m["prompt_index"] for m in got][-1] == 1  # bad messages are not prompts
         ws.send(json.dumps({"stop": True}))
         with pytest.raises(ConnectionClosed) as closed:
@@ -154,7 +154,7 @@ def test_frames_are_paced_never_more_than_the_lead_ahead_and_never_late(server):
             late.append((now - t0) - m["start"] / m["fps"])  # its first frame's arrival after its play time
     assert max(ahead) <= STREAM_LEAD_S + 0.05
     assert max(late) <= 0.0
-    assert 12 * 10 / 20 - (now - t0) < STREAM_LEAD_S + 0.05  # 6 s of motion took about 6 s (minus the lead)
+    assert 12 * 12 / 20 - (now - t0) < STREAM_LEAD_S + 0.05  # 7.2 s of motion took about 7.2 s (less the lead)
 
 
 def test_a_page_of_another_site_cannot_open_a_stream(server):

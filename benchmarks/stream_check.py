@@ -169,6 +169,7 @@ def main() -> None:
             time.sleep(0.5)
         else:
             raise SystemExit("the server did not become ready")
+        load_before = os.getloadavg()[0]
         runs = asyncio.run(main_async(base, f"ws://{HOST}:{port}/v1/stream", args))
         health = httpx.get(base + "/v1/health", timeout=5).json()["streams"]
     finally:
@@ -179,7 +180,8 @@ def main() -> None:
     report = {"single_stream": {k: v for k, v in single.items() if k not in ("joints", "index")},
               f"{len(many)}_streams": [{k: f[k] for k in ("frames", "late_frames", "worst_margin_s", "onscreen_s")}
                                       for f in many],
-              "windows": health["windows"]}
+              "windows": health["windows"],
+              "load_average_1min": [round(load_before, 2), round(os.getloadavg()[0], 2)]}
     if args.classifier and args.data:
         labels = runs["labels"]
         report["classifier_single"] = classify([(single, [labels[p] for p in runs["single"]["prompts"]])],

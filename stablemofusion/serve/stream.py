@@ -206,7 +206,8 @@ class StreamHub:
         self.worker, self.max_streams = worker, max_streams
         self.active: set[int] = set()
         self.windows = 0  # windows made, all streams
-        self.batches: list[int] = []  # windows per worker call
+        self.batches: deque[int] = deque(maxlen=1000)  # windows per worker call (recent calls)
+        self.call_s: deque[float] = deque(maxlen=1000)  # wall time of those calls
         self._next_sid = 0
         self._queue: asyncio.Queue | None = None
         self._task: asyncio.Task | None = None
@@ -232,7 +233,11 @@ class StreamHub:
         self._queue.put_nowait((job, future))
 
     def health(self) -> dict:
-        return {**self.worker.health(), "active": len(self.active), "max": self.max_streams, "windows": self.windows}
+        calls = sorted(self.call_s)
+        return {**self.worker.health(), "active": len(self.active), "max": self.max_streams, "windows": self.windows,
+                "recent_calls": len(calls), "call_ms_median": round(1000 * calls[len(calls) // 2]) if calls else None,
+                "call_ms_max": round(1000 * calls[-1]) if calls else None,
+                "windows_per_call": round(sum(self.batches) / len(self.batches), 2) if self.batches else None}
 
     async def window(self, job: StreamJob):
         """The outcome of one window (StreamFrames or Failure)."""
@@ -246,6 +251,7 @@ class StreamHub:
             while not self._queue.empty():
                 items.append(self._queue.get_nowait())
             jobs = [j for j, _ in items]
+            began = time.monotonic()
             try:
                 outcomes = await asyncio.wrap_future(self.worker.submit(jobs, len(jobs)))
             except ServeError as e:
@@ -257,6 +263,7 @@ class StreamHub:
             self.windows += windows
             if windows:
                 self.batches.append(windows)
+                self.call_s.append(time.monotonic() - began)
             for (_, future), outcome in zip(items, outcomes):
                 if future is not None and not future.done():
                     future.set_result(outcome)

@@ -33,7 +33,8 @@ const camera = new THREE.PerspectiveCamera(45, 1, 0.05, 100);
 camera.position.set(3, 1.7, 4.5);
 const controls = new OrbitControls(camera, renderer.domElement);
 controls.target.set(0, 0.9, 0);
-scene.add(floorGrid(10, 0.5));
+const floor = floorGrid(10, 0.5);
+scene.add(floor);
 scene.add(new THREE.HemisphereLight(0xffffff, 0x888880, 2.0));
 const sun = new THREE.DirectionalLight(0xffffff, 1.5);
 sun.position.set(2, 5, 3);
@@ -145,6 +146,7 @@ function setFrame(t) {
   controls.target.z += dz;
   camera.position.x += dx;
   camera.position.z += dz;
+  if (state.live) floor.position.set(Math.round(J[base] / 0.5) * 0.5, 0, Math.round(J[base + 2] / 0.5) * 0.5);
   if (state.character) state.character.mixer.setTime(state.frame / state.fps);
   $('scrub').value = String(state.frame);
   $('frame').textContent = `frame ${state.frame + 1} / ${state.frames} (${(state.frame / state.fps).toFixed(2)} s)`;
@@ -387,6 +389,7 @@ function liveStop(send = true) {
   const L = state.live;
   if (!L) return;
   state.live = null;
+  floor.position.set(0, 0, 0);
   if (send && L.ws.readyState === WebSocket.OPEN) L.ws.send(JSON.stringify({ stop: true }));
   $('generate').textContent = 'Generate';
   $('live').checked = false;

@@ -96,7 +96,7 @@ def create_app(model, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: i
     none); ``max_streams`` live streams at once (0: none)."""
     worker = model if hasattr(model, "submit") else ThreadWorker(model)
     if streams is None and not hasattr(model, "submit") and max_streams > 0:
-        streams = ThreadStreamWorker(model)
+        streams = ThreadStreamWorker(model, worker.executor)
     hub = StreamHub(streams, max_streams if streams is not None else 0)
     batcher = DynamicBatcher(worker, max_batch=max_batch, wait_ms=wait_ms, max_queue=max_queue)
     cfg = worker.config

@@ -134,11 +134,14 @@ def warm_streams(pipe) -> None:
 
 
 class ThreadStreamWorker:
-    """Makes stream windows with ``pipe`` on one thread of this process (tests and embedding)."""
+    """Makes stream windows with ``pipe`` on one thread of this process (tests and embedding): ``executor``,
+    the thread of the HTTP worker that shares ``pipe`` (a model is not called from two threads at once), or
+    a thread of its own."""
 
-    def __init__(self, pipe):
+    def __init__(self, pipe, executor: ThreadPoolExecutor | None = None):
         self.pipe, self.config = pipe, pipe.config
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="smf-stream")
+        self._own = executor is None
+        self._pool = executor or ThreadPoolExecutor(max_workers=1, thread_name_prefix="smf-stream")
         self._streams: dict = {}
         self._warm: Future | None = None
 
@@ -155,7 +158,8 @@ class ThreadStreamWorker:
         return {"state": "ready" if ready else "starting", "open": len(self._streams)}
 
     def close(self) -> None:
-        self._pool.shutdown(wait=False, cancel_futures=True)
+        if self._own:
+            self._pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _stream_child_main(conn, spec) -> None:

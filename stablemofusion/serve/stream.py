@@ -12,7 +12,7 @@ could hold a live stream up for seconds): :class:`ThreadStreamWorker` on a threa
 `smf serve`, :class:`StreamProcessWorker`, a supervised process like the batch worker. The event loop's
 :class:`StreamHub` gathers the windows every connection needs into one worker call (windows of several
 streams are denoised as one batch), and each connection (:class:`StreamSession`) is paced by the clock:
-it asks for its next window when the frames it has sent play for less than STREAM_REFILL_S (or twice its
+it asks for its next window when the frames it has sent play for less than STREAM_REFILL_S (or 1.75 times its
 recent windows' time, when the CPU is loaded: later prompts on screen, but no late frames), and never sends
 frames more than STREAM_LEAD_S ahead of their play time. At most ``max_streams`` streams at once.
 """
@@ -35,7 +35,7 @@ from .checks import STRICT, check_prompt, parse_body
 from .errors import ServeError, log_event
 from .limits import (MAX_GUIDANCE, MAX_SEED, MAX_STREAM_MESSAGE_BYTES, MAX_STREAM_MESSAGES, MAX_STREAM_SECONDS,
                      MAX_STREAMS, STREAM_DECIMALS, STREAM_LEAD_S, STREAM_MESSAGE_WINDOW_S, STREAM_RECENT_WINDOWS,
-                     STREAM_REFILL_FACTOR, STREAM_REFILL_S, STREAM_START_TIMEOUT_S, WARM_STEPS)
+                     STREAM_GATHER_S, STREAM_REFILL_FACTOR, STREAM_REFILL_S, STREAM_START_TIMEOUT_S, WARM_STEPS)
 from .worker import Failure, ProcessWorker
 
 TRY_LATER = 1013  # WebSocket close code: the server is at its stream limit
@@ -209,6 +209,7 @@ class StreamHub:
     def __init__(self, worker, max_streams: int = MAX_STREAMS):
         self.worker, self.max_streams = worker, max_streams
         self.active: set[int] = set()
+        self.epoch = time.monotonic()  # sessions ask for windows on ticks counted from here (see StreamSession)
         self.windows = 0  # windows made, all streams
         self.batches: deque[int] = deque(maxlen=1000)  # windows per worker call (recent calls)
         self.call_s: deque[float] = deque(maxlen=1000)  # wall time of those calls
@@ -252,6 +253,7 @@ class StreamHub:
     async def _run(self) -> None:
         while True:
             items = [await self._queue.get()]
+            await asyncio.sleep(STREAM_GATHER_S)  # the other streams asking on the same tick
             while not self._queue.empty():
                 items.append(self._queue.get_nowait())
             jobs = [j for j, _ in items]
@@ -359,6 +361,14 @@ class StreamSession:
         chunk_s = self.last_chunk / self.fps
         return min(max(STREAM_REFILL_S, slow), STREAM_LEAD_S - chunk_s)
 
+    def _tick(self, due: float) -> float:
+        """``due`` moved back to the last tick (every chunk's play time, counted from the hub's epoch): streams
+        with chunks of the same length ask together, and their windows are denoised as one batch."""
+        period = self.last_chunk / self.fps
+        if period <= 0:
+            return due
+        return self.hub.epoch + ((due - self.hub.epoch) // period) * period
+
     async def play(self) -> None:
         """Wait for the first prompt, then make window after window until the client stops or leaves."""
         deadline = time.monotonic() + STREAM_START_TIMEOUT_S
@@ -370,7 +380,7 @@ class StreamSession:
         start, sent = None, 0  # the play clock (when frame 0 was sent) and the frames sent
         while not self.stopped:
             if start is not None:  # 1. pace: the next window when what was sent plays for less than the refill
-                await self._sleep(sent / self.fps - (time.monotonic() - start) - self.refill_s(sent))
+                await self._sleep(self._tick(start + sent / self.fps - self.refill_s(sent)) - time.monotonic())
                 if self.stopped:
                     break
                 if sent / self.fps >= MAX_STREAM_SECONDS:

@@ -40,7 +40,8 @@ WARM_STEPS = 2  # the warm-up generation before the worker reports ready
 
 # live streams (WebSocket /v1/stream: serve/stream.py)
 MAX_STREAMS = 4  # live streams at once (`smf serve --max-streams`); one more is told so and closed
-STREAM_LEAD_S = 1.5  # frames are never sent more than this far ahead of their play time
+STREAM_LEAD_S = 1.0  # frames are never sent more than this far ahead of their play time (a new prompt shows
+# after what was sent: within this)
 STREAM_REFILL_S = 0.4  # the next window is made when the frames sent ahead play for less than this, or less
 STREAM_REFILL_FACTOR = 1.75  # than this many times the slowest of the stream's recent windows (a loaded CPU)
 STREAM_RECENT_WINDOWS = 5

@@ -13,7 +13,7 @@ could hold a live stream up for seconds): :class:`ThreadStreamWorker` on a threa
 :class:`StreamHub` gathers the windows every connection needs into one worker call (windows of several
 streams are denoised as one batch), and each connection (:class:`StreamSession`) is paced by the clock:
 it asks for its next window when the frames it has sent play for less than STREAM_REFILL_S (or 1.75 times its
-recent windows' time, when the CPU is loaded: later prompts on screen, but no late frames), and never sends
+recent windows' time, when the CPU is loaded, as far as the lead allows), and never sends
 frames more than STREAM_LEAD_S ahead of their play time. At most ``max_streams`` streams at once.
 """
 
@@ -209,7 +209,6 @@ class StreamHub:
     def __init__(self, worker, max_streams: int = MAX_STREAMS):
         self.worker, self.max_streams = worker, max_streams
         self.active: set[int] = set()
-        self.epoch = time.monotonic()  # sessions ask for windows on ticks counted from here (see StreamSession)
         self.windows = 0  # windows made, all streams
         self.batches: deque[int] = deque(maxlen=1000)  # windows per worker call (recent calls)
         self.call_s: deque[float] = deque(maxlen=1000)  # wall time of those calls
@@ -361,14 +360,6 @@ class StreamSession:
         chunk_s = self.last_chunk / self.fps
         return min(max(STREAM_REFILL_S, slow), STREAM_LEAD_S - chunk_s)
 
-    def _tick(self, due: float) -> float:
-        """``due`` moved back to the last tick (every chunk's play time, counted from the hub's epoch): streams
-        with chunks of the same length ask together, and their windows are denoised as one batch."""
-        period = self.last_chunk / self.fps
-        if period <= 0:
-            return due
-        return self.hub.epoch + ((due - self.hub.epoch) // period) * period
-
     async def play(self) -> None:
         """Wait for the first prompt, then make window after window until the client stops or leaves."""
         deadline = time.monotonic() + STREAM_START_TIMEOUT_S
@@ -380,7 +371,7 @@ class StreamSession:
         start, sent = None, 0  # the play clock (when frame 0 was sent) and the frames sent
         while not self.stopped:
             if start is not None:  # 1. pace: the next window when what was sent plays for less than the refill
-                await self._sleep(self._tick(start + sent / self.fps - self.refill_s(sent)) - time.monotonic())
+                await self._sleep(start + sent / self.fps - self.refill_s(sent) - time.monotonic())
                 if self.stopped:
                     break
                 if sent / self.fps >= MAX_STREAM_SECONDS:

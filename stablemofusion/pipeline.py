@@ -1,8 +1,8 @@
 """MotionPipeline: text -> motion with a trained checkpoint, in a few diffusion steps; the public entry.
 
 It is the shared :class:`~stablemofusion.pipelines.components.Components` with one method per task, each a
-thin call of its task pipeline (:mod:`stablemofusion.pipelines`): ``__call__`` text to motion, ``timeline``
-and ``edit``; ``sample`` and ``denoise`` are the batch-level calls benchmarks and evaluation use.
+thin call of its task pipeline (:mod:`stablemofusion.pipelines`): ``__call__`` text to motion, ``timeline``,
+``edit`` and ``stream``; ``sample`` and ``denoise`` are the batch-level calls benchmarks and evaluation use.
 The four inference tricks of the paper: text embedded once per prompt (LRU cache across calls); conditional
 and unconditional passes in one batched forward; half precision on GPU; an efficient sampler (SDE
 DPM-Solver++ 2M with Karras sigmas, 10 steps, by default).
@@ -24,6 +24,7 @@ from .pipelines.result import MotionResult
 from .pipelines.sample import sample as sample_raw
 from .pipelines.settings import (BATCH_SIZE, DEFAULT_SECONDS, FOOTSKATE_MODES, GUIDANCE, STEPS, LengthClampedWarning,
                                  OutOfDomainWarning, Settings, resolve_engine)
+from .pipelines.stream import STREAM_CHUNK, MotionStream, StreamPipeline
 from .pipelines.text_to_motion import TextToMotionPipeline
 from .pipelines.timeline import TimelinePipeline
 from .timeline import DEFAULT_OVERLAP
@@ -67,6 +68,16 @@ class MotionPipeline(Components):
         self.engine_for(sampler, engine)
         return EditPipeline(self)(prompt, source, mode, keep_start=keep_start, keep_end=keep_end, seconds=seconds,
                                   path=path, seed=seed, settings=settings, impose=impose, progress=progress)
+
+    def stream(self, prompt: str, *, guidance_scale: float = GUIDANCE, steps: int = STEPS,
+               sampler: str = DEFAULT_SAMPLER, seed: int | None = None, chunk: int = STREAM_CHUNK,
+               engine: str | None = None) -> MotionStream:
+        """An endless motion following ``prompt`` (:class:`~stablemofusion.pipelines.stream.StreamPipeline`): an
+        iterator of :class:`~stablemofusion.pipelines.stream.Chunk` of ``chunk`` frames; ``stream.set_prompt(p)``
+        (or ``stream.send(p)``) changes the prompt from the next window on; window j uses ``seed + j``."""
+        settings = Settings(guidance_scale, steps, sampler, "off", None, engine)
+        self.engine_for(sampler, engine)
+        return StreamPipeline(self)(prompt, seed=seed, settings=settings, chunk=chunk)
 
     @torch.no_grad()
     def sample(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = GUIDANCE, steps: int = STEPS,
@@ -112,5 +123,5 @@ class MotionPipeline(Components):
         return self.solver_engine(name)
 
 
-__all__ = ["MotionPipeline", "MotionResult", "Settings", "LengthClampedWarning", "OutOfDomainWarning",
+__all__ = ["MotionPipeline", "MotionResult", "MotionStream", "Settings", "LengthClampedWarning", "OutOfDomainWarning",
            "default_model_path", "DEFAULT_SECONDS", "FOOTSKATE_MODES"]

@@ -26,6 +26,9 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--wait-ms", type=float, default=5.0, help="how long to gather requests for a batch (default 5)")
     p.add_argument("--max-queue", type=int, default=256, help="waiting requests before 503 (default 256)")
     p.add_argument("--threads", type=int, default=2, help="torch threads of the generating process (default 2)")
+    p.add_argument("--max-streams", type=int, default=None, metavar="N",
+                   help="live streams at once on the WebSocket /v1/stream, made by a process of their own "
+                        "(default 4; 0: no streams and no stream process)")
     p.set_defaults(func=run)
 
 
@@ -38,20 +41,27 @@ def run(args: argparse.Namespace) -> None:
     from ..errors import SMFError
     from ..pipeline import default_model_path
     from ..serve import ProcessWorker, WorkerSpec, create_app
+    from ..serve.limits import MAX_STREAMS
     from ..serve.server import uvicorn_config
+    from ..serve.stream import StreamProcessWorker
 
     if not 0 < args.port < 65536:
         raise SMFError(f"--port must be 1-65535, got {args.port}")
     if args.threads < 1:
         raise SMFError(f"--threads must be at least 1, got {args.threads}")
+    max_streams = MAX_STREAMS if args.max_streams is None else args.max_streams
+    if max_streams < 0:
+        raise SMFError(f"--max-streams must be 0 or more, got {max_streams}")
     checkpoint = args.checkpoint or default_model_path()
     if checkpoint is None:
         raise SMFError("no default model is shipped in this version; pass --checkpoint")
     config = read_config(checkpoint)  # checks the folder; the worker process loads the model itself
     spec = WorkerSpec(str(checkpoint), args.device, args.threads, args.engine)
+    streams = StreamProcessWorker(spec, config) if max_streams else None
     app = create_app(ProcessWorker(spec, config), max_batch=args.max_batch, wait_ms=args.wait_ms,
-                     max_queue=args.max_queue, allowed_hosts=tuple(args.allow_host))
+                     max_queue=args.max_queue, allowed_hosts=tuple(args.allow_host), streams=streams,
+                     max_streams=max_streams)
     logging.basicConfig(level=logging.INFO, format="smf serve: %(levelname)s %(message)s")
-    print(f"smf serve: http://{args.host}:{args.port} (POST /v1/generate, GET /v1/health; the model loads in the "
-          "worker: /v1/health says when it is ready)", flush=True)
+    print(f"smf serve: http://{args.host}:{args.port} (POST /v1/generate, WebSocket /v1/stream, GET /v1/health; "
+          "the model loads in the worker: /v1/health says when it is ready)", flush=True)
     uvicorn.Server(uvicorn_config(app, args.host, args.port)).run()

@@ -4,6 +4,7 @@
     POST /v1/timeline[?format=...]           {"segments": [{"prompt", "seconds"}, ...], "seed"?, ...}
     POST /v1/convert?filename=NAME.bvh|.npy  (raw file bytes) -> the file's joints as JSON, for the viewer
     GET  /v1/health
+    WS   /v1/stream                          a live stream: prompts in, frames out (serve/stream.py)
     GET  /  the three.js viewer (assets/viewer, three.js vendored from npm: no CDN)
 
 Every error is JSON ``{"error": "<one line>"}``: 4xx for bad input, 503 when the worker cannot answer, 500
@@ -18,7 +19,7 @@ import contextlib
 import logging
 from pathlib import Path
 
-from fastapi import FastAPI, Request
+from fastapi import FastAPI, Request, WebSocket
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
@@ -29,8 +30,9 @@ from .checks import GenerateRequest, RequestChecks, TimelineRequest, check_forma
 from .convert import check_suffix, convert_upload
 from .errors import ServeError, log_event
 from .guard import Guard
-from .limits import MAX_BODY_BYTES
+from .limits import MAX_BODY_BYTES, MAX_STREAMS
 from .output import motion_response
+from .stream import StreamHub, ThreadStreamWorker, serve_stream
 from .worker import Job, ThreadWorker
 
 VIEWER = Path(__file__).resolve().parents[1] / "assets" / "viewer"
@@ -86,10 +88,16 @@ def _install_error_handlers(app: FastAPI) -> None:
 
 
 def create_app(model, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: int = 256,
-               max_body_bytes: int = MAX_BODY_BYTES, allowed_hosts: tuple[str, ...] = ()) -> FastAPI:
+               max_body_bytes: int = MAX_BODY_BYTES, allowed_hosts: tuple[str, ...] = (), streams=None,
+               max_streams: int = MAX_STREAMS) -> FastAPI:
     """The ASGI app; ``model`` is a worker (serve/worker.py: `smf serve` gives a supervised
-    :class:`~stablemofusion.serve.worker.ProcessWorker`) or a pipeline (generated on a thread)."""
+    :class:`~stablemofusion.serve.worker.ProcessWorker`) or a pipeline (generated on a thread). ``streams``
+    the live streams' worker (serve/stream.py; default: a thread with ``model`` when it is a pipeline, else
+    none); ``max_streams`` live streams at once (0: none)."""
     worker = model if hasattr(model, "submit") else ThreadWorker(model)
+    if streams is None and not hasattr(model, "submit") and max_streams > 0:
+        streams = ThreadStreamWorker(model, worker.executor)
+    hub = StreamHub(streams, max_streams if streams is not None else 0)
     batcher = DynamicBatcher(worker, max_batch=max_batch, wait_ms=wait_ms, max_queue=max_queue)
     cfg = worker.config
     checks = RequestChecks(cfg.fps, cfg.min_frames, cfg.max_frames)
@@ -98,13 +106,18 @@ def create_app(model, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: i
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
         worker.start()
+        if streams is not None:
+            streams.start()
         yield
         batcher.close()
+        hub.stop()
         worker.close()
+        if streams is not None:
+            streams.close()
 
     app = FastAPI(title="stablemofusion", summary="Text to human motion", docs_url=None, redoc_url=None,
                   openapi_url=None, lifespan=lifespan)
-    app.state.batcher, app.state.worker = batcher, worker
+    app.state.batcher, app.state.worker, app.state.streams = batcher, worker, hub
     app.add_middleware(Guard, max_body_bytes=max_body_bytes, allowed_hosts=tuple(allowed_hosts))
     _install_error_handlers(app)
 
@@ -116,7 +129,8 @@ def create_app(model, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: i
         return JSONResponse(
             {"status": "ok" if ready else state["state"], "worker": state, "fps": cfg.fps,
              "seconds": [checks.min_s, checks.max_s], "max_batch": max_batch, "waiting": batcher.waiting,
-             "batches": len(sizes), "largest_batch": max(sizes, default=0), "dropped": batcher.dropped},
+             "batches": len(sizes), "largest_batch": max(sizes, default=0), "dropped": batcher.dropped,
+             "streams": hub.health() if streams is not None else {"state": "off", "active": 0, "max": 0}},
             status_code=200 if ready else 503)
 
     @app.post("/v1/generate")
@@ -138,6 +152,10 @@ def create_app(model, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: i
         async with converting:
             payload = await asyncio.to_thread(convert_upload, data, filename)
         return Response(payload, media_type="application/json")
+
+    @app.websocket("/v1/stream")
+    async def stream(ws: WebSocket):
+        await serve_stream(ws, hub, cfg.fps)
 
     @app.get("/", include_in_schema=False)
     async def viewer():

@@ -4,6 +4,9 @@
 - a request with both Content-Length and Transfer-Encoding, or a malformed length, is refused (400);
 - the body is read here, whatever its transfer encoding (chunked included), and refused (413) as soon as it
   passes the route's limit, or (408) when it does not arrive within BODY_TIMEOUT_S; the route gets it replayed;
+- a WebSocket (/v1/stream) must name the server in its Host header too, and a browser's Origin header (if
+  sent) must name an allowed host: a page of another site cannot open a stream (WebSockets skip CORS);
+  refused before the handshake completes (HTTP 403);
 - a POST of a file (/v1/convert) must be ``application/octet-stream`` or carry our own header, and a JSON
   route ``application/json``: a web page cannot send either without a CORS preflight, which is not answered.
 """
@@ -37,6 +40,10 @@ class Guard:
         self.hosts = {host_name(h) for h in (*LOOPBACK_HOSTS, *allowed_hosts)}
 
     async def __call__(self, scope, receive, send):
+        if scope["type"] == "websocket":
+            if not self._websocket_allowed(_headers(scope)):
+                return await send({"type": "websocket.close", "code": 1008})
+            return await self.app(scope, receive, send)
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         try:
@@ -48,6 +55,17 @@ class Guard:
         except asyncio.TimeoutError:
             return await send_error(send, 408, f"the request body did not arrive within {BODY_TIMEOUT_S:g} s")
         await self.app(scope, _replay(body, receive), send)
+
+    def _websocket_allowed(self, headers: dict[bytes, list[bytes]]) -> bool:
+        """One allowed Host; no Origin (a program) or one whose host is allowed (our own page)."""
+        hosts, origins = headers.get(b"host", []), headers.get(b"origin", [])
+        if len(hosts) != 1 or host_name(hosts[0].decode("latin-1")) not in self.hosts or len(origins) > 1:
+            return False
+        if not origins:
+            return True
+        origin = origins[0].decode("latin-1")
+        scheme, sep, rest = origin.partition("://")
+        return bool(sep) and scheme.lower() in ("http", "https") and host_name(rest.split("/")[0]) in self.hosts
 
     def _limit(self, path: str) -> int:
         return MAX_UPLOAD_BYTES if path in UPLOAD_PATHS else self.max_body_bytes

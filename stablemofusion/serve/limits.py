@@ -37,3 +37,18 @@ WORKER_MAX_FAILED_STARTS = 3  # consecutive starts that die before ready: the wo
 WORKER_RESTART_DELAY_S = 0.5
 WORKER_POLL_S = 0.1
 WARM_STEPS = 2  # the warm-up generation before the worker reports ready
+
+# live streams (WebSocket /v1/stream: serve/stream.py)
+MAX_STREAMS = 4  # live streams at once (`smf serve --max-streams`); one more is told so and closed
+STREAM_LEAD_S = 1.0  # frames are never sent more than this far ahead of their play time (a new prompt shows
+# after what was sent: within this)
+STREAM_REFILL_S = 0.4  # the next window is made when the frames sent ahead play for less than this, or less
+STREAM_REFILL_FACTOR = 1.75  # than this many times the slowest of the stream's recent windows (a loaded CPU)
+STREAM_RECENT_WINDOWS = 5
+STREAM_GATHER_S = 0.002  # the stream hub gathers the windows asked for within this into one worker call
+MAX_STREAM_SECONDS = 1800.0  # a stream ends (with an error message) after this much motion
+STREAM_START_TIMEOUT_S = 30.0  # the first prompt must arrive within this after connecting
+MAX_STREAM_MESSAGE_BYTES = 4096  # one client message (uvicorn's ws_max_size: larger ones close the socket)
+MAX_STREAM_MESSAGES = 20  # client messages per STREAM_MESSAGE_WINDOW_S; more are answered with an error
+STREAM_MESSAGE_WINDOW_S = 1.0
+STREAM_DECIMALS = 4  # joint coordinates sent rounded to 0.1 mm

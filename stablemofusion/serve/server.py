@@ -6,7 +6,8 @@ from __future__ import annotations
 
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
-from .limits import GRACEFUL_SHUTDOWN_S, HEADER_TIMEOUT_S, KEEP_ALIVE_S, MAX_CONNECTIONS, MAX_HEADER_BYTES
+from .limits import (GRACEFUL_SHUTDOWN_S, HEADER_TIMEOUT_S, KEEP_ALIVE_S, MAX_CONNECTIONS, MAX_HEADER_BYTES,
+                     MAX_STREAM_MESSAGE_BYTES)
 
 
 def header_timeout_protocol(seconds: float = HEADER_TIMEOUT_S) -> type:
@@ -29,6 +30,10 @@ def header_timeout_protocol(seconds: float = HEADER_TIMEOUT_S) -> type:
         def connection_lost(self, exc) -> None:
             self._disarm()
             super().connection_lost(exc)
+
+        def handle_websocket_upgrade(self, event) -> None:
+            self._disarm()  # the headers are complete: the WebSocket (a live stream) may stay open
+            super().handle_websocket_upgrade(event)
 
         def _arm(self) -> None:
             self._armed_cycle = self.cycle
@@ -54,5 +59,5 @@ def uvicorn_config(app, host: str, port: int, *, header_timeout: float = HEADER_
     settings = dict(host=host, port=port, log_level="warning", http=header_timeout_protocol(header_timeout),
                     timeout_keep_alive=KEEP_ALIVE_S, limit_concurrency=MAX_CONNECTIONS,
                     h11_max_incomplete_event_size=MAX_HEADER_BYTES, timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S,
-                    server_header=False)
+                    server_header=False, ws="websockets-sansio", ws_max_size=MAX_STREAM_MESSAGE_BYTES)
     return uvicorn.Config(app, **{**settings, **overrides})

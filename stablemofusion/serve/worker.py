@@ -109,6 +109,12 @@ class ThreadWorker:
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="smf-generate")
         self._warm: Future | None = None
 
+    @property
+    def executor(self) -> ThreadPoolExecutor:
+        """The one thread that generates with ``pipe`` (streams on the same pipeline use it too: a model is
+        not called from two threads at once)."""
+        return self._pool
+
     def start(self) -> None:
         if self._warm is None:
             self._warm = self._pool.submit(warm, self.pipe)

@@ -105,6 +105,7 @@ def test_generate_draws_the_skeleton_and_scrubbing_moves_it(page):
     later = shot(page)
     assert (np.abs(later - first).sum(-1) > 60).sum() > 50  # the pose changed on screen
     assert "frame 36 / 40" in page.inner_text("#frame")
+    page.check("#body")
     assert page.logs == []
 
 
@@ -172,3 +173,28 @@ def test_the_character_glb_is_shown_in_step_with_the_skeleton(page, tmp_path):
     page.wait_for_function("window.smf.ready && window.smf.frames === 60", timeout=30_000)
     assert "bow.glb: 60 frames" in page.inner_text("#status")
     assert [m for m in page.logs if "pageerror" in m] == []
+
+
+def test_live_mode_keeps_moving_and_a_new_prompt_changes_it(page, tmp_path):
+    """Live: the character keeps moving on the WebSocket stream; a new prompt and Enter reach the server and
+    its frames (the next prompt_index) are shown; unchecking live stops the stream and leaves it to scrub."""
+    logs = len(page.logs)
+    page.fill("#prompt", "a person walks forward")
+    page.check("#live")
+    page.wait_for_function("window.smf.live && window.smf.live.received >= 30", timeout=60_000)
+    assert page.inner_text("#generate") == "Send"
+    first, before = page.evaluate("window.smf.frame + window.smf.live.offset"), shot(page)
+    page.wait_for_timeout(600)
+    assert page.evaluate("window.smf.frame + window.smf.live.offset") > first  # the play clock runs
+    assert (np.abs(shot(page) - before).sum(-1) > 60).sum() > 50  # and the picture moves
+    page.fill("#prompt", "a person waves both hands")
+    page.press("#prompt", "Enter")
+    page.wait_for_function("window.smf.live.index === 1", timeout=30_000)
+    page.wait_for_timeout(1500)  # the new prompt's frames on screen
+    assert 'live: "a person waves both hands"' in page.inner_text("#status")
+    page.screenshot(path=str(tmp_path / "live.png"))
+    page.uncheck("#live")
+    page.wait_for_function("window.smf.live === null && !document.getElementById('scrub').disabled", timeout=10_000)
+    assert "live stream ended" in page.inner_text("#status")
+    assert page.inner_text("#generate") == "Generate"
+    assert page.logs[logs:] == []  # no error or warning while streaming

@@ -1,4 +1,5 @@
-// stablemofusion viewer: a three.js skeleton player for the HTTP API (POST /v1/generate, /v1/timeline, /v1/convert).
+// stablemofusion viewer: a three.js skeleton player for the HTTP API (POST /v1/generate, /v1/timeline, /v1/convert)
+// and its live mode (WebSocket /v1/stream: the character keeps moving; a new prompt and Enter change what it does).
 import * as THREE from 'three';
 import { OrbitControls } from '/viewer/vendor/OrbitControls.js';
 import { loadGlb, glbJoints } from '/viewer/glb.js';
@@ -14,10 +15,11 @@ const JOINT_NAMES = ['pelvis', 'left_hip', 'right_hip', 'spine1', 'left_knee', '
   'right_ankle', 'spine3', 'left_foot', 'right_foot', 'neck', 'left_collar', 'right_collar', 'head', 'left_shoulder',
   'right_shoulder', 'left_elbow', 'right_elbow', 'left_wrist', 'right_wrist']; // the .glb's joint nodes
 const DOWNLOADS = { bvh: 'motion.bvh', npy: 'motion_joints.npy', glb: 'motion.glb' };
+const LIVE_KEEP = 1200; // frames of a live stream kept for the contacts and the frame counter (60 s at 20 fps)
 
 const $ = (id) => document.getElementById(id);
 const state = { joints: null, frames: 0, fps: 20, frame: 0, playing: true, contacts: null, request: null, ready: false,
-  character: null };
+  character: null, live: null };
 window.smf = state; // for tests and the console
 
 // scene
@@ -31,7 +33,8 @@ const camera = new THREE.PerspectiveCamera(45, 1, 0.05, 100);
 camera.position.set(3, 1.7, 4.5);
 const controls = new OrbitControls(camera, renderer.domElement);
 controls.target.set(0, 0.9, 0);
-scene.add(floorGrid(10, 0.5));
+const floor = floorGrid(10, 0.5);
+scene.add(floor);
 scene.add(new THREE.HemisphereLight(0xffffff, 0x888880, 2.0));
 const sun = new THREE.DirectionalLight(0xffffff, 1.5);
 sun.position.set(2, 5, 3);
@@ -143,6 +146,7 @@ function setFrame(t) {
   controls.target.z += dz;
   camera.position.x += dx;
   camera.position.z += dz;
+  if (state.live) floor.position.set(Math.round(J[base] / 0.5) * 0.5, 0, Math.round(J[base + 2] / 0.5) * 0.5);
   if (state.character) state.character.mixer.setTime(state.frame / state.fps);
   $('scrub').value = String(state.frame);
   $('frame').textContent = `frame ${state.frame + 1} / ${state.frames} (${(state.frame / state.fps).toFixed(2)} s)`;
@@ -153,7 +157,10 @@ let last = performance.now(), clock = 0;
 function loop(now) {
   const dt = (now - last) / 1000;
   last = now;
-  if (state.playing && state.joints) {
+  if (state.live && state.live.start !== null) {  // live: the frame of the play clock (held if none arrived yet)
+    const t = Math.floor((now - state.live.start) / 1000 * state.fps) - state.live.offset;
+    setFrame(Math.min(t, state.frames - 1));
+  } else if (state.playing && state.joints) {
     clock += dt * state.fps;
     if (clock >= 1) {
       setFrame((state.frame + Math.floor(clock)) % state.frames);
@@ -200,6 +207,7 @@ function parseTimeline(text) {
 
 $('form').addEventListener('submit', async (ev) => {
   ev.preventDefault();
+  if ($('live').checked) { livePrompt($('prompt').value); return; }
   const common = { seed: Number($('seed').value), footskate: $('footskate').value };
   state.ready = false;
   $('generate').disabled = true;
@@ -307,5 +315,99 @@ window.addEventListener('drop', async (ev) => {
     setMotion(m.joints, m.frames, m.fps, `${file.name}: ${m.frames} frames`);
   } catch (e) {
     status(e.message, true);
+  }
+});
+
+// live mode: one endless motion over the WebSocket /v1/stream; frames arrive a little ahead of their play time
+// and are appended; the play clock starts with the first frames
+function liveAppend(m) {
+  const L = state.live;
+  const flat = Float32Array.from(m.joints.flat(2));
+  const keep = state.joints && state.frames ? state.joints.subarray(0, state.frames * 66) : new Float32Array(0);
+  let joints = new Float32Array(keep.length + flat.length);
+  joints.set(keep);
+  joints.set(flat, keep.length);
+  let frames = state.frames + m.joints.length;
+  if (frames > LIVE_KEEP) {  // drop the oldest frames (the clock keeps counting from the stream's start)
+    const drop = frames - LIVE_KEEP;
+    joints = joints.slice(drop * 66);
+    frames -= drop;
+    L.offset += drop;
+  }
+  state.joints = joints;
+  state.frames = frames;
+  state.fps = m.fps;
+  state.contacts = contactsOf(joints, frames, m.fps);
+  L.received = m.start + m.joints.length;
+  L.index = m.prompt_index;
+  if (L.start === null) {
+    L.start = performance.now();
+    bones.visible = true;
+    jointMeshes.forEach((mesh) => { mesh.visible = true; });
+    controls.target.set(joints[0], 0.85, joints[2]);
+    camera.position.set(joints[0] + 3, 1.7, joints[2] + 4.5);
+    state.ready = true;
+  }
+  const p = L.prompts[m.prompt_index];
+  if (p !== undefined) status(`live: "${p}" (frame ${L.received})`);
+}
+
+function livePrompt(text) {
+  if (!state.live) liveStart();
+  const L = state.live;
+  const message = JSON.stringify(L.prompts.length ? { prompt: text } : { prompt: text, seed: Number($('seed').value) });
+  L.prompts.push(text);
+  if (L.ws.readyState === WebSocket.OPEN) L.ws.send(message);
+  else L.ws.addEventListener('open', () => L.ws.send(message), { once: true });
+}
+
+function liveStart() {
+  dropCharacter();
+  state.request = null;
+  for (const f of Object.keys(DOWNLOADS)) $(f).disabled = true;
+  state.joints = null;
+  state.frames = 0;
+  state.ready = false;
+  $('scrub').disabled = true;
+  $('play').disabled = true;
+  $('generate').textContent = 'Send';
+  const proto = location.protocol === 'https:' ? 'wss:' : 'ws:';
+  const ws = new WebSocket(`${proto}//${location.host}/v1/stream`);
+  state.live = { ws, start: null, offset: 0, received: 0, index: -1, prompts: [] };
+  ws.addEventListener('message', (ev) => {
+    const m = JSON.parse(ev.data);
+    if (m.type === 'frames') liveAppend(m);
+    else if (m.type === 'error') status(m.error, true);
+  });
+  ws.addEventListener('close', () => {
+    if (state.live && state.live.ws === ws) liveStop(false);
+  });
+  status('live: connecting...');
+}
+
+function liveStop(send = true) {
+  const L = state.live;
+  if (!L) return;
+  state.live = null;
+  floor.position.set(0, 0, 0);
+  if (send && L.ws.readyState === WebSocket.OPEN) L.ws.send(JSON.stringify({ stop: true }));
+  $('generate').textContent = 'Generate';
+  $('live').checked = false;
+  if (state.joints) {  // what was streamed stays, to play and scrub
+    $('scrub').max = String(state.frames - 1);
+    $('scrub').disabled = false;
+    $('play').disabled = false;
+    state.playing = true;
+    $('play').textContent = 'Pause';
+  }
+  if ($('status').className !== 'error') status(`live stream ended: ${L.received} frames`);
+}
+
+$('live').addEventListener('change', () => {
+  if ($('live').checked) {
+    $('generate').textContent = 'Send';
+    livePrompt($('prompt').value);
+  } else {
+    liveStop();
   }
 });

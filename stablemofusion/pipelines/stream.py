@@ -1,0 +1,191 @@
+"""Live streams: one endless motion, made a short window at a time, that follows a prompt which may change
+between windows (the server's WebSocket /v1/stream, the viewer's live mode).
+
+Every window after the first keeps the last second of the motion so far as its known start (prefix editing
+with its seam blending, as timelines do: :mod:`stablemofusion.timeline`) and adds ``chunk`` frames from the
+prompt current when it starts; it generates ``TAIL`` frames more and drops them (a motion's last frames are its
+least settled). Features are relative to the body, so the new frames continue the root path and heading; the
+stream keeps the world heading and position of its kept frames and places each window's joints there: the
+character continues from where it stands, with no pop.
+
+Joints come straight from the model's features (root-relative positions): the rigid final stage fits a whole
+motion at once, which a stream never has. Windows of several streams of the same shape are denoised in one
+batched call (:func:`advance`), each with its own prompt, guidance and seed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+
+from ..diffusion.samplers import sampler_spec
+from ..diffusion.sampling import replace_x0
+from ..edit import blend_seams
+from ..errors import SMFError
+from ..motion.features import joints_from_features, root_from_features
+from ..motion.root import headings
+from ..motion.rotation import qinv, qrot, yaw_quat
+from ..timeline import TAIL
+from .components import Components
+from .sample import sample
+from .settings import Settings, base_seed, check_text
+
+STREAM_KEEP = 20  # frames of the motion so far each window keeps as its start (1 s at 20 fps)
+STREAM_CHUNK = 12  # frames each window adds (0.6 s at 20 fps): with the kept second and the dropped tail a
+# window is 40 frames, the shipped model's shortest motion, so a window costs no more than a shorter chunk's
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """Frames ``start`` .. ``start + len(joints) - 1`` of a stream, made from its prompt number ``prompt_index``
+    (counted from 0): ``joints`` (n, J, 3) metres in the stream's world frame, ``features`` (n, D) dataset
+    units (body-relative, as the model makes them)."""
+
+    start: int
+    prompt_index: int
+    prompt: str
+    joints: np.ndarray
+    features: np.ndarray
+
+    @property
+    def frames(self) -> int:
+        return len(self.joints)
+
+
+class MotionStream:
+    """An endless motion: ``next(stream)`` makes the next :class:`Chunk`; :meth:`set_prompt` changes the prompt
+    from the next window on (``stream.send(prompt)`` does both, as a generator would). Window j uses
+    ``seed + j``. Build with :meth:`MotionPipeline.stream`."""
+
+    def __init__(self, c: Components, prompt: str, seed: int, settings: Settings, chunk: int, keep: int):
+        self.c, self.seed, self.settings, self.chunk, self.keep = c, seed, settings, chunk, keep
+        self.prompt, self.prompt_index = prompt, 0
+        self.frames = 0  # frames made so far
+        self.windows = 0
+        self._seeded_at = 0  # the window the seed applies from
+        dim = int(c.mean.shape[0])
+        self.tail = torch.zeros(0, dim, dtype=torch.float64)  # the last `keep` frames' features
+        self.tail_angle = torch.zeros(0, dtype=torch.float64)  # ... their world heading (yaw half-angles)
+        self.tail_xz = torch.zeros(0, 2, dtype=torch.float64)  # ... and root XZ (metres)
+
+    def set_prompt(self, prompt: str, *, seed: int | None = None, guidance_scale: float | None = None) -> int:
+        """Use ``prompt`` from the next window on (and ``seed`` for that window, ``seed + 1`` for the one after,
+        ...; ``guidance_scale``, where given); returns its prompt index."""
+        self.prompt = check_text(prompt, "the prompt")
+        if guidance_scale is not None:
+            self.settings = replace(self.settings, guidance_scale=guidance_scale).check()
+        if seed is not None:
+            self.seed, self._seeded_at = int(seed), self.windows
+        self.prompt_index += 1
+        return self.prompt_index
+
+    @property
+    def window_seed(self) -> int:
+        """The seed of the next window."""
+        return self.seed + self.windows - self._seeded_at
+
+    def __iter__(self):
+        return self
+
+    def __next__(self) -> Chunk:
+        return advance(self.c, [self])[0]
+
+    def send(self, prompt: str | None) -> Chunk:
+        """Generator protocol: a new prompt (or None: the same), then the next chunk."""
+        if prompt is not None:
+            self.set_prompt(prompt)
+        return next(self)
+
+    def window_shape(self) -> tuple[int, int]:
+        """(frames kept, frames generated) of this stream's next window."""
+        keep = min(self.keep, self.frames)
+        return keep, max(keep + self.chunk + TAIL, self.c.min_frames)
+
+
+class StreamPipeline:
+    """``pipe(prompt, seed=..., settings=...)`` -> a :class:`MotionStream` (windows are made as it is read)."""
+
+    def __init__(self, components: Components):
+        self.c = components
+
+    def __call__(self, prompt: str, *, seed: int | None = None, settings: Settings = Settings(),
+                 chunk: int = STREAM_CHUNK, keep: int = STREAM_KEEP) -> MotionStream:
+        c = self.c
+        # 1. check inputs
+        check_text(prompt, "the prompt")
+        settings.check(rigid=c.rigid is not None)
+        if not sampler_spec(settings.sampler).fast:
+            raise SMFError(f"streams continue the motion by editing: they need a sampler with a precomputed form, "
+                           f"not {settings.sampler!r}")
+        if settings.footskate != "off":
+            raise SMFError("streams have no footskate cleanup (it works on a whole motion); use footskate 'off'")
+        if not 0 < keep or not 0 < chunk or keep + chunk + TAIL > c.max_frames:
+            raise SMFError(f"a stream window keeps 1+ frames and adds 1+ frames, at most {c.max_frames - TAIL} in "
+                           f"all; got keep {keep}, chunk {chunk}")
+        # 2. prepare: the seed; the windows are denoised by `advance` as the stream is read
+        return MotionStream(c, prompt, base_seed(seed), settings, chunk, keep)
+
+
+@torch.no_grad()
+def advance(c: Components, streams: list[MotionStream]) -> list[Chunk]:
+    """The next chunk of every stream: windows of the same shape and guidance in one sampling call."""
+    groups: dict[tuple, list[int]] = {}
+    for i, s in enumerate(streams):
+        groups.setdefault((s.window_shape(), s.settings), []).append(i)
+    out: list[Chunk | None] = [None] * len(streams)
+    for ((keep, frames), settings), idx in groups.items():
+        for i, chunk in zip(idx, _window(c, [streams[i] for i in idx], keep, frames, settings)):
+            out[i] = chunk
+    return out
+
+
+def _window(c: Components, streams: list[MotionStream], keep: int, frames: int, settings: Settings) -> list[Chunk]:
+    """One window of each stream (all keep ``keep`` frames and generate ``frames``)."""
+    # 1. the known start of every stream (its kept frames), imposed on x0 at every step
+    x0_hook, kept = None, torch.zeros(frames, dtype=torch.bool)
+    if keep:
+        kept[:keep] = True
+        known = torch.zeros(len(streams), frames, int(c.mean.shape[0]), dtype=torch.float64)
+        known[:, :keep] = torch.stack([s.tail[-keep:] for s in streams])
+        mask = kept[None, :, None].expand(known.shape).to(c.device)
+        x0_hook = replace_x0(c.normalise(known), mask)
+    # 2. denoise, each stream with its prompt and its window's seed
+    raw = sample(c, [s.prompt for s in streams], [frames] * len(streams),
+                 settings.with_engine("fast") if keep else settings, [s.window_seed for s in streams],
+                 x0_hook=x0_hook)
+    # 3. post-process: exact on the kept part, the seam blended; placed in each stream's world
+    chunks = []
+    for s, r in zip(streams, raw):
+        f = r.double()
+        if keep:
+            f[:keep] = s.tail[-keep:]
+            f = blend_seams(f, kept)
+        chunks.append(_emit(c, s, f[:keep + s.chunk], keep))
+    return chunks
+
+
+def _emit(c: Components, s: MotionStream, f: torch.Tensor, keep: int) -> Chunk:
+    """Place window features ``f`` (keep + chunk frames, dataset units) in the stream's world, append the new
+    frames to the stream and return them as a chunk."""
+    a0 = s.tail_angle[-keep] if keep else torch.zeros((), dtype=torch.float64)
+    p0 = s.tail_xz[-keep] if keep else torch.zeros(2, dtype=torch.float64)
+    turn = qinv(yaw_quat(2.0 * a0))  # local (window frame 0 at the origin, facing +Z) -> world
+    local = joints_from_features(f, c.skeleton)  # (n, J, 3)
+    world = qrot(turn.expand(local.shape[:-1] + (4,)), local)
+    world[..., 0] += p0[0]
+    world[..., 2] += p0[1]
+    root = root_from_features(f)[1]
+    xz = qrot(turn.expand(root.shape[:-1] + (4,)), root)[:, [0, 2]] + p0
+    angle = a0 + headings(f)
+    chunk = Chunk(s.frames, s.prompt_index, s.prompt, world[keep:].float().numpy(), f[keep:].float().numpy())
+    s.tail = torch.cat([s.tail[len(s.tail) - keep:], f[keep:]])[-s.keep:]
+    s.tail_angle = torch.cat([s.tail_angle[len(s.tail_angle) - keep:], angle[keep:]])[-s.keep:]
+    s.tail_xz = torch.cat([s.tail_xz[len(s.tail_xz) - keep:], xz[keep:]])[-s.keep:]
+    s.frames += chunk.frames
+    s.windows += 1
+    return chunk
+
+
+__all__ = ["STREAM_CHUNK", "STREAM_KEEP", "Chunk", "MotionStream", "StreamPipeline", "advance"]

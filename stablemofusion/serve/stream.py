@@ -1,0 +1,431 @@
+"""Live streams over a WebSocket (``/v1/stream``): one endless motion per connection that follows the prompt
+the client sends (:mod:`stablemofusion.pipelines.stream`).
+
+    client -> server  {"prompt": "...", "seed"?: N, "guidance"?: G}   the first starts the stream, later ones
+                                                                      change the prompt from the next window
+                      {"stop": true}                                  ends the stream (the server closes)
+    server -> client  {"type": "frames", "start": N, "fps": 20, "prompt_index": K, "joints": [n][22][3]}
+                      {"type": "error", "error": "<one line>"}        a bad message: the stream goes on
+
+Where it runs: windows are made by a stream worker of their own (not the batched HTTP worker, whose queue
+could hold a live stream up for seconds): :class:`ThreadStreamWorker` on a thread (tests, embedding) or, for
+`smf serve`, :class:`StreamProcessWorker`, a supervised process like the batch worker. The event loop's
+:class:`StreamHub` gathers the windows every connection needs into one worker call (windows of several
+streams are denoised as one batch), and each connection (:class:`StreamSession`) is paced by the clock:
+it asks for its next window when the frames it has sent play for less than STREAM_REFILL_S (or 1.75 times its
+recent windows' time, when the CPU is loaded, as far as the lead allows), and never sends
+frames more than STREAM_LEAD_S ahead of their play time. At most ``max_streams`` streams at once.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import multiprocessing
+import time
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import BaseModel, Field
+
+from .checks import STRICT, check_prompt, parse_body
+from .errors import ServeError, log_event
+from .limits import (MAX_GUIDANCE, MAX_SEED, MAX_STREAM_MESSAGE_BYTES, MAX_STREAM_MESSAGES, MAX_STREAM_SECONDS,
+                     MAX_STREAMS, STREAM_DECIMALS, STREAM_LEAD_S, STREAM_MESSAGE_WINDOW_S, STREAM_RECENT_WINDOWS,
+                     STREAM_GATHER_S, STREAM_REFILL_FACTOR, STREAM_REFILL_S, STREAM_START_TIMEOUT_S, WARM_STEPS)
+from .worker import Failure, ProcessWorker
+
+TRY_LATER = 1013  # WebSocket close code: the server is at its stream limit
+SERVER_ERROR = 1011  # WebSocket close code: the stream cannot go on
+
+
+class StreamMessage(BaseModel):
+    """One client message: a prompt (with an optional seed and guidance) or a stop."""
+
+    model_config = STRICT
+
+    prompt: str | None = None
+    seed: int | None = Field(default=None, ge=0, lt=MAX_SEED)
+    guidance: float | None = Field(default=None, ge=0.0, le=MAX_GUIDANCE)
+    stop: bool | None = None
+
+
+@dataclass(frozen=True)
+class StreamJob:
+    """One window of stream ``sid`` (``prompt`` a new prompt, or None: the same), or its end (``close``)."""
+
+    sid: int
+    prompt: str | None = None
+    seed: int | None = None
+    guidance: float | None = None
+    close: bool = False
+
+
+@dataclass(frozen=True)
+class StreamFrames:
+    """The outcome of a window: frames ``start`` .. of the stream, ``joints`` (n, 22, 3) float32 metres."""
+
+    start: int
+    joints: np.ndarray
+
+
+def run_stream_jobs(pipe, streams: dict, jobs: list[StreamJob]) -> list:
+    """Apply ``jobs`` to the open ``streams`` (sid -> MotionStream) of ``pipe``: one outcome per job (a
+    :class:`StreamFrames`, None for a close, or a :class:`Failure`); the windows in one batched call."""
+    out: list = [None] * len(jobs)
+    live = []
+    for i, job in enumerate(jobs):
+        try:
+            if job.close:
+                streams.pop(job.sid, None)
+            elif job.sid not in streams:
+                if job.prompt is None:
+                    raise ServeError(500, "the stream is gone (its worker restarted); start a new one")
+                streams[job.sid] = pipe.stream(job.prompt, seed=job.seed, guidance_scale=_guidance(job.guidance))
+                live.append(i)
+            else:
+                if job.prompt is not None:
+                    streams[job.sid].set_prompt(job.prompt, seed=job.seed, guidance_scale=job.guidance)
+                live.append(i)
+        except Exception as e:  # noqa: BLE001 - this job's own answer
+            out[i] = _failure(e)
+    if live:
+        _advance_isolated(pipe, streams, jobs, live, out)
+    return out
+
+
+def _advance_isolated(pipe, streams: dict, jobs: list[StreamJob], live: list[int], out: list) -> None:
+    """The windows of jobs ``live`` in one call; if it fails, each alone (a failing stream is dropped)."""
+    from ..pipelines.stream import advance
+
+    for group in [live] + ([[i] for i in live] if len(live) > 1 else []):
+        try:
+            chunks = advance(pipe, [streams[jobs[i].sid] for i in group])
+        except Exception as e:  # noqa: BLE001 - the batch: each alone next; one stream: its own failure
+            if len(group) == 1:
+                out[group[0]] = _failure(e)
+                streams.pop(jobs[group[0]].sid, None)
+            continue
+        for i, chunk in zip(group, chunks):
+            out[i] = StreamFrames(chunk.start, chunk.joints)
+        if group is live:
+            return
+
+
+def _guidance(value: float | None) -> float:
+    from ..pipelines.settings import GUIDANCE
+
+    return GUIDANCE if value is None else value
+
+
+def _failure(e: Exception) -> Failure:
+    if isinstance(e, ServeError):
+        return Failure(e.status, e.message)
+    log_event(logging.ERROR, "a stream window failed: %s: %s", type(e).__name__, e)
+    return Failure(500, f"generation failed ({type(e).__name__})")
+
+
+def warm_streams(pipe) -> None:
+    """One short stream window, so the first stream does not pay for loading the text encoder."""
+    pipe.stream("a person walks forward", seed=0, steps=WARM_STEPS).__next__()
+
+
+class ThreadStreamWorker:
+    """Makes stream windows with ``pipe`` on one thread of this process (tests and embedding): ``executor``,
+    the thread of the HTTP worker that shares ``pipe`` (a model is not called from two threads at once), or
+    a thread of its own."""
+
+    def __init__(self, pipe, executor: ThreadPoolExecutor | None = None):
+        self.pipe, self.config = pipe, pipe.config
+        self._own = executor is None
+        self._pool = executor or ThreadPoolExecutor(max_workers=1, thread_name_prefix="smf-stream")
+        self._streams: dict = {}
+        self._warm: Future | None = None
+
+    def start(self) -> None:
+        if self._warm is None:
+            self._warm = self._pool.submit(warm_streams, self.pipe)
+
+    def submit(self, jobs: list[StreamJob], max_batch: int) -> Future:
+        self.start()
+        return self._pool.submit(run_stream_jobs, self.pipe, self._streams, jobs)
+
+    def health(self) -> dict:
+        ready = self._warm is not None and self._warm.done() and self._warm.exception() is None
+        return {"state": "ready" if ready else "starting", "open": len(self._streams)}
+
+    def close(self) -> None:
+        if self._own:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _stream_child_main(conn, spec) -> None:
+    """The stream worker process: load and warm its own pipeline, then make windows until told to stop."""
+    import signal
+
+    import torch
+
+    from ..pipeline import MotionPipeline
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    logging.basicConfig(level=logging.INFO, format="smf serve stream worker: %(levelname)s %(message)s")
+    torch.set_num_threads(spec.threads)
+    pipe = MotionPipeline.from_pretrained(spec.checkpoint, device=spec.device, engine=spec.engine)
+    conn.send(("loaded", None))
+    warm_streams(pipe)
+    conn.send(("ready", None))
+    streams: dict = {}
+    while True:
+        try:
+            message = conn.recv()
+        except (EOFError, OSError):
+            return
+        if message is None:
+            return
+        jobs, _ = message
+        conn.send(run_stream_jobs(pipe, streams, jobs))
+
+
+class StreamProcessWorker(ProcessWorker):
+    """The batch worker's supervision (started, restarted after it dies, 503 while down) around a process
+    that makes stream windows; the streams open when it dies end with an error."""
+
+    def _spawn(self):
+        ctx = multiprocessing.get_context("spawn")
+        parent, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_stream_child_main, args=(child, self.spec), name="smf-stream", daemon=True)
+        self._proc.start()
+        child.close()
+        return parent
+
+
+class StreamHub:
+    """The event loop's side of the stream worker: stream slots (at most ``max_streams``) and one gathering
+    task that sends every window asked for meanwhile (and the ends of closed streams) as one worker call."""
+
+    def __init__(self, worker, max_streams: int = MAX_STREAMS):
+        self.worker, self.max_streams = worker, max_streams
+        self.active: set[int] = set()
+        self.windows = 0  # windows made, all streams
+        self.batches: deque[int] = deque(maxlen=1000)  # windows per worker call (recent calls)
+        self.call_s: deque[float] = deque(maxlen=1000)  # wall time of those calls
+        self._next_sid = 0
+        self._queue: asyncio.Queue | None = None
+        self._task: asyncio.Task | None = None
+
+    def open(self) -> int | None:
+        """A new stream's id, or None at the limit."""
+        if len(self.active) >= self.max_streams:
+            return None
+        self._next_sid += 1
+        self.active.add(self._next_sid)
+        return self._next_sid
+
+    def close(self, sid: int) -> None:
+        """End stream ``sid``: the worker drops its state in its next call."""
+        if sid in self.active:
+            self.active.discard(sid)
+            self._put(StreamJob(sid, close=True), None)
+
+    def _put(self, job: StreamJob, future) -> None:
+        if self._task is None or self._task.done():
+            self._queue = asyncio.Queue()
+            self._task = asyncio.get_running_loop().create_task(self._run())
+        self._queue.put_nowait((job, future))
+
+    def health(self) -> dict:
+        calls = sorted(self.call_s)
+        return {**self.worker.health(), "active": len(self.active), "max": self.max_streams, "windows": self.windows,
+                "recent_calls": len(calls), "call_ms_median": round(1000 * calls[len(calls) // 2]) if calls else None,
+                "call_ms_max": round(1000 * calls[-1]) if calls else None,
+                "windows_per_call": round(sum(self.batches) / len(self.batches), 2) if self.batches else None}
+
+    async def window(self, job: StreamJob):
+        """The outcome of one window (StreamFrames or Failure)."""
+        future = asyncio.get_running_loop().create_future()
+        self._put(job, future)
+        return await future
+
+    async def _run(self) -> None:
+        while True:
+            items = [await self._queue.get()]
+            await asyncio.sleep(STREAM_GATHER_S)  # the other streams asking on the same tick
+            while not self._queue.empty():
+                items.append(self._queue.get_nowait())
+            jobs = [j for j, _ in items]
+            began = time.monotonic()
+            try:
+                outcomes = await asyncio.wrap_future(self.worker.submit(jobs, len(jobs)))
+            except ServeError as e:
+                outcomes = [Failure(e.status, e.message)] * len(jobs)
+            except Exception as e:  # noqa: BLE001 - never leave a stream waiting
+                log_event(logging.ERROR, "the stream worker call failed: %s: %s", type(e).__name__, e)
+                outcomes = [Failure(500, f"generation failed ({type(e).__name__})")] * len(jobs)
+            windows = sum(not j.close for j in jobs)
+            self.windows += windows
+            if windows:
+                self.batches.append(windows)
+                self.call_s.append(time.monotonic() - began)
+            for (_, future), outcome in zip(items, outcomes):
+                if future is not None and not future.done():
+                    future.set_result(outcome)
+
+    def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+
+
+class StreamSession:
+    """One WebSocket connection's stream: a reader task takes the client's messages; :meth:`play` makes and
+    sends the windows, paced by the clock."""
+
+    def __init__(self, ws, hub: StreamHub, sid: int, fps: float):
+        self.ws, self.hub, self.sid, self.fps = ws, hub, sid, fps
+        self.pending: StreamJob | None = None  # the latest prompt not yet used
+        self.pending_index = -1
+        self.prompts = 0  # prompt messages so far (the next one's prompt_index)
+        self.index = -1  # the prompt_index of the frames being made
+        self.stopped = False  # the client said stop, or left
+        self.last_chunk = 0  # frames of the last window
+        self.wake = asyncio.Event()
+        self._send_lock = asyncio.Lock()
+        self._recent: deque[float] = deque()
+        self._window_s: deque[float] = deque(maxlen=STREAM_RECENT_WINDOWS)  # wall time of recent windows
+
+    async def send(self, message: dict) -> None:
+        async with self._send_lock:
+            await self.ws.send_text(json.dumps(message, separators=(",", ":")))
+
+    async def error(self, message: str) -> None:
+        await self.send({"type": "error", "error": " ".join(str(message).split("\n"))})
+
+    async def read(self) -> None:
+        """The client's messages until it leaves or stops: prompts become pending, bad ones get an error."""
+        while not self.stopped:
+            message = await self.ws.receive()
+            if message["type"] == "websocket.disconnect":
+                break
+            try:
+                self._take(message)
+            except ServeError as e:
+                try:
+                    await self.error(e.message)
+                except Exception:  # noqa: BLE001 - the client is gone
+                    break
+        self.stopped = True
+        self.wake.set()
+
+    def _take(self, message: dict) -> None:
+        now = time.monotonic()
+        self._recent.append(now)
+        while self._recent and self._recent[0] < now - STREAM_MESSAGE_WINDOW_S:
+            self._recent.popleft()
+        if len(self._recent) > MAX_STREAM_MESSAGES:
+            raise ServeError(429, f"more than {MAX_STREAM_MESSAGES} messages in {STREAM_MESSAGE_WINDOW_S:g} s; "
+                                  "this one was ignored")
+        data = message.get("text")
+        if data is None:
+            raise ServeError(422, "messages are JSON text, not binary")
+        body = parse_body(data.encode("utf-8", "surrogatepass"), StreamMessage)
+        if body.stop is not None:
+            if body.stop is not True or body.prompt is not None:
+                raise ServeError(422, 'stop: send {"stop": true} alone')
+            self.stopped = True
+            self.wake.set()
+            return
+        if body.prompt is None:
+            raise ServeError(422, 'prompt: a message is {"prompt": "...", "seed"?, "guidance"?} or {"stop": true}')
+        prompt = check_prompt(body.prompt, "prompt")
+        self.pending = StreamJob(self.sid, prompt, body.seed, body.guidance)
+        self.pending_index = self.prompts
+        self.prompts += 1
+        self.wake.set()
+
+    async def _sleep(self, seconds: float) -> None:
+        """Sleep up to ``seconds``; wakes early when the client stops or leaves."""
+        self.wake.clear()
+        if seconds > 0 and not self.stopped:
+            try:
+                await asyncio.wait_for(self.wake.wait(), seconds)
+            except asyncio.TimeoutError:
+                pass
+
+    def refill_s(self, sent: int) -> float:
+        """How far ahead of play time the next window is asked for: STREAM_REFILL_S, more when recent windows
+        were slow, never so much that a window's frames would pass STREAM_LEAD_S."""
+        slow = STREAM_REFILL_FACTOR * max(self._window_s, default=0.0)
+        chunk_s = self.last_chunk / self.fps
+        return min(max(STREAM_REFILL_S, slow), STREAM_LEAD_S - chunk_s)
+
+    async def play(self) -> None:
+        """Wait for the first prompt, then make window after window until the client stops or leaves."""
+        deadline = time.monotonic() + STREAM_START_TIMEOUT_S
+        while self.pending is None and not self.stopped:
+            if time.monotonic() > deadline:
+                await self.error(f"no prompt within {STREAM_START_TIMEOUT_S:g} s of connecting; closing")
+                return
+            await self._sleep(deadline - time.monotonic())
+        start, sent = None, 0  # the play clock (when frame 0 was sent) and the frames sent
+        while not self.stopped:
+            if start is not None:  # 1. pace: the next window when what was sent plays for less than the refill
+                await self._sleep(start + sent / self.fps - self.refill_s(sent) - time.monotonic())
+                if self.stopped:
+                    break
+                if sent / self.fps >= MAX_STREAM_SECONDS:
+                    await self.error(f"a stream lasts at most {MAX_STREAM_SECONDS:g} s; start a new one")
+                    return
+            job, self.pending = self.pending or StreamJob(self.sid), None  # 2. the window, with the latest prompt
+            if job.prompt is not None:
+                self.index = self.pending_index
+            asked = time.monotonic()
+            outcome = await self.hub.window(job)
+            self._window_s.append(time.monotonic() - asked)
+            if isinstance(outcome, Failure):
+                await self.error(outcome.message)
+                await self.ws.close(SERVER_ERROR)
+                return
+            if start is None:
+                start = time.monotonic()
+            n = len(outcome.joints)  # 3. never more than the lead ahead of play time
+            await self._sleep((sent + n) / self.fps - (time.monotonic() - start) - STREAM_LEAD_S)
+            if self.stopped:
+                break
+            await self.send({"type": "frames", "start": outcome.start, "fps": self.fps, "prompt_index": self.index,
+                             "joints": np.round(outcome.joints.astype(np.float64), STREAM_DECIMALS).tolist()})
+            sent += n
+            self.last_chunk = n
+
+
+async def serve_stream(ws, hub: StreamHub, fps: float) -> None:
+    """One connection: a stream slot (or an error and close at the limit), the reader and the player; the
+    stream's state is dropped when the client stops or leaves."""
+    await ws.accept()
+    sid = hub.open()
+    if sid is None:
+        why = (f"the server is at its limit of {hub.max_streams} live streams; try again later" if hub.max_streams
+               else "this server has live streams off")
+        await ws.send_text(json.dumps({"type": "error", "error": why}))
+        await ws.close(TRY_LATER)
+        return
+    session = StreamSession(ws, hub, sid, fps)
+    reader = asyncio.ensure_future(session.read())
+    try:
+        await session.play()
+    except Exception as e:  # noqa: BLE001 - a client gone mid-send, or a bug: end this stream only
+        if type(e).__name__ not in ("WebSocketDisconnect", "ClientDisconnected", "ConnectionClosed"):
+            log_event(logging.ERROR, "stream %s failed: %s: %s", sid, type(e).__name__, e)
+    finally:
+        session.stopped = True
+        reader.cancel()
+        hub.close(sid)
+        try:
+            await ws.close()
+        except Exception:  # noqa: BLE001 - already closed
+            pass
+
+
+__all__ = ["MAX_STREAM_MESSAGE_BYTES", "StreamHub", "StreamJob", "StreamMessage", "StreamProcessWorker",
+           "ThreadStreamWorker", "run_stream_jobs", "serve_stream"]

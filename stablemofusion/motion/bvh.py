@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import MotionFormatError, SMFError
 from ..io import atomic_path
+from .kinematics import forward_kinematics as forward_kinematics_of_tree
 
 UNIT_SCALES: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254}  # metres per unit
 _CHANNELS = {f"{a}{k}".lower(): f"{a}{k}" for a in "XYZ" for k in ("position", "rotation")}
@@ -298,11 +299,7 @@ def _parse_motion(lines: list[str], start: int, n_chan: int, where: str) -> np.n
 
 def _rest_positions(offsets: np.ndarray, parents: np.ndarray) -> np.ndarray:
     """(J, 3) rest-pose positions: offsets accumulated along the hierarchy."""
-    pos = offsets.copy()
-    for j, p in enumerate(parents):
-        if p >= 0:
-            pos[j] += pos[p]
-    return pos
+    return forward_kinematics_of_tree(offsets, None, offsets[0], parents)
 
 
 def _detect_unit(offsets: np.ndarray, parents: np.ndarray, end_sites: dict[int, np.ndarray]) -> str:
@@ -313,19 +310,12 @@ def _detect_unit(offsets: np.ndarray, parents: np.ndarray, end_sites: dict[int, 
 
 
 def forward_kinematics(bvh: BVH, frames: slice | None = None) -> np.ndarray:
-    """(F, J, 3) world joint positions in metres (``frames`` selects motion rows)."""
+    """(F, J, 3) world joint positions in metres (``frames`` selects motion rows): the channels as local
+    rotations and translations, through :func:`stablemofusion.motion.kinematics.forward_kinematics`."""
     if np.any(bvh.parents >= np.arange(len(bvh.parents))):
         raise MotionFormatError("BVH joints must come after their parents")
-    rot, trans = bvh.rotations(frames), bvh.translations(frames)
-    glob = np.empty_like(rot)
-    pos = np.empty_like(trans)
-    for j, p in enumerate(bvh.parents):
-        if p < 0:
-            glob[:, j], pos[:, j] = rot[:, j], trans[:, j]
-        else:
-            glob[:, j] = glob[:, p] @ rot[:, j]
-            pos[:, j] = pos[:, p] + np.einsum("fik,fk->fi", glob[:, p], trans[:, j])
-    return pos
+    trans = bvh.translations(frames)
+    return forward_kinematics_of_tree(trans, bvh.rotations(frames), trans[:, 0], bvh.parents)
 
 
 def write_bvh(path: str | os.PathLike, *, names: list[str], parents, offsets, rotations, root_positions,

@@ -82,9 +82,7 @@ def forward_kinematics(offsets: torch.Tensor, rotations: torch.Tensor | None, ro
     lv = levels(as_parents(parents))
     if rotations is None and global_rotations:
         raise SMFError("global rotations need local rotations")
-    batch = torch.broadcast_shapes(offsets.shape[:-2], root.shape[:-1],
-                                   () if rotations is None else rotations.shape[:-3])
-    pos = root.expand(batch + (3,))[..., None, :]  # (..., 1, 3): depth 0
+    pos = root[..., None, :]  # (..., 1, 3): depth 0, broadcast to the others' batch below
     glob = None if rotations is None else rotations[..., :1, :, :]
     all_pos, all_glob = [pos], [glob]
     for js, idx in zip(lv.joints, lv.parents):  # index_select: several times faster than x[..., idx, :]
@@ -97,6 +95,8 @@ def forward_kinematics(offsets: torch.Tensor, rotations: torch.Tensor | None, ro
             glob = g_par @ rotations.index_select(-3, js)
             all_glob.append(glob)
         all_pos.append(pos)
+    if len(all_pos) > 1:  # depth 1 on has every leading dimension (root, offsets, rotations)
+        all_pos[0] = all_pos[0].expand(all_pos[1].shape[:-2] + (1, 3))
     positions = torch.cat(all_pos, dim=-2).index_select(-2, lv.order)
     if not global_rotations:
         return positions

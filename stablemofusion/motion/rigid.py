@@ -150,7 +150,8 @@ def optimise_pose(motion: RigidMotion, loss: PoseLoss, iterations: int) -> Rigid
         bones = [torch.zeros_like(root0)]  # each joint's bone vector in world axes (cm), the root's unused
         for j in range(1, J):
             p = parents[j]
-            bones.append((rot[:, b_index[p]] @ off[j, :, None])[..., 0] if p in b_index else length[j] * unit[:, f_index[j]])
+            bones.append((rot[:, b_index[p]] @ off[j, :, None])[..., 0] if p in b_index
+                         else length[j] * unit[:, f_index[j]])
         return forward_kinematics(torch.stack(bones, dim=1), None, root0 + shift, parents)
 
     opt = torch.optim.LBFGS(flat, lr=1.0, max_iter=iterations, history_size=10, line_search_fn="strong_wolfe")

@@ -62,7 +62,8 @@ def test_bvh_and_rigid_forward_kinematics_agree_on_one_skeleton(body, tmp_path):
     assert np.abs(rigid_fk(torch.from_numpy(body.offsets), torch.from_numpy(rotations), torch.from_numpy(body.root),
                            PARENTS).numpy() - from_bvh).max() < 1e-12
     assert np.abs(_reference_fk(body.offsets, rotations, body.root, PARENTS) - from_bvh).max() < 1e-12
-    # through a written file (6 decimals, depth-first order): the reader's joints are the rigid body's to the file's rounding
+    # through a written file (6 decimals, depth-first order): the reader's joints are the rigid body's, to the
+    # file's rounding
     path = tmp_path / "body.bvh"
     save_rigid_bvh(body, path)
     back = read_bvh(path, unit="m")  # joints in file (depth-first) order
@@ -181,9 +182,11 @@ def test_the_check_finds_the_forward_kinematics_it_replaced():
                "        glob[:, j] = glob[:, p] @ rot[:, j]\n"
                "        pos[:, j] = pos[:, p] + np.einsum('fik,fk->fi', glob[:, p], trans[:, j])\n")
     rest = "def rest(o, parents):\n    pos = o.copy()\n    for j, p in enumerate(parents):\n        pos[j] += pos[p]\n"
-    lbfgs = "def positions():\n    for j in range(1, J):\n        p = parents[j]\n        pos.append(pos[p] + u[:, j])\n"
+    lbfgs = ("def positions():\n    for j in range(1, J):\n        p = parents[j]\n"
+             "        pos.append(pos[p] + u[:, j])\n")
     levels = "def fk():\n    for d in ds:\n        ps = t.parents[js]\n        pos[:, js] = pos[:, ps] + off[:, js]\n"
-    gltf = "def rest(o, parents):\n    for j, p in enumerate(parents):\n        r[j] = o[j] + (r[p] if p >= 0 else 0.0)\n"
+    gltf = ("def rest(o, parents):\n    for j, p in enumerate(parents):\n"
+            "        r[j] = o[j] + (r[p] if p >= 0 else 0.0)\n")
     assert [len(fk_recurrences(s)) for s in (old_bvh, rest, lbfgs, levels, gltf)] == [2, 1, 1, 1, 1]
     bookkeeping = ("def tree(parents):\n    for j in range(1, J):\n        depth[j] = depth[parents[j]] + 1\n"
                    "    for c in range(J - 1, 0, -1):\n        subtree[parents[c]] += subtree[c]\n")

@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import MotionFormatError, SMFError
 from ..io import atomic_path
+from .kinematics import forward_kinematics as forward_kinematics_of_tree
 
 UNIT_SCALES: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254}  # metres per unit
 _CHANNELS = {f"{a}{k}".lower(): f"{a}{k}" for a in "XYZ" for k in ("position", "rotation")}
@@ -98,14 +99,16 @@ def _euler_matrices(seq: str, angles: np.ndarray) -> np.ndarray:
     (Rz @ Rx @ Ry for "ZXY"), composed as quaternions elementwise (several times faster than scipy)."""
     half = np.radians(angles) / 2
     cos, sin = np.cos(half), np.sin(half)
-    w, v = cos[:, 0], np.zeros((len(angles), 3))
-    v[:, _AXIS[seq[0]]] = sin[:, 0]
-    for i, a in enumerate(seq[1:], 1):  # q <- q * (cos, sin * axis)
-        e = np.zeros(3)
-        e[_AXIS[a]] = 1.0
-        w, v = (w * cos[:, i] - v[:, _AXIS[a]] * sin[:, i],
-                v * cos[:, i, None] + sin[:, i, None] * (w[:, None] * e + np.cross(v, e)))
-    x, y, z = v.T
+    w, v = cos[:, 0], [np.zeros(len(angles)) for _ in range(3)]
+    v[_AXIS[seq[0]]] = sin[:, 0]
+    for i, a in enumerate(seq[1:], 1):  # q <- q * (cos, sin * e_k): w' = w c - v_k s, v' = v c + s (w e_k + v x e_k)
+        c, s = cos[:, i], sin[:, i]
+        k = _AXIS[a]
+        m, n = (k + 1) % 3, (k + 2) % 3  # (v x e_k)_m = v_n, (v x e_k)_n = -v_m: no np.cross (slow on columns)
+        nv = [v[0], v[1], v[2]]
+        nv[k], nv[m], nv[n] = v[k] * c + s * w, v[m] * c + s * v[n], v[n] * c - s * v[m]
+        w, v = w * c - v[k] * s, nv
+    x, y, z = v
     return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
                      2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
                      2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1).reshape(-1, 3, 3)
@@ -298,11 +301,7 @@ def _parse_motion(lines: list[str], start: int, n_chan: int, where: str) -> np.n
 
 def _rest_positions(offsets: np.ndarray, parents: np.ndarray) -> np.ndarray:
     """(J, 3) rest-pose positions: offsets accumulated along the hierarchy."""
-    pos = offsets.copy()
-    for j, p in enumerate(parents):
-        if p >= 0:
-            pos[j] += pos[p]
-    return pos
+    return forward_kinematics_of_tree(offsets, None, offsets[0], parents)
 
 
 def _detect_unit(offsets: np.ndarray, parents: np.ndarray, end_sites: dict[int, np.ndarray]) -> str:
@@ -313,19 +312,12 @@ def _detect_unit(offsets: np.ndarray, parents: np.ndarray, end_sites: dict[int, 
 
 
 def forward_kinematics(bvh: BVH, frames: slice | None = None) -> np.ndarray:
-    """(F, J, 3) world joint positions in metres (``frames`` selects motion rows)."""
+    """(F, J, 3) world joint positions in metres (``frames`` selects motion rows): the channels as local
+    rotations and translations, through :func:`stablemofusion.motion.kinematics.forward_kinematics`."""
     if np.any(bvh.parents >= np.arange(len(bvh.parents))):
         raise MotionFormatError("BVH joints must come after their parents")
-    rot, trans = bvh.rotations(frames), bvh.translations(frames)
-    glob = np.empty_like(rot)
-    pos = np.empty_like(trans)
-    for j, p in enumerate(bvh.parents):
-        if p < 0:
-            glob[:, j], pos[:, j] = rot[:, j], trans[:, j]
-        else:
-            glob[:, j] = glob[:, p] @ rot[:, j]
-            pos[:, j] = pos[:, p] + np.einsum("fik,fk->fi", glob[:, p], trans[:, j])
-    return pos
+    trans = bvh.translations(frames)
+    return forward_kinematics_of_tree(trans, bvh.rotations(frames), trans[:, 0], bvh.parents)
 
 
 def write_bvh(path: str | os.PathLike, *, names: list[str], parents, offsets, rotations, root_positions,

@@ -17,6 +17,7 @@ from scipy.ndimage import gaussian_filter1d
 
 from ..errors import MotionFormatError
 from .arrays import numpy_edge
+from .kinematics import forward_kinematics
 from .rotation import cont6d_to_matrix, qbetween, qinv, qmul, qrot, quat_to_cont6d, quat_to_matrix, yaw_quat
 from .skeleton import Skeleton, get_skeleton
 
@@ -83,12 +84,11 @@ def uniform_skeleton(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d",
     src = bone_lengths(joints[0], sk)
     k, a = sk.leg_joints
     scale = (tgt[k] + tgt[a]) / (src[k] + src[a])
-    out = np.empty_like(joints)
-    out[:, 0] = joints[:, 0] * scale
-    for chain in sk.chains:
-        for p, c in zip(chain[:-1], chain[1:]):
-            out[:, c] = out[:, p] + _unit(joints[:, c] - joints[:, p]) * tgt[c]
-    return out
+    parents = np.asarray(sk.parents)
+    bones = np.zeros(joints.shape[:-1] + (3,), dtype=np.result_type(joints, tgt))  # the root's unused
+    bones[:, 1:] = _unit(joints[:, 1:] - joints[:, parents[1:]]) * tgt[1:, None]
+    out = forward_kinematics(bones, None, joints[:, 0] * scale, sk.parents)  # each bone added to its parent
+    return out.astype(joints.dtype, copy=False)
 
 
 def _across(joints: np.ndarray, sk: Skeleton, official_ik: bool) -> np.ndarray:

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import SMFError
+from .kinematics import forward_kinematics
 from .rigid import RigidMotion
 from .skeleton import get_skeleton
 
@@ -73,9 +74,7 @@ def body_mesh(offsets: np.ndarray, parents: tuple[int, ...], names: tuple[str, .
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The simple body in the rest pose (identity rotations, root at the origin): (V, 3) positions and
     (V, 3) normals in metres, (F, 3) triangles, (V,) joint index each vertex is bound to (weight 1)."""
-    rest = np.zeros_like(offsets)
-    for j, p in enumerate(parents):
-        rest[j] = offsets[j] + (rest[p] if p >= 0 else 0.0)
+    rest = forward_kinematics(offsets, None, offsets[0], parents)
     parts = []
     for c, p in enumerate(parents):
         if p < 0:
@@ -170,9 +169,8 @@ def rigid_to_glb(motion: RigidMotion, fps: float | None = None, *, body: bool = 
         w_acc = add(weights, _FLOAT, "VEC4", _ARRAY_BUFFER)
         index_type = (np.uint16, _USHORT) if len(pos) < 65535 else (np.uint32, _UINT)
         i_acc = add(tri.reshape(-1).astype(index_type[0]), index_type[1], "SCALAR", _ELEMENT_ARRAY_BUFFER)
-        rest = np.zeros((J, 3))
-        for j, p in enumerate(parents):
-            rest[j] = motion.offsets[j] + (rest[p] if p >= 0 else 0.0)
+        offsets = np.asarray(motion.offsets, np.float64)
+        rest = forward_kinematics(offsets, None, offsets[0], parents)
         ibm = np.tile(np.eye(4, dtype=np.float32), (J, 1, 1))
         ibm[:, 3, :3] = -rest  # column-major storage: the translation is the last column
         b_acc = add(ibm.reshape(J, 16), _FLOAT, "MAT4")

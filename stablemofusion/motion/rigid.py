@@ -16,7 +16,6 @@ each bone over the input's frames (also the fallback for skeletons without targe
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from functools import lru_cache
 from typing import Callable
 
 import numpy as np
@@ -25,6 +24,7 @@ import torch
 from ..errors import SMFError
 from . import rigid_batch
 from .features import bone_lengths, features_in_frames_of, joints_from_features, joints_from_rotations
+from .kinematics import forward_kinematics  # also public here: the rigid body's forward kinematics
 from .rotation import cont6d_to_matrix
 from .skeleton import Skeleton, get_skeleton
 
@@ -80,35 +80,6 @@ class RigidMotion:
         return moved
 
 
-def forward_kinematics(offsets: torch.Tensor, rotations: torch.Tensor, root: torch.Tensor,
-                       parents: tuple[int, ...]) -> torch.Tensor:
-    """Offsets (J, 3) (or (..., 1, J, 3) per motion of a batch), local rotations (..., J, 3, 3), root (..., 3) ->
-    positions (..., J, 3), differentiable. Works one depth level of the tree at a time (a few ops per level)."""
-    levels, gather, order = _levels(tuple(parents))
-    glob = rotations[..., levels[0], :, :]
-    pos = root[..., None, :]
-    all_pos = [pos]
-    for js, idx in zip(levels[1:], gather):
-        g_par = glob[..., idx, :, :]
-        pos = pos[..., idx, :] + (g_par @ offsets[..., js, :, None])[..., 0]
-        glob = g_par @ rotations[..., js, :, :]
-        all_pos.append(pos)
-    return torch.cat(all_pos, dim=-2)[..., order, :]
-
-
-@lru_cache(maxsize=8)
-def _levels(parents: tuple[int, ...]) -> tuple[list[list[int]], list[list[int]], list[int]]:
-    """Joints by depth, each level's parents as indices into the previous level, and the permutation from
-    level order back to joint order."""
-    depth = [0] * len(parents)
-    for j, p in enumerate(parents):
-        depth[j] = 0 if p < 0 else depth[p] + 1
-    levels = [[j for j in range(len(parents)) if depth[j] == d] for d in range(max(depth) + 1)]
-    gather = [[levels[d - 1].index(parents[j]) for j in levels[d]] for d in range(1, len(levels))]
-    flat = [j for level in levels for j in level]
-    return levels, gather, [flat.index(j) for j in range(len(parents))]
-
-
 def choose_bone_lengths(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d", mode: str = "dataset") -> np.ndarray:
     """(J,) bone lengths in metres for a rigid fit of joints (T, J, 3); ``mode`` one of :data:`BONE_LENGTHS`."""
     sk = get_skeleton(skeleton)
@@ -138,11 +109,8 @@ def pose_from_joints(joints: np.ndarray, skeleton: str | Skeleton = "humanml3d",
 
 def global_rotations(motion: RigidMotion) -> np.ndarray:
     """(T, J, 3, 3) global rotation of every joint: G_j = G_parent(j) @ R_j."""
-    sk = get_skeleton(motion.skeleton)
-    glob = np.empty_like(motion.rotations)
-    for j, p in enumerate(sk.parents):
-        glob[:, j] = motion.rotations[:, j] if p < 0 else glob[:, p] @ motion.rotations[:, j]
-    return glob
+    return forward_kinematics(motion.offsets, motion.rotations, motion.root, get_skeleton(motion.skeleton).parents,
+                              global_rotations=True)[1]
 
 
 def optimise_pose(motion: RigidMotion, loss: PoseLoss, iterations: int) -> RigidMotion:
@@ -179,14 +147,12 @@ def optimise_pose(motion: RigidMotion, loss: PoseLoss, iterations: int) -> Rigid
         u, g6, shift = flat[0].reshape(u0.shape), flat[1].reshape(g0.shape), flat[2].reshape(-1, 3)
         rot = cont6d_to_matrix(g6 / BRANCH_SCALE)
         unit = u / torch.linalg.vector_norm(u, dim=-1, keepdim=True).clamp_min(1e-6)
-        pos = [root0 + shift]
+        bones = [torch.zeros_like(root0)]  # each joint's bone vector in world axes (cm), the root's unused
         for j in range(1, J):
             p = parents[j]
-            if p in b_index:
-                pos.append(pos[p] + (rot[:, b_index[p]] @ off[j, :, None])[..., 0])
-            else:
-                pos.append(pos[p] + length[j] * unit[:, f_index[j]])
-        return torch.stack(pos, dim=1)
+            bones.append((rot[:, b_index[p]] @ off[j, :, None])[..., 0] if p in b_index
+                         else length[j] * unit[:, f_index[j]])
+        return forward_kinematics(torch.stack(bones, dim=1), None, root0 + shift, parents)
 
     opt = torch.optim.LBFGS(flat, lr=1.0, max_iter=iterations, history_size=10, line_search_fn="strong_wolfe")
 

@@ -28,6 +28,7 @@ from functools import lru_cache
 import numpy as np
 
 from ..errors import SMFError
+from .kinematics import forward_kinematics
 from .rotation import quat_to_matrix
 from .skeleton import Skeleton, get_skeleton
 
@@ -285,15 +286,6 @@ def pose_of_joints(joints: np.ndarray, starts: np.ndarray, skeleton: str | Skele
 def positions_of_pose(offsets: np.ndarray, local: np.ndarray, root: np.ndarray,
                       skeleton: str | Skeleton = "humanml3d") -> np.ndarray:
     """Forward kinematics: rest offsets (J, 3) (or per frame (N, J, 3)) metres, local rotations (N, J, 3, 3),
-    root (N, 3) metres -> joints (N, J, 3) metres, one depth of the tree at a time."""
-    t = tree(skeleton)
-    offsets = np.broadcast_to(offsets, local.shape[:-1])
-    glob = np.empty_like(local)
-    pos = np.empty(local.shape[:-1])
-    glob[:, 0], pos[:, 0] = local[:, 0], root
-    for d in range(1, t.depth.max() + 1):
-        js = np.flatnonzero(t.depth == d)
-        ps = t.parents[js]
-        pos[:, js] = pos[:, ps] + (glob[:, ps] * offsets[:, js, None, :]).sum(-1)
-        glob[:, js] = glob[:, ps] @ local[:, js]
-    return pos
+    root (N, 3) metres -> joints (N, J, 3) metres (:func:`stablemofusion.motion.kinematics.forward_kinematics`
+    on the skeleton's tree)."""
+    return forward_kinematics(offsets, local, root, get_skeleton(skeleton).parents)

@@ -63,13 +63,12 @@ def rest_features(skeleton: str):
     import numpy as np
 
     from ..motion.features import features_from_joints
+    from ..motion.kinematics import forward_kinematics
     from ..motion.skeleton import get_skeleton
 
     sk = get_skeleton(skeleton)
     offsets = sk.target_offsets() if sk.bone_lengths is not None else sk.offsets_array * REST_BONE_M
-    pose = np.zeros((sk.num_joints, 3))
-    for j, p in enumerate(sk.parents):  # parents precede children
-        pose[j] = 0.0 if p < 0 else pose[p] + offsets[j]
+    pose = forward_kinematics(np.asarray(offsets, np.float64), None, np.zeros(3), sk.parents)
     pose[:, 1] -= pose[:, 1].min()  # feet on the floor
     return features_from_joints(np.repeat(pose[None], 2, axis=0), sk)[0]
 

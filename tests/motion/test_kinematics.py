@@ -117,9 +117,6 @@ ALLOWED = {
     "footskate/underpressure.py:forward_kinematics_23": "UnderPressure's global-rotation FK",
     # Runs inside Blender, which has numpy but no torch: the add-on's rest armature.
     "assets/blender_addon/motion.py:create_our_armature": "Blender-side code without torch",
-    # A rest pose that should call forward_kinematics(offsets, None, zeros, parents); cli/bench.py belongs to
-    # another change of issue 26 in flight, so it is left to it (remove this entry then).
-    "cli/bench.py:rest_features": "left to the cli/bench.py change",
 }
 PARENT_NAMES = {"p", "ps", "par", "parent", "parents", "g_par"}
 

@@ -22,7 +22,6 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-import multiprocessing
 import time
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -36,7 +35,7 @@ from .errors import ServeError, log_event
 from .limits import (MAX_GUIDANCE, MAX_SEED, MAX_STREAM_MESSAGE_BYTES, MAX_STREAM_MESSAGES, MAX_STREAM_SECONDS,
                      MAX_STREAMS, STREAM_DECIMALS, STREAM_LEAD_S, STREAM_MESSAGE_WINDOW_S, STREAM_RECENT_WINDOWS,
                      STREAM_GATHER_S, STREAM_REFILL_FACTOR, STREAM_REFILL_S, STREAM_START_TIMEOUT_S, WARM_STEPS)
-from .worker import Failure, ProcessWorker
+from .worker import Failure, ProcessWorker, child_loop
 
 TRY_LATER = 1013  # WebSocket close code: the server is at its stream limit
 SERVER_ERROR = 1011  # WebSocket close code: the stream cannot go on
@@ -163,43 +162,18 @@ class ThreadStreamWorker:
 
 
 def _stream_child_main(conn, spec) -> None:
-    """The stream worker process: load and warm its own pipeline, then make windows until told to stop."""
-    import signal
-
-    import torch
-
-    from ..pipeline import MotionPipeline
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    logging.basicConfig(level=logging.INFO, format="smf serve stream worker: %(levelname)s %(message)s")
-    torch.set_num_threads(spec.threads)
-    pipe = MotionPipeline.from_pretrained(spec.checkpoint, device=spec.device, engine=spec.engine)
-    conn.send(("loaded", None))
-    warm_streams(pipe)
-    conn.send(("ready", None))
+    """The stream worker process: windows of the open streams (their state lives here), until told to stop."""
     streams: dict = {}
-    while True:
-        try:
-            message = conn.recv()
-        except (EOFError, OSError):
-            return
-        if message is None:
-            return
-        jobs, _ = message
-        conn.send(run_stream_jobs(pipe, streams, jobs))
+    child_loop(conn, spec, "stream worker", warm_streams,
+               lambda pipe, message: run_stream_jobs(pipe, streams, message[0]))
 
 
 class StreamProcessWorker(ProcessWorker):
     """The batch worker's supervision (started, restarted after it dies, 503 while down) around a process
     that makes stream windows; the streams open when it dies end with an error."""
 
-    def _spawn(self):
-        ctx = multiprocessing.get_context("spawn")
-        parent, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_stream_child_main, args=(child, self.spec), name="smf-stream", daemon=True)
-        self._proc.start()
-        child.close()
-        return parent
+    child_main = staticmethod(_stream_child_main)
+    process_name = "smf-stream"
 
 
 class StreamHub:

@@ -142,9 +142,9 @@ class WorkerSpec:
     engine: str = "auto"
 
 
-def _child_main(conn, spec: WorkerSpec) -> None:
-    """The worker process: load and warm its own pipeline, then answer batches until told to stop or the
-    server goes away."""
+def child_loop(conn, spec: WorkerSpec, name: str, warm_up, handle) -> None:
+    """The body of a worker process: load and warm its own pipeline (``warm_up(pipe)``), then answer each
+    message with ``handle(pipe, message)`` until told to stop or the server goes away."""
     import signal
 
     import torch
@@ -152,11 +152,11 @@ def _child_main(conn, spec: WorkerSpec) -> None:
     from ..pipeline import MotionPipeline
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the server stops the worker
-    logging.basicConfig(level=logging.INFO, format="smf serve worker: %(levelname)s %(message)s")
+    logging.basicConfig(level=logging.INFO, format=f"smf serve {name}: %(levelname)s %(message)s")
     torch.set_num_threads(spec.threads)
     pipe = MotionPipeline.from_pretrained(spec.checkpoint, device=spec.device, engine=spec.engine)
     conn.send(("loaded", None))
-    warm(pipe)
+    warm_up(pipe)
     conn.send(("ready", None))
     while True:
         try:
@@ -165,8 +165,12 @@ def _child_main(conn, spec: WorkerSpec) -> None:
             return
         if message is None:
             return
-        jobs, max_batch = message
-        conn.send(run_isolated(pipe, jobs, max_batch))
+        conn.send(handle(pipe, message))
+
+
+def _child_main(conn, spec: WorkerSpec) -> None:
+    """The batch worker process: batches of jobs, each answered alone when the batch fails."""
+    child_loop(conn, spec, "worker", warm, lambda pipe, message: run_isolated(pipe, *message))
 
 
 class _Died(Exception):
@@ -249,10 +253,14 @@ class ProcessWorker:
         """The process is gone: health says so at once (before any request hears of it)."""
         self._state, self._loaded, self._warm = "restarting", False, False
 
+    child_main = staticmethod(_child_main)  # the process's body (module level: spawn pickles it by name)
+    process_name = "smf-worker"
+
     def _spawn(self):
         ctx = multiprocessing.get_context("spawn")  # no forked torch threads
         parent, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_child_main, args=(child, self.spec), name="smf-worker", daemon=True)
+        self._proc = ctx.Process(target=self.child_main, args=(child, self.spec), name=self.process_name,
+                                 daemon=True)
         self._proc.start()
         child.close()
         return parent

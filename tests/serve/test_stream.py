@@ -140,23 +140,21 @@ def test_a_client_that_leaves_ends_its_stream_and_its_work(server):
     assert hub.health()["open"] == 0  # and the worker dropped its state
 
 
-def test_frames_are_paced_never_more_than_the_lead_ahead_and_never_late(server):
+def test_frames_are_paced_never_more_than_the_lead_ahead(server):
     app, url = server
     with ws_client.connect(url) as ws:
         ws.send(json.dumps({"prompt": "a person walks", "seed": 0}))
-        t0, ahead, late = None, [], []
+        t0, ahead = None, []
         for _ in range(12):
             m = frames(ws, 1)[0]
             now = time.monotonic()
             t0 = now if t0 is None else t0
             n = len(m["joints"])
             ahead.append((m["start"] + n) / m["fps"] - (now - t0))  # how far the chunk's end is ahead of play
-            late.append((now - t0) - m["start"] / m["fps"])  # its first frame's arrival after its play time
     assert max(ahead) <= STREAM_LEAD_S + 0.1  # the server's bound (its clock starts a moment before ours)
     assert 12 * 12 / 20 - (now - t0) < STREAM_LEAD_S + 0.1  # 7.2 s of motion took 7.2 s less the lead, at least
-    # (lateness depends on the CPU: benchmarks/stream_check.py measures it with the shipped model; here the tiny
-    # model's windows take milliseconds, so frames arrive late only when the machine stalls this process)
-    assert np.median(late) <= 0.0
+    # Whether frames arrive before their play time depends on the CPU and its load: a figure of
+    # benchmarks/stream_check.py (shipped model, docs/serve.md), not a timed assertion here.
 
 
 def test_a_page_of_another_site_cannot_open_a_stream(server):

@@ -184,8 +184,8 @@ def test_live_mode_keeps_moving_and_a_new_prompt_changes_it(page, tmp_path):
     page.wait_for_function("window.smf.live && window.smf.live.received >= 30", timeout=60_000)
     assert page.inner_text("#generate") == "Send"
     first, before = page.evaluate("window.smf.frame + window.smf.live.offset"), shot(page)
-    page.wait_for_timeout(600)
-    assert page.evaluate("window.smf.frame + window.smf.live.offset") > first  # the play clock runs
+    # the play clock runs (as fast as frames arrive: a loaded machine may hold the newest frame a while)
+    page.wait_for_function(f"window.smf.frame + window.smf.live.offset > {first} + 10", timeout=60_000)
     assert (np.abs(shot(page) - before).sum(-1) > 60).sum() > 50  # and the picture moves
     page.fill("#prompt", "a person waves both hands")
     page.press("#prompt", "Enter")

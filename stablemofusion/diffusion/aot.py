@@ -29,7 +29,7 @@ FRAME_MULTIPLE = 16  # the exported frame dim is 16 * k (what the engine pads to
 MAX_FRAMES = 256
 MAX_ITEMS = 256  # forward items (a guided batch of B motions is 2B items)
 MAX_TOKENS = 128
-FORMAT = 1  # bump when the exported signature changes
+FORMAT = 2  # bump when the exported signature changes
 
 _LOADED: dict[str, object] = {}  # key -> loaded runner (one per process)
 
@@ -63,8 +63,8 @@ class _Flat(torch.nn.Module):
         super().__init__()
         self.model, self.sentence = model, sentence
 
-    def forward(self, x, t, features, mask, keep, motion_mask, *sentence):
-        cond = TextCondition(features, mask, keep, sentence[0] if self.sentence else None)
+    def forward(self, x, t, features, mask, keep, motion_mask, sentence):
+        cond = TextCondition(features, mask, keep, sentence if self.sentence else None)
         return self.model.denoise(x, t, cond, motion_mask)
 
 
@@ -93,10 +93,9 @@ def _example(model, device, dtype, sentence: bool):
     """Example inputs of the export: 4 items, 208 frames, 32 tokens."""
     N, T, L = 4, 208, 32
     D, latent = int(model.motion_dim), int(model.text_config.latent)
-    args = [torch.randn(N, T, D), torch.full((N,), 500.0), torch.randn(N, L, latent), torch.ones(N, L, dtype=torch.bool),
-            torch.ones(N, dtype=torch.bool), torch.ones(N, T, dtype=torch.bool)]
-    if sentence:
-        args.append(torch.randn(N, model.sentence_proj.out_features))
+    args = [torch.randn(N, T, D), torch.full((N,), 500.0), torch.randn(N, L, latent),
+            torch.ones(N, L, dtype=torch.bool), torch.ones(N, dtype=torch.bool), torch.ones(N, T, dtype=torch.bool)]
+    args.append(torch.randn(N, model.sentence_proj.out_features) if sentence else torch.zeros(N, 1))  # unused
     return tuple(a.to(device, dtype) if a.is_floating_point() else a.to(device) for a in args)
 
 
@@ -111,7 +110,7 @@ def build(model, path: Path, device: torch.device, dtype: torch.dtype) -> Path:
     frames = FRAME_MULTIPLE * k
     tokens = Dim("tokens", min=1, max=MAX_TOKENS)
     dyn = [{0: items, 1: frames}, {0: items}, {0: items, 1: tokens}, {0: items, 1: tokens}, {0: items},
-           {0: items, 1: frames}] + ([{0: items}] if sentence else [])
+           {0: items, 1: frames}, {0: items}]
     path.parent.mkdir(parents=True, exist_ok=True)
     with torch.no_grad(), _exportable_pooling():
         ep = torch.export.export(flat, _example(model, device, dtype, sentence), dynamic_shapes=tuple(dyn))
@@ -128,7 +127,8 @@ def build(model, path: Path, device: torch.device, dtype: torch.dtype) -> Path:
 
 def check_model(model) -> None:
     if not hasattr(model, "motion_dim"):
-        raise SMFError(f"the aot engine supports the UNet denoiser, not {type(model).__name__}; use 'fast' or 'compiled'")
+        raise SMFError(f"the aot engine supports the UNet denoiser, not {type(model).__name__}; use 'fast' or "
+                       "'compiled'")
     if not getattr(model, "padding_invariant", False):
         raise SMFError("the aot engine needs a model whose valid frames do not depend on padding (lengths are padded "
                        "to multiples of 16); use 'fast' or 'compiled'")
@@ -166,8 +166,7 @@ class AOTDenoise:
         mm = motion_mask if motion_mask is not None else torch.ones(N, T, dtype=torch.bool, device=x_t.device)
         args = [x_t.contiguous(), t.to(x_t.dtype).contiguous(), cond.features.contiguous(), cond.mask.contiguous(),
                 keep.contiguous(), mm.bool().contiguous()]
-        if self.sentence:
-            args.append(cond.sentence.contiguous())
+        args.append(cond.sentence.contiguous() if self.sentence else x_t.new_zeros(N, 1))
         return self.runner(*args)
 
 

@@ -99,7 +99,8 @@ class SolverEngine:
                 from .aot import AOTDenoise
 
                 self._compiled = AOTDenoise(self.model)
-                self.stats.warmup_seconds[("aot", "built" if self._compiled.built else "loaded")] = self._compiled.seconds
+                how = "built" if self._compiled.built else "loaded"
+                self.stats.warmup_seconds[("aot", how)] = self._compiled.seconds
             else:
                 self._compiled = _CompiledDenoise(self.model)
         return self._compiled

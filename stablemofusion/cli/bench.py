@@ -22,8 +22,8 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--sampler", action="append", default=None, help=f"repeatable (default {DEFAULT_SAMPLER})")
     p.add_argument("--steps", type=int, action="append", default=None, help="repeatable (default 10)")
     p.add_argument("--engine", action="append", default=None,
-                   help="eager, fast, compiled, graph or auto; repeatable (default: eager and auto); the speed-up is "
-                        "over eager")
+                   help="eager, fast, compiled, aot, graph or auto; repeatable (default: eager and auto); the speed-up "
+                        "is over eager; the warm-up of aot is its package's build (first use) or load")
     p.add_argument("--frames", type=int, default=None, help="motion length (default: the model's longest, 196)")
     p.add_argument("--batch-sizes", default="1,32")
     p.add_argument("--repeats", type=int, default=5)

@@ -9,7 +9,10 @@ Engines, fastest last (``eager`` is the reference and works with every sampler):
 - ``graph`` (CUDA only): the whole loop (every step, guidance included) around the eager model, captured as
   one CUDA graph per (sampler, steps, guidance, batch bucket, length bucket, text bucket) and replayed: the
   launches go, the warm-up is one capture (no compilation);
-- ``compiled-graph`` (CUDA only): the same graph around the compiled model (fused kernels too; compiles first).
+- ``compiled-graph`` (CUDA only): the same graph around the compiled model (fused kernels too; compiles first);
+- ``aot``: the ``compiled`` loop around ``model.denoise`` exported and compiled ahead of time by AOTInductor
+  (:mod:`.aot`): one package for all shapes, built once per machine and model (cache folder), then loaded in
+  about 2 s by each new process instead of compiled.
 
 Static shapes: lengths padded up to multiples of :data:`FRAME_BUCKET` (frames past an item's length are
 masked; only for models whose output on valid frames does not depend on padding), batches up to the next of
@@ -29,9 +32,9 @@ from ..models.base import TextCondition
 from .sampling import Step, guided, run_solver
 from .solvers import SolverTable
 
-ENGINES = ("eager", "fast", "compiled", "graph", "compiled-graph")
+ENGINES = ("eager", "fast", "compiled", "graph", "compiled-graph", "aot")
 GRAPH_ENGINES = ("graph", "compiled-graph")
-COMPILED_ENGINES = ("compiled", "compiled-graph")
+COMPILED_ENGINES = ("compiled", "compiled-graph", "aot")  # run through SolverEngine (padded shapes)
 FRAME_BUCKET = 16
 TEXT_BUCKET = 16
 BATCH_BUCKETS = (1, 2, 4, 8, 16, 32)
@@ -92,7 +95,14 @@ class SolverEngine:
         if self.engine not in COMPILED_ENGINES:
             return self.model
         if self._compiled is None:
-            self._compiled = _CompiledDenoise(self.model)
+            if self.engine == "aot":
+                from .aot import AOTDenoise
+
+                self._compiled = AOTDenoise(self.model)
+                how = "built" if self._compiled.built else "loaded"
+                self.stats.warmup_seconds[("aot", how)] = self._compiled.seconds
+            else:
+                self._compiled = _CompiledDenoise(self.model)
         return self._compiled
 
     def run(self, cond: TextCondition, uncond: TextCondition | None, motion_mask: torch.Tensor, scale: float,
@@ -101,17 +111,19 @@ class SolverEngine:
         if self.engine == "fast":
             return run_solver(guided(self.model, cond, uncond, motion_mask, scale), table, x, step_noise)
         Tb = self.model.frame_bucket(T, FRAME_BUCKET)
-        Bb = batch_bucket(B)
+        if self.engine == "aot":
+            Tb = max(bucket(T, FRAME_BUCKET), 2 * FRAME_BUCKET)  # the package's frame dim: 16 * k, k >= 2
+        Bb = B if self.engine == "aot" else batch_bucket(B)  # the package's batch dim is dynamic
         Lb = bucket(cond.features.shape[1], TEXT_BUCKET)
         cond_p, uncond_p = _pad_cond(cond, Bb, Lb), None if uncond is None else _pad_cond(uncond, Bb, Lb)
         mask_p = _pad_items(_pad(motion_mask, 1, Tb, False), Bb)
         x_p = _pad(_pad(x, 1, Tb, 0.0), 0, Bb, 0.0)
         n_p = None if step_noise is None else _pad(_pad(step_noise, 2, Tb, 0.0), 1, Bb, 0.0)
         key = (table.name, table.steps, uncond is None, Bb, Tb, Lb, x.dtype)  # the guidance scale is an input
-        if self.engine == "compiled":
+        if self.engine in ("compiled", "aot"):
             t0 = time.perf_counter()
             out = run_solver(guided(self._denoise_fn(), cond_p, uncond_p, mask_p, scale), table, x_p, n_p)
-            if key not in self.stats.warmup_seconds:  # first call of a shape: compilation included
+            if self.engine == "compiled" and key not in self.stats.warmup_seconds:  # first call: compilation
                 self.stats.warmup_seconds[key] = time.perf_counter() - t0
             return out[:B, :T]
         graph = self._graphs.get(key)

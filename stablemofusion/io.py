@@ -41,6 +41,13 @@ def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
         np.save(f, np.asarray(array))
 
 
+def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` atomically; returns the path."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return Path(path)
+
+
 def write_text(path: str | os.PathLike, text: str) -> None:
     """Write ``text`` (UTF-8) atomically."""
     with atomic_path(path) as tmp:

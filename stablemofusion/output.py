@@ -20,7 +20,7 @@ from typing import Callable
 import numpy as np
 
 from .errors import SMFError
-from .io import atomic_path
+from .io import write_bytes
 from .motion.files import rigid_bvh_text, rigid_pose
 from .pipelines.result import MotionResult
 
@@ -117,38 +117,32 @@ def _dumps(body: dict) -> bytes:
 
 # --- files ---
 
-def _write(path: Path, data: bytes) -> Path:
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
-    return path
-
-
 @writer("npy", "_joints.npy", "_features.npy")
 def write_npy(result: MotionResult, stem: Path, meta: dict) -> list[Path]:
     joints, features = OUTPUTS["npy"](stem)
-    return [_write(joints, npy_bytes(result, "joints")), _write(features, npy_bytes(result, "features"))]
+    return [write_bytes(joints, npy_bytes(result, "joints")), write_bytes(features, npy_bytes(result, "features"))]
 
 
 @writer("bvh", ".bvh")
 def write_bvh(result: MotionResult, stem: Path, meta: dict) -> list[Path]:
-    return [_write(OUTPUTS["bvh"](stem)[0], bvh_bytes(result))]
+    return [write_bytes(OUTPUTS["bvh"](stem)[0], bvh_bytes(result))]
 
 
 @writer("json", ".json")
 def write_json(result: MotionResult, stem: Path, meta: dict) -> list[Path]:
-    return [_write(OUTPUTS["json"](stem)[0], json_bytes(result, **meta))]
+    return [write_bytes(OUTPUTS["json"](stem)[0], json_bytes(result, **meta))]
 
 
 @writer("glb", ".glb")
 def write_glb(result: MotionResult, stem: Path, meta: dict) -> list[Path]:
-    return [_write(OUTPUTS["glb"](stem)[0], glb_bytes(result))]
+    return [write_bytes(OUTPUTS["glb"](stem)[0], glb_bytes(result))]
 
 
 RIG_SUFFIX = "_rig.bvh"
 
 
 def write_rig(result: MotionResult, stem: Path, rig: Rig) -> Path:
-    return _write(stem.with_name(stem.name + RIG_SUFFIX), rig_bvh_text(result, rig).encode("utf-8"))
+    return write_bytes(stem.with_name(stem.name + RIG_SUFFIX), rig_bvh_text(result, rig).encode("utf-8"))
 
 
 def _video(fmt: str) -> Writer:

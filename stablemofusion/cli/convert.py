@@ -28,7 +28,7 @@ def add_parser(sub, name: str) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    from ..io import atomic_path
+    from ..io import write_bytes
     from ..motion.files import rigid_pose
     from ..output import glb_bytes, rig_bvh_text
     from ..pipelines.result import MotionResult
@@ -44,8 +44,7 @@ def run(args: argparse.Namespace) -> None:
         result = MotionResult(str(args.input), motion.features, motion.joints, motion.fps, None,
                               rigid_pose(motion.joints, motion.skeleton))
         data = rig_bvh_text(result, rig).encode("utf-8") if rig is not None else glb_bytes(result)
-        with atomic_path(args.output) as tmp:
-            tmp.write_bytes(data)
+        write_bytes(args.output, data)
         where = f"on {args.rig.name}" if rig is not None else "glb"
         print(f"wrote {args.output} ({where}, {len(motion.joints)} frames)")
         return

@@ -208,8 +208,6 @@ def rigid_to_glb(motion: RigidMotion, fps: float | None = None, *, body: bool = 
 
 def save_glb(motion: RigidMotion, path, fps: float | None = None, *, body: bool = True) -> None:
     """Write :func:`rigid_to_glb` of ``motion`` to ``path``, atomically."""
-    from ..io import atomic_path
+    from ..io import write_bytes
 
-    data = rigid_to_glb(motion, fps, body=body)
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
+    write_bytes(path, rigid_to_glb(motion, fps, body=body))

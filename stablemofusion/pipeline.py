@@ -5,7 +5,9 @@ thin call of its task pipeline (:mod:`stablemofusion.pipelines`): ``__call__`` t
 ``edit`` and ``stream``; ``sample`` and ``denoise`` are the batch-level calls benchmarks and evaluation use.
 The four inference tricks of the paper: text embedded once per prompt (LRU cache across calls); conditional
 and unconditional passes in one batched forward; half precision on GPU; an efficient sampler (SDE
-DPM-Solver++ 2M with Karras sigmas, 10 steps, by default).
+DPM-Solver++ 2M with Karras sigmas, 10 steps, by default). A distilled student (``smf distil``) samples by
+default with consistency sampling at its distilled step count, one forward per step (guidance as input);
+``steps``/``sampler`` None mean the model's defaults (:meth:`Components.settings`).
 """
 
 from __future__ import annotations
@@ -13,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .diffusion.samplers import DEFAULT_SAMPLER
 from .diffusion.sampling import DenoiserFn, guided
 from .diffusion.engine import SolverEngine
 from .edit import EditPlan, edit_hooks
@@ -22,7 +23,7 @@ from .pipelines.components import Components, default_model_path
 from .pipelines.edit import EditPipeline
 from .pipelines.result import MotionResult
 from .pipelines.sample import sample as sample_raw
-from .pipelines.settings import (BATCH_SIZE, DEFAULT_SECONDS, FOOTSKATE_MODES, GUIDANCE, STEPS, LengthClampedWarning,
+from .pipelines.settings import (BATCH_SIZE, DEFAULT_SECONDS, FOOTSKATE_MODES, GUIDANCE, LengthClampedWarning,
                                  OutOfDomainWarning, Settings, resolve_engine)
 from .pipelines.stream import STREAM_CHUNK, MotionStream, StreamPipeline
 from .pipelines.text_to_motion import TextToMotionPipeline
@@ -34,8 +35,8 @@ class MotionPipeline(Components):
     """Generate motions from text with a denoiser checkpoint. Build with :meth:`from_pretrained`."""
 
     def __call__(self, prompts: str | list[str], *, seconds: float | list[float] | None = None,
-                 frames: int | list[int] | None = None, guidance_scale: float = GUIDANCE, steps: int = STEPS,
-                 sampler: str = DEFAULT_SAMPLER, seed: int | list[int] | None = None, batch_size: int = BATCH_SIZE,
+                 frames: int | list[int] | None = None, guidance_scale: float = GUIDANCE, steps: int | None = None,
+                 sampler: str | None = None, seed: int | list[int] | None = None, batch_size: int = BATCH_SIZE,
                  progress: bool = False, footskate: str = "off", footskate_options=None,
                  engine: str | None = None) -> list[MotionResult]:
         """One motion per prompt (:class:`~stablemofusion.pipelines.text_to_motion.TextToMotionPipeline`).
@@ -47,7 +48,7 @@ class MotionPipeline(Components):
                                           progress=progress)
 
     def timeline(self, segments: list[tuple[str, float]], *, overlap: float = DEFAULT_OVERLAP,
-                 guidance_scale: float = GUIDANCE, steps: int = STEPS, sampler: str = DEFAULT_SAMPLER,
+                 guidance_scale: float = GUIDANCE, steps: int | None = None, sampler: str | None = None,
                  seed: int | None = None, impose: str = "x0", footskate: str = "off", footskate_options=None,
                  engine: str | None = None, progress: bool | None = False) -> MotionResult:
         """One continuous motion from (prompt, seconds) segments, of any total length
@@ -59,7 +60,7 @@ class MotionPipeline(Components):
 
     def edit(self, prompt: str, source: np.ndarray, mode: str, *, keep_start: float = 0.0, keep_end: float = 0.0,
              seconds: float | None = None, path: np.ndarray | None = None, guidance_scale: float = GUIDANCE,
-             steps: int = STEPS, sampler: str = DEFAULT_SAMPLER, seed: int | None = None, impose: str = "x0",
+             steps: int | None = None, sampler: str | None = None, seed: int | None = None, impose: str = "x0",
              footskate: str = "off", footskate_options=None, engine: str | None = None,
              progress: bool | None = None) -> MotionResult:
         """Edit ``source`` features (Ts, D) with ``prompt`` (:class:`~stablemofusion.pipelines.edit.EditPipeline`):
@@ -69,8 +70,8 @@ class MotionPipeline(Components):
         return EditPipeline(self)(prompt, source, mode, keep_start=keep_start, keep_end=keep_end, seconds=seconds,
                                   path=path, seed=seed, settings=settings, impose=impose, progress=progress)
 
-    def stream(self, prompt: str, *, guidance_scale: float = GUIDANCE, steps: int = STEPS,
-               sampler: str = DEFAULT_SAMPLER, seed: int | None = None, chunk: int = STREAM_CHUNK,
+    def stream(self, prompt: str, *, guidance_scale: float = GUIDANCE, steps: int | None = None,
+               sampler: str | None = None, seed: int | None = None, chunk: int = STREAM_CHUNK,
                engine: str | None = None) -> MotionStream:
         """An endless motion following ``prompt`` (:class:`~stablemofusion.pipelines.stream.StreamPipeline`): an
         iterator of :class:`~stablemofusion.pipelines.stream.Chunk` of ``chunk`` frames; ``stream.set_prompt(p)``
@@ -80,8 +81,9 @@ class MotionPipeline(Components):
         return StreamPipeline(self)(prompt, seed=seed, settings=settings, chunk=chunk)
 
     @torch.no_grad()
-    def sample(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = GUIDANCE, steps: int = STEPS,
-               sampler: str = DEFAULT_SAMPLER, seed: int | list[int] | None = None, batched_cfg: bool = True,
+    def sample(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = GUIDANCE,
+               steps: int | None = None, sampler: str | None = None, seed: int | list[int] | None = None,
+               batched_cfg: bool = True,
                footskate: str = "off", footskate_options=None, engine: str | None = None) -> torch.Tensor:
         """Features (B, max(lengths), D) in dataset units (CPU, float32) of the final motions of one batch
         (:meth:`denoise`, then :meth:`finish` on each; frames past an item's length are zero)."""
@@ -94,8 +96,9 @@ class MotionPipeline(Components):
         return out
 
     @torch.no_grad()
-    def denoise(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = GUIDANCE, steps: int = STEPS,
-                sampler: str = DEFAULT_SAMPLER, seed: int | list[int] | None = None, batched_cfg: bool = True,
+    def denoise(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = GUIDANCE,
+                steps: int | None = None, sampler: str | None = None, seed: int | list[int] | None = None,
+                batched_cfg: bool = True,
                 footskate: str = "off", footskate_options=None, engine: str | None = None,
                 edit: EditPlan | None = None, impose: str = "x0") -> torch.Tensor:
         """The model's raw features (B, max(lengths), D) of one batch in dataset units (CPU, float32), before
@@ -110,13 +113,15 @@ class MotionPipeline(Components):
                          xt_hook=xt_hook, batched_cfg=batched_cfg)
         return torch.stack([edit.project(r.double()).float() for r in raw])
 
-    def engine_for(self, sampler: str, engine: str | None = None) -> str:
-        """The engine a call runs with: ``engine`` (default: this pipeline's) resolved for the sampler."""
-        return resolve_engine(engine or self.engine, self.device, sampler)
+    def engine_for(self, sampler: str | None, engine: str | None = None) -> str:
+        """The engine a call runs with: ``engine`` (default: this pipeline's) resolved for the sampler (None:
+        the model's)."""
+        return resolve_engine(engine or self.engine, self.device, sampler or self.settings().sampler)
 
     def guided(self, cond: TextCondition, uncond: TextCondition | None, mask: torch.Tensor, scale: float,
                batched: bool = True) -> DenoiserFn:
-        """The model under the text condition, with classifier-free guidance unless ``scale`` is 1."""
+        """The model under the text condition, with classifier-free guidance unless ``scale`` is 1 (or the
+        model is a student, whose ``cond`` already holds the scale and ``uncond`` is None)."""
         return guided(self.model, cond, None if scale == 1.0 else uncond, mask, scale, batched)
 
     def _engine(self, name: str) -> SolverEngine:

@@ -14,13 +14,15 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
-    from ..diffusion.samplers import DEFAULT_SAMPLER
+    from ..pipelines.settings import SAMPLER, STEPS, STUDENT
 
     p = sub.add_parser(name, help="average inference time per sentence (batch 1 and 32)")
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
     p.add_argument("--preset", default=None, help="time an untrained preset instead of a checkpoint")
-    p.add_argument("--sampler", action="append", default=None, help=f"repeatable (default {DEFAULT_SAMPLER})")
-    p.add_argument("--steps", type=int, action="append", default=None, help="repeatable (default 10)")
+    p.add_argument("--sampler", action="append", default=None, help=f"repeatable (default: the model's: {SAMPLER}, a "
+                                                                      f"distilled student {STUDENT})")
+    p.add_argument("--steps", type=int, action="append", default=None,
+                   help=f"repeatable (default: the model's: {STEPS}, a distilled student its own count)")
     p.add_argument("--engine", action="append", default=None,
                    help="eager, fast, compiled, aot, graph or auto; repeatable (default: eager and auto); the speed-up "
                         "is over eager; the warm-up of aot is its package's build (first use) or load")
@@ -79,14 +81,14 @@ REST_BONE_M = 0.2  # bone length of the rest pose of a skeleton without target l
 def run(args: argparse.Namespace) -> None:
     import torch
 
-    from ..diffusion.samplers import DEFAULT_SAMPLER
     from ..errors import SMFError
     from ..io import write_text
 
     pipe = _pipeline(args)
     args.frames = args.frames or pipe.max_frames
-    samplers = args.sampler or [DEFAULT_SAMPLER]
-    steps_list = args.steps or [10]
+    defaults = pipe.settings()  # the model's steps and sampler (a distilled student's own)
+    samplers = args.sampler or [defaults.sampler]
+    steps_list = args.steps or [defaults.steps]
     try:
         batches = [int(b) for b in args.batch_sizes.split(",")]
     except ValueError:
@@ -132,7 +134,8 @@ def run(args: argparse.Namespace) -> None:
     report = {"device": str(pipe.device), "frames": args.frames, "dtype": str(pipe.dtype).replace("torch.", ""),
               "device_name": torch.cuda.get_device_name() if pipe.device.type == "cuda" else platform.processor()
               or platform.machine(), "threads": torch.get_num_threads(),
-              "parameters": pipe.model.num_parameters(), "guidance": args.guidance, "results": rows}
+              "parameters": pipe.model.num_parameters(), "guidance": args.guidance, "student": pipe.student,
+              "results": rows}
     text = json.dumps(report, indent=2)
     print(text)
     if args.out is not None:

@@ -8,15 +8,17 @@ from pathlib import Path
 
 def add_eval_args(p: argparse.ArgumentParser) -> None:
     """Arguments shared by `smf evaluate` and `smf ablate`."""
-    from ..diffusion.samplers import DEFAULT_SAMPLER
+    from ..pipelines.settings import SAMPLER, STEPS, STUDENT
 
     p.add_argument("--data", type=Path, required=True, help="corpus folder (HumanML3D layout) with a test split")
     p.add_argument("--evaluator", type=Path, default=None, help="evaluator folder from `smf train-evaluator`")
     p.add_argument("--t2m-evaluator", type=Path, default=None,
                    help="root of the original T2M evaluator files (instead of --evaluator); needs --glove")
     p.add_argument("--glove", type=Path, default=None, help="GloVe folder of the original T2M evaluator")
-    p.add_argument("--sampler", default=DEFAULT_SAMPLER, help=f"sampler (default {DEFAULT_SAMPLER})")
-    p.add_argument("--steps", type=int, default=10, help="sampling steps (default 10)")
+    p.add_argument("--sampler", default=None, help=f"sampler (default: the model's: {SAMPLER}, a distilled student "
+                                                   f"{STUDENT})")
+    p.add_argument("--steps", type=int, default=None,
+                   help=f"sampling steps (default: the model's: {STEPS}, a distilled student its own count)")
     p.add_argument("--guidance", type=float, default=2.5, help="classifier-free guidance scale (default 2.5)")
     p.add_argument("--replications", type=int, default=None, help="repetitions of the protocol (default 20, --quick 3)")
     p.add_argument("--quick", action="store_true", help="3 replications, 12 samples per multimodality caption")
@@ -75,7 +77,7 @@ def eval_config(args: argparse.Namespace, **kw):
         raise SMFError(f"--replications must be >= 1, got {cfg.replications}")
     if cfg.batch_size < 2 or cfg.diversity_times < 1:
         raise SMFError("--rprecision-batch must be >= 2 and --diversity-times >= 1")
-    if cfg.steps < 1:
+    if cfg.steps is not None and cfg.steps < 1:
         raise SMFError(f"--steps must be >= 1, got {cfg.steps}")
     if cfg.max_items is not None and cfg.max_items < cfg.batch_size:
         raise SMFError(f"--max-items must be at least one batch ({cfg.batch_size})")

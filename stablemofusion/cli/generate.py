@@ -79,4 +79,4 @@ def run(args: argparse.Namespace) -> None:
     shown = (LengthClampedWarning, OutOfDomainWarning)
     for w in dict.fromkeys(str(c.message) for c in caught if issubclass(c.category, shown)):
         print(f"smf: warning: {w}")
-    write_results(results, args.out, formats, output_meta(args), overwrite=args.overwrite, rig=rig)
+    write_results(results, args.out, formats, output_meta(args, pipe), overwrite=args.overwrite, rig=rig)

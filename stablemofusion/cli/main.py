@@ -15,6 +15,7 @@ COMMANDS = {
     "convert": "convert",
     "prepare": "prepare",
     "train": "train",
+    "distil": "distil",
     "curve": "curve",
     "info": "info",
     "generate": "generate",

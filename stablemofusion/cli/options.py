@@ -11,17 +11,18 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
     """--out, --format, --overwrite, --guidance, --steps, --sampler, --seed, --checkpoint, --device, --engine and
     the footskate flags."""
     from ..diffusion.engine import ENGINES
-    from ..diffusion.samplers import DEFAULT_SAMPLER
     from ..output import FORMATS
-    from ..pipelines.settings import FOOTSKATE_MODES, GUIDANCE, STEPS
+    from ..pipelines.settings import FOOTSKATE_MODES, GUIDANCE, SAMPLER, STEPS, STUDENT
 
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--format", default="npy,mp4,bvh", help=f"comma list of {','.join(FORMATS)} (default npy,mp4,bvh)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace files of the same name (default: a free name, NAME-2, NAME-3, ...)")
     p.add_argument("--guidance", type=float, default=GUIDANCE, help=f"classifier-free guidance scale (default {GUIDANCE})")
-    p.add_argument("--steps", type=int, default=STEPS, help=f"sampling steps (default {STEPS})")
-    p.add_argument("--sampler", default=DEFAULT_SAMPLER, help=f"sampler name (default {DEFAULT_SAMPLER})")
+    p.add_argument("--steps", type=int, default=None,
+                   help=f"sampling steps (default: the model's: {STEPS}, a distilled student its own count)")
+    p.add_argument("--sampler", default=None,
+                   help=f"sampler name (default: the model's: {SAMPLER}, a distilled student {STUDENT})")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
@@ -67,6 +68,9 @@ def load_pipeline(args):
     return MotionPipeline.from_pretrained(args.checkpoint, device=args.device, engine=args.engine)
 
 
-def output_meta(args) -> dict:
-    """What the JSON output records of how a motion was made."""
-    return {"sampler": args.sampler, "steps": args.steps, "guidance": args.guidance}
+def output_meta(args, pipe) -> dict:
+    """What the JSON output records of how a motion was made (the steps and sampler ``pipe`` used)."""
+    from ..pipelines.settings import Settings
+
+    s = pipe.settings(Settings(args.guidance, args.steps, args.sampler))
+    return {"sampler": s.sampler, "steps": s.steps, "guidance": args.guidance, "student": pipe.student}

@@ -39,7 +39,8 @@ def cache_dir() -> Path:
 
 
 def _has_sentence(model) -> bool:
-    return getattr(model, "sentence_proj", None) is not None
+    """Whether the model's condition has a global vector (a sentence map, or a student's guidance input)."""
+    return getattr(model, "sentence_proj", None) is not None or getattr(model, "guidance_embed", None) is not None
 
 
 def artefact_key(model, device: torch.device, dtype: torch.dtype) -> str:
@@ -95,7 +96,7 @@ def _example(model, device, dtype, sentence: bool):
     D, latent = int(model.motion_dim), int(model.text_config.latent)
     args = [torch.randn(N, T, D), torch.full((N,), 500.0), torch.randn(N, L, latent),
             torch.ones(N, L, dtype=torch.bool), torch.ones(N, dtype=torch.bool), torch.ones(N, T, dtype=torch.bool)]
-    args.append(torch.randn(N, model.sentence_proj.out_features) if sentence else torch.zeros(N, 1))  # unused
+    args.append(torch.randn(N, model.condition_dim) if sentence else torch.zeros(N, 1))  # unused without
     return tuple(a.to(device, dtype) if a.is_floating_point() else a.to(device) for a in args)
 
 

@@ -62,6 +62,47 @@ class TrainConfig:
 
 
 @dataclass
+class DistilConfig:
+    """Settings of a consistency-distillation run (``smf distil``), saved in the student's checkpoints: that
+    record makes the folder a student (guidance as input, its own sampler and step count by default).
+
+    Each step draws a grid point t_{n+1} of the ``grid``-point skip schedule (the ``lcm`` sampler's), noises a
+    training motion to it, runs the teacher's guided ODE step (DDIM, guidance w ~ U[guidance_min,
+    guidance_max]) to the previous grid point t_n, and pulls the student's consistency function at
+    (x_{t_{n+1}}, w) towards the target network's (EMA of the student, ``target_decay``) at (x_{t_n}, w)."""
+
+    teacher: str = ""  # the teacher folder (checkpoint, run or exported model)
+    steps: int = 4_000
+    batch_size: int = 64
+    lr: float = 1e-4
+    weight_decay: float = 0.0
+    warmup: int = 100  # linear warm-up steps; constant after
+    grad_clip: float = 1.0
+    target_decay: float = 0.95  # EMA of the student that gives the targets (and the saved weights)
+    guidance_min: float = 1.5
+    guidance_max: float = 4.0
+    grid: int = 50  # skip-schedule points (must be the lcm sampler's original_inference_steps)
+    loss: str = "l2"  # l2 | huber (pseudo-Huber, sqrt(d^2 + c^2) - c per feature)
+    huber_c: float = 0.001
+    cond_drop: float = 0.1  # fraction of items trained without text (their target is the teacher's unconditional)
+    seed: int = 0
+    mixed_precision: str = "no"  # no | fp16 | bf16
+    checkpoint_every: int = 250
+    bucket: int = 16  # as `smf train --bucket`
+    max_frames: int | None = None  # None: the teacher's
+    min_frames: int | None = None  # None: the teacher's
+    sample_steps: int = 4  # the student's default sampling step count (pipelines, smf generate)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict) -> "DistilConfig":
+        _check_keys("distil", d, DistilConfig)
+        return DistilConfig(**d)
+
+
+@dataclass
 class ExportInfo:
     """Where an exported (release) folder comes from."""
 
@@ -74,7 +115,8 @@ class CheckpointConfig:
     """Everything a checkpoint needs besides its weights and Mean/Std.
 
     ``fps`` is the motion frame rate; ``min_frames``/``max_frames`` the length range (feature frames) the
-    model was trained on; ``train`` the run's optimisation settings (None for a model built outside training).
+    model was trained on; ``train`` the run's optimisation settings (None for a model built outside training);
+    ``distil`` the distillation settings of a few-step student (None for an ordinary model).
     """
 
     model: ModelConfig
@@ -87,6 +129,12 @@ class CheckpointConfig:
     train: TrainConfig | None = None
     step: int | None = None
     export: ExportInfo | None = None
+    distil: DistilConfig | None = None
+
+    @property
+    def student(self) -> bool:
+        """Whether this is a distilled few-step student (``smf distil``)."""
+        return self.distil is not None
 
     @staticmethod
     def for_skeleton(model: ModelConfig, skeleton: str = "humanml3d", **kw) -> "CheckpointConfig":
@@ -99,7 +147,8 @@ class CheckpointConfig:
         return {"model": self.model.to_dict(), "schedule": asdict(self.schedule), "text_encoder": self.text_encoder,
                 "skeleton": self.skeleton, "fps": self.fps, "min_frames": self.min_frames,
                 "max_frames": self.max_frames, "train": None if self.train is None else self.train.to_dict(),
-                "step": self.step, "export": None if self.export is None else asdict(self.export)}
+                "step": self.step, "export": None if self.export is None else asdict(self.export),
+                **({} if self.distil is None else {"distil": self.distil.to_dict()})}
 
     @staticmethod
     def from_dict(d: dict[str, Any], where: str = "config") -> "CheckpointConfig":
@@ -112,7 +161,7 @@ class CheckpointConfig:
             raise SMFError(f"{where}: not a checkpoint config (needs an object 'model' with a string 'arch')")
         try:
             _check_keys(where, d, CheckpointConfig)
-            for name in ("train", "schedule", "export"):
+            for name in ("train", "schedule", "export", "distil"):
                 if d.get(name) is not None and not isinstance(d[name], dict):
                     raise SMFError(f"{where}: '{name}' must be an object")
             train = TrainConfig.from_dict(d["train"]) if d.get("train") else None
@@ -120,11 +169,13 @@ class CheckpointConfig:
             schedule = ScheduleConfig(**(d.get("schedule") or (d.get("train") or {}).get("schedule") or {}))
             sk = get_skeleton(d.get("skeleton", "humanml3d"))
             export = ExportInfo(**d["export"]) if d.get("export") else None
+            distil = DistilConfig.from_dict(d["distil"]) if d.get("distil") else None
             given = (lambda k, default: default if d.get(k) is None else d[k])  # noqa: E731
             cfg = CheckpointConfig(
                 model=ModelConfig.from_dict(model), schedule=schedule, text_encoder=str(d.get("text_encoder", "minilm")),
                 skeleton=sk.name, fps=float(given("fps", sk.fps)), min_frames=int(given("min_frames", sk.min_frames)),
-                max_frames=int(given("max_frames", sk.max_frames)), train=train, step=d.get("step"), export=export)
+                max_frames=int(given("max_frames", sk.max_frames)), train=train, step=d.get("step"), export=export,
+                distil=distil)
         except (TypeError, ValueError) as e:
             raise SMFError(f"{where}: bad checkpoint config ({e})") from None
         if not (cfg.fps > 0 and 0 < cfg.min_frames <= cfg.max_frames):
@@ -138,6 +189,10 @@ class CheckpointConfig:
         Everything else (steps, learning rate, checkpoint rate, ...) may change when a run is extended."""
         mine, theirs = _json(self.to_dict()), _json(other.to_dict())
         out = [k for k in ("model", "schedule", "text_encoder", "skeleton") if mine[k] != theirs[k]]
+        if (self.distil is None) != (other.distil is None) or (
+                self.distil and other.distil and (self.distil.teacher, self.distil.grid) != (other.distil.teacher,
+                                                                                             other.distil.grid)):
+            out.append("distil (teacher, grid)")
         if self.train and other.train and self.train.feat_bias != other.train.feat_bias:
             out.append("feat_bias")
         return out

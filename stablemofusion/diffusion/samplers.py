@@ -1,7 +1,8 @@
 """Sampler registry: diffusers schedulers by name, set up for an x0-predicting model, with their facts.
 
-Names: ``ddpm``, ``ddim``, ``pndm``, ``deis``, ``euler``, ``dpmsolver++`` (ODE), ``sde-dpmsolver++``; append
-``-karras`` for Karras sigmas where the scheduler supports them. Each name's facts (stochastic or not, whether
+Names: ``ddpm``, ``ddim``, ``pndm``, ``deis``, ``euler``, ``dpmsolver++`` (ODE), ``sde-dpmsolver++``, ``lcm``
+(multistep consistency sampling: the few-step students of ``smf distil``); append ``-karras`` for Karras
+sigmas where the scheduler supports them. Each name's facts (stochastic or not, whether
 its step takes its noise as a tensor, whether the fast engine has it) live in :data:`SAMPLERS`.
 """
 
@@ -42,8 +43,16 @@ SAMPLERS: dict[str, SamplerSpec] = {
                                fast=True),
     "sde-dpmsolver++": SamplerSpec("DPMSolverMultistepScheduler", {"algorithm_type": "sde-dpmsolver++"},
                                    karras=True, stochastic=True, step_noise=True, fast=True),
+    # consistency sampling (Song et al. 2023; LCM): predict x0 through the boundary-condition scalings, re-noise
+    # to the next timestep of the CONSISTENCY_GRID-point skip schedule the student was distilled on
+    "lcm": SamplerSpec("LCMScheduler", {"original_inference_steps": 50, "timestep_scaling": 10.0,
+                                        "set_alpha_to_one": False}, stochastic=True, fast=True),
 }
 DEFAULT_SAMPLER = "sde-dpmsolver++-karras"
+STUDENT_SAMPLER = "lcm"  # the default sampler of a distilled student
+CONSISTENCY_GRID = SAMPLERS["lcm"].options["original_inference_steps"]
+TIMESTEP_SCALING = SAMPLERS["lcm"].options["timestep_scaling"]
+SIGMA_DATA = 0.5  # LCM's boundary-condition constant (diffusers' LCMScheduler)
 EPSILON_ONLY = frozenset({"PNDMScheduler"})  # schedulers without prediction_type='sample'
 
 

@@ -15,6 +15,10 @@ Facts used (DPM-Solver++, Lu et al. 2022; the diffusers implementation's choices
 VP parametrisation x = alpha * x0 + sigma * eps with alpha = 1/sqrt(1 + s^2), sigma = s * alpha for the
 scheduler's sigma s; the first step and the last step are first order (``lower_order_final``, final sigma
 0); second-order steps use the midpoint form D1 = (x0_k - x0_{k-1}) / r, r = h_{k-1} / h_k.
+
+Consistency sampling (``lcm``, LCM / consistency models): f_k = c_skip(t_k) x_k + c_out(t_k) x0_k, then
+x_{k+1} = sqrt(ab_{k+1}) f_k + sqrt(1 - ab_{k+1}) z_k (ab of the next timestep; the last step returns f_k),
+so a = sqrt(ab') c_skip, b = sqrt(ab') c_out, d = sqrt(1 - ab').
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ import numpy as np
 import torch
 
 from ..errors import SMFError
-from .samplers import make_sampler, parse_sampler
+from .samplers import SIGMA_DATA, make_sampler, parse_sampler
 from .schedule import ScheduleConfig
 
 
@@ -66,10 +70,13 @@ def solver_table(name: str, steps: int, schedule: ScheduleConfig | None = None) 
                        + ", ".join(n for n in _fast_names()))
     if steps < 1:
         raise SMFError(f"steps must be at least 1, got {steps}")
+    if base == "lcm" and steps > sched_grid(name):
+        raise SMFError(f"the lcm sampler takes at most {sched_grid(name)} steps (its skip schedule), got {steps}")
     sched = make_sampler(name, schedule)
     sched.set_timesteps(steps, device="cpu")
     t = sched.timesteps.double().numpy()
-    build = {"ddim": _ddim, "euler": _euler, "dpmsolver++": _dpmpp_2m, "sde-dpmsolver++": _dpmpp_2m_sde}[base]
+    build = {"ddim": _ddim, "euler": _euler, "dpmsolver++": _dpmpp_2m, "sde-dpmsolver++": _dpmpp_2m_sde,
+             "lcm": _lcm}[base]
     (c_in, a, b, c, d), (lx, le) = build(sched, t), _levels(base, sched, t)
     f = (lambda v: torch.from_numpy(np.asarray(v, dtype=np.float64)))
     return SolverTable(name, f(t).float(), f(c_in), f(a), f(b), f(c), f(d), float(sched.init_noise_sigma), spec.stochastic,
@@ -83,6 +90,9 @@ def _levels(base: str, sched, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         prev = t.astype(int) - sched.config.num_train_timesteps // sched.num_inference_steps
         ab = np.where(prev >= 0, ac[np.clip(prev, 0, None)], float(sched.final_alpha_cumprod))
         return np.sqrt(ab), np.sqrt(1 - ab)
+    if base == "lcm":
+        root = np.sqrt(_lcm_next_alpha(sched, t))
+        return root, np.sqrt(1 - root ** 2)
     s = sched.sigmas.double().numpy()[1:len(t) + 1]
     if base == "euler":  # x = x0 + s * eps
         return np.ones_like(s), s
@@ -120,6 +130,34 @@ def _euler(sched, t: np.ndarray):
     K = len(t)
     ratio = (s[1:K + 1] - s[:K]) / s[:K]
     return 1 / np.sqrt(s[:K] ** 2 + 1), 1 + ratio, -ratio, _zeros(K), _zeros(K)
+
+
+def sched_grid(name: str) -> int:
+    """Points of a consistency sampler's skip schedule."""
+    return int(parse_sampler(name)[1].options["original_inference_steps"])
+
+
+def consistency_scalings(t, scaling: float) -> tuple:
+    """LCM's boundary-condition scalings at timesteps ``t`` (numpy or torch): c_skip = s_d^2 / ((t scaling)^2 +
+    s_d^2), c_out = t scaling / sqrt((t scaling)^2 + s_d^2); c_skip(0) = 1, so f(x, 0) = x."""
+    scaled = t * scaling
+    denom = scaled ** 2 + SIGMA_DATA ** 2
+    return SIGMA_DATA ** 2 / denom, scaled / denom ** 0.5
+
+
+def _lcm_next_alpha(sched, t: np.ndarray) -> np.ndarray:
+    """alpha-bar of the timestep after each step (1 after the last: the sample is then x0 itself)."""
+    ac = sched.alphas_cumprod.double().numpy()
+    nxt = np.concatenate([t[1:].astype(int), [-1]])
+    return np.where(nxt >= 0, ac[np.clip(nxt, 0, None)], 1.0)
+
+
+def _lcm(sched, t: np.ndarray):
+    """Multistep consistency sampling (see the module docstring)."""
+    K = len(t)
+    c_skip, c_out = consistency_scalings(t.astype(np.float64), float(sched.config.timestep_scaling))
+    ab = _lcm_next_alpha(sched, t)
+    return np.ones(K), np.sqrt(ab) * c_skip, np.sqrt(ab) * c_out, _zeros(K), np.sqrt(1 - ab)
 
 
 def _vp(sched) -> tuple[np.ndarray, np.ndarray]:

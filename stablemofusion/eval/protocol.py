@@ -39,8 +39,8 @@ class EvalConfig:
     mm_captions: int = 100
     mm_repeats: int = 30
     mm_times: int = 10
-    sampler: str = "sde-dpmsolver++-karras"
-    steps: int = 10
+    sampler: str | None = None  # None: the model's (a distilled student's own)
+    steps: int | None = None  # None: the model's
     guidance_scale: float = 2.5
     footskate: str = "off"
     gen_batch: int = 32
@@ -200,6 +200,11 @@ def evaluate(pipe, embedder: EmbeddingModel, data: str | Path, cfg: EvalConfig, 
     ``skate_metrics`` (list of joints (n, J, 3) -> dict) adds footskate figures to both rows when given; with
     ``body`` both rows also get :func:`body_metrics` (bone lengths, joints .npy vs BVH); ``label_metrics``
     (motion ids, features -> dict) adds the label accuracy of a motion classifier to both rows."""
+    if pipe is not None:  # record the steps and sampler the model samples with (a student's own by default)
+        from ..pipelines.settings import Settings
+
+        s = pipe.settings(Settings(cfg.guidance_scale, cfg.steps, cfg.sampler))
+        cfg = replace(cfg, steps=s.steps, sampler=s.sampler)
     if pipe is not None and cfg.mm_repeats <= cfg.mm_times:
         raise SMFError(f"mm_repeats ({cfg.mm_repeats}) must exceed mm_times ({cfg.mm_times})")
     ds = MotionTextDataset(data, cfg.split, seed=cfg.seed, max_frames=pipe.max_frames if pipe else None,

@@ -66,6 +66,8 @@ class Denoiser(nn.Module):
         super().__init__()
         self.text_config = text
         self.sentence_proj: nn.Linear | None = None
+        self.guidance_embed: nn.Module | None = None  # a distilled student's (ModelConfig.guidance)
+        self.condition_dim: int | None = None  # width of the global conditioning vector (the timestep embedding)
         self.text = TextTransformer(text.in_dim, text.latent, text.layers, text.heads, text.ff, text.dropout,
                                     text.max_tokens)
 
@@ -73,14 +75,31 @@ class Denoiser(nn.Module):
         """Create the zero-initialised map from the sentence embedding to a ``out_dim`` conditioning vector
         (when the text config asks for it); a model trained without it therefore starts unchanged."""
         self.sentence_proj = None
+        self.condition_dim = out_dim
         if self.text_config.sentence:
             self.sentence_proj = nn.Linear(self.text_config.in_dim, out_dim)
             nn.init.zeros_(self.sentence_proj.weight)
             nn.init.zeros_(self.sentence_proj.bias)
 
+    def init_guidance_condition(self) -> None:
+        """Add the guidance-scale input of a distilled student (zero-initialised: the model is unchanged until
+        trained); needs :meth:`init_sentence_condition` called by the architecture first (its width)."""
+        from .embeddings import GuidanceEmbedding
+
+        if self.condition_dim is None:
+            raise SMFError(f"{type(self).__name__} has no global conditioning vector for a guidance input")
+        self.guidance_embed = GuidanceEmbedding(self.condition_dim)
+
+    @property
+    def takes_guidance(self) -> bool:
+        """Whether the guidance scale is an input (a distilled student: one forward per step, no CFG pair)."""
+        return self.guidance_embed is not None
+
     def condition(self, tokens: torch.Tensor, mask: torch.Tensor,
-                  drop_cond: torch.Tensor | None = None) -> TextCondition:
-        """(B, L, C) frozen tokens, (B, L) mask, (B,) drop flags -> the text condition of :meth:`denoise`."""
+                  drop_cond: torch.Tensor | None = None, guidance: torch.Tensor | float | None = None) -> TextCondition:
+        """(B, L, C) frozen tokens, (B, L) mask, (B,) drop flags -> the text condition of :meth:`denoise`.
+        ``guidance`` (B,) or a number: the guidance scale of a model that takes it as input (required there,
+        ignored otherwise)."""
         mask = mask.bool()
         h = self.text(tokens, mask)
         keep = None if drop_cond is None else ~drop_cond.bool()
@@ -90,11 +109,18 @@ class Denoiser(nn.Module):
         if self.sentence_proj is not None:
             emb = sentence_embedding(tokens, mask, drop_cond)
             sentence = self.sentence_proj(emb.to(self.sentence_proj.weight.dtype))
+        if self.guidance_embed is not None:
+            if guidance is None:
+                raise SMFError("this model is a distilled student: it needs the guidance scale as input")
+            w = torch.as_tensor(guidance, dtype=torch.float32, device=tokens.device).expand(tokens.shape[0])
+            g = self.guidance_embed(w).to(h.dtype)
+            sentence = g if sentence is None else sentence + g
         return TextCondition(h, mask, keep, sentence)
 
     def forward(self, x_t: torch.Tensor, t: torch.Tensor, text_tokens: torch.Tensor, text_mask: torch.Tensor,
-                drop_cond: torch.Tensor | None = None, motion_mask: torch.Tensor | None = None) -> torch.Tensor:
-        return self.denoise(x_t, t, self.condition(text_tokens, text_mask, drop_cond), motion_mask)
+                drop_cond: torch.Tensor | None = None, motion_mask: torch.Tensor | None = None,
+                guidance: torch.Tensor | float | None = None) -> torch.Tensor:
+        return self.denoise(x_t, t, self.condition(text_tokens, text_mask, drop_cond, guidance), motion_mask)
 
     def denoise(self, x_t: torch.Tensor, t: torch.Tensor, cond: TextCondition,
                 motion_mask: torch.Tensor | None = None) -> torch.Tensor:
@@ -133,22 +159,27 @@ def register(name: str):
 
 @dataclass
 class ModelConfig:
-    """Everything needed to rebuild a denoiser: its architecture name and that architecture's options."""
+    """Everything needed to rebuild a denoiser: its architecture name and that architecture's options;
+    ``guidance``: the guidance scale is an input (a distilled student, ``smf distil``)."""
 
     arch: str = "unet"
     motion_dim: int = 263
     text: TextConfig = field(default_factory=TextConfig)
     options: dict[str, Any] = field(default_factory=dict)
+    guidance: bool = False
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        if not self.guidance:  # configs of ordinary models stay as they were written before the field existed
+            del d["guidance"]
+        return d
 
     @staticmethod
     def from_dict(d: dict) -> "ModelConfig":
         known = {f.name for f in fields(TextConfig)}
         text = TextConfig(**{k: v for k, v in d.get("text", {}).items() if k in known})
         return ModelConfig(arch=d["arch"], motion_dim=d.get("motion_dim", 263), text=text,
-                           options=dict(d.get("options", {})))
+                           options=dict(d.get("options", {})), guidance=bool(d.get("guidance", False)))
 
 
 def build_denoiser(config: ModelConfig) -> Denoiser:
@@ -162,4 +193,7 @@ def build_denoiser(config: ModelConfig) -> Denoiser:
         arch_cfg = cls.config_class(**config.options)
     except TypeError as e:
         raise SMFError(f"bad options for {config.arch}: {e}") from None
-    return cls(arch_cfg, config.motion_dim, config.text)
+    model = cls(arch_cfg, config.motion_dim, config.text)
+    if config.guidance:
+        model.init_guidance_condition()
+    return model

@@ -21,7 +21,7 @@ from ..text.frozen import sentence_embedding
 from ..text.known import ACTIONS_FILE, DomainCheck, KnownActions
 from ..text.length import WEIGHTS as LENGTH_WEIGHTS
 from ..text.length import LengthEstimator
-from .settings import DEFAULT_SECONDS, LengthClampedWarning, OutOfDomainWarning, check_footskate
+from .settings import DEFAULT_SECONDS, LengthClampedWarning, OutOfDomainWarning, Settings, check_footskate
 
 
 def default_model_path() -> Path | None:
@@ -85,6 +85,17 @@ class Components:
         return c
 
     @property
+    def student(self) -> bool:
+        """Whether the model is a distilled few-step student (guidance as input, one forward per step)."""
+        return self.config.student
+
+    def settings(self, settings: Settings | None = None) -> Settings:
+        """``settings`` (default: all defaults) with this model's steps and sampler where they are None (a
+        student: its distilled step count and consistency sampling), checked."""
+        student_steps = self.config.distil.sample_steps if self.student else None
+        return (settings or Settings()).for_model(student_steps).check(rigid=self.rigid is not None)
+
+    @property
     def window_seconds(self) -> float:
         """The longest motion the model makes in one sampling call (longer ones are timelines)."""
         return self.max_frames / self.fps
@@ -93,13 +104,20 @@ class Components:
         """Frozen token embeddings for ``prompts`` through the LRU cache: (B, L, C), (B, L)."""
         return self.text_cache.get_or_compute(list(prompts), device=self.device)
 
-    def text_condition(self, prompts: list[str]) -> tuple[TextCondition, TextCondition]:
+    def text_condition(self, prompts: list[str],
+                       guidance: float | None = None) -> tuple[TextCondition, TextCondition | None]:
         """The model's text condition for ``prompts`` and for the dropped text (classifier-free guidance), in
-        the model's dtype on its device."""
+        the model's dtype on its device. A distilled student takes ``guidance`` as input: its condition holds
+        the scale and there is no dropped-text condition (None)."""
         tokens, tmask = self.encode_text(prompts)
         tokens = tokens.to(self.dtype)
         B = len(prompts)
-        cond = self.model.condition(tokens, tmask, torch.zeros(B, dtype=torch.bool, device=self.device))
+        keep = torch.zeros(B, dtype=torch.bool, device=self.device)
+        if self.model.takes_guidance:
+            if guidance is None:
+                raise SMFError("a distilled student needs the guidance scale")
+            return self.model.condition(tokens, tmask, keep, guidance), None
+        cond = self.model.condition(tokens, tmask, keep)
         uncond = self.model.condition(tokens, tmask, torch.ones(B, dtype=torch.bool, device=self.device))
         return cond, uncond
 

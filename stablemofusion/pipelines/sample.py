@@ -30,13 +30,13 @@ def sample(c: Components, prompts: list[str], lengths: list[int], settings: Sett
     ``seed``: one for the batch, or one per item (then an item does not depend on the others batched with
     it). In footskate 'loop' mode the last predicted x0 are cleaned (rigid body) inside the loop.
     ``progress``: a tqdm bar over the steps (loops that run step by step on the host: not CUDA graphs)."""
-    settings.check(rigid=c.rigid is not None)
+    settings = c.settings(settings)
     hooks = x0_hook is not None or xt_hook is not None or settings.footskate == "loop"
     engine = resolve_engine(settings.engine or c.engine, c.device, settings.sampler, hooks=hooks)
     B, T, D = len(prompts), max(lengths), int(c.mean.shape[0])
     noise = Noise(seed, lengths, D, c.device)
     mask = (torch.arange(T)[None] < torch.tensor(lengths)[:, None]).to(c.device)
-    cond, uncond = c.text_condition(prompts)
+    cond, uncond = c.text_condition(prompts, settings.guidance_scale)  # a student: uncond None, one forward a step
     uncond = uncond if settings.guided else None
     if engine in COMPILED_ENGINES + GRAPH_ENGINES and batched_cfg:
         table = c.solver(settings.sampler, settings.steps)

@@ -9,11 +9,13 @@ import numpy as np
 import torch
 
 from ..diffusion.engine import check_engine, default_engine
-from ..diffusion.samplers import DEFAULT_SAMPLER, sampler_spec
+from ..diffusion.samplers import DEFAULT_SAMPLER, STUDENT_SAMPLER, sampler_spec
 from ..errors import SMFError
 
-GUIDANCE = 2.5  # classifier-free guidance scale
-STEPS = 10  # sampling steps
+GUIDANCE = 2.5  # classifier-free guidance scale (a distilled student takes it as input)
+STEPS = 10  # sampling steps of an ordinary model (a distilled student: its checkpoint's distil.sample_steps)
+SAMPLER = DEFAULT_SAMPLER  # sampler of an ordinary model
+STUDENT = STUDENT_SAMPLER  # sampler of a distilled student (multistep consistency sampling)
 BATCH_SIZE = 32  # prompts per sampling call
 DEFAULT_SECONDS = 4.0  # length of a motion when none is given and the model has no length estimator
 FOOTSKATE_MODES = ("off", "post", "loop")
@@ -30,30 +32,40 @@ class OutOfDomainWarning(UserWarning):
 
 @dataclass(frozen=True)
 class Settings:
-    """How a task samples: guidance scale, steps, sampler, footskate mode ('off', 'post' or 'loop') and its
-    :class:`~stablemofusion.footskate.FootskateOptions`, engine (None: the pipeline's) and batch size."""
+    """How a task samples: guidance scale, steps and sampler (None: the model's, :func:`model_defaults`),
+    footskate mode ('off', 'post' or 'loop') and its :class:`~stablemofusion.footskate.FootskateOptions`,
+    engine (None: the pipeline's) and batch size."""
 
     guidance_scale: float = GUIDANCE
-    steps: int = STEPS
-    sampler: str = DEFAULT_SAMPLER
+    steps: int | None = None
+    sampler: str | None = None
     footskate: str = "off"
     footskate_options: object | None = None
     engine: str | None = None
     batch_size: int = BATCH_SIZE
 
     def check(self, *, rigid: bool = True) -> "Settings":
-        """SMFError on a bad value (``rigid``: whether the pipeline has its rigid stage); returns self."""
+        """SMFError on a bad value (``rigid``: whether the pipeline has its rigid stage); returns self. Steps
+        and sampler left None (the model's) are not checked here."""
         if not np.isfinite(self.guidance_scale):
             raise SMFError(f"guidance must be a finite number, got {self.guidance_scale}")
-        if self.steps < 1:
+        if self.steps is not None and self.steps < 1:
             raise SMFError(f"steps must be at least 1, got {self.steps}")
         if self.batch_size < 1:
             raise SMFError(f"batch_size must be at least 1, got {self.batch_size}")
-        sampler_spec(self.sampler)  # SMFError for an unknown sampler
+        if self.sampler is not None:
+            sampler_spec(self.sampler)  # SMFError for an unknown sampler
         check_footskate(self.footskate)
         if self.footskate != "off" and not rigid:
             raise SMFError("the footskate cleanup works on the rigid body: it needs the rigid stage")
         return self
+
+    def for_model(self, student_steps: int | None) -> "Settings":
+        """These settings with the model's defaults where they leave steps or sampler None: ``student_steps``
+        is a distilled student's step count (None for an ordinary model)."""
+        steps, sampler = model_defaults(student_steps)
+        return replace(self, steps=steps if self.steps is None else self.steps,
+                       sampler=sampler if self.sampler is None else self.sampler)
 
     def with_engine(self, engine: str) -> "Settings":
         return replace(self, engine=engine)
@@ -62,6 +74,12 @@ class Settings:
     def guided(self) -> bool:
         """Whether sampling runs the unconditional pass too (classifier-free guidance)."""
         return self.guidance_scale != 1.0
+
+
+def model_defaults(student_steps: int | None) -> tuple[int, str]:
+    """(steps, sampler) a model samples with by default: a distilled student (``student_steps``, from its
+    checkpoint) its step count with consistency sampling, any other model STEPS with SAMPLER."""
+    return (STEPS, SAMPLER) if student_steps is None else (int(student_steps), STUDENT)
 
 
 def check_footskate(mode: str) -> None:

@@ -115,7 +115,7 @@ class StreamPipeline:
         c = self.c
         # 1. check inputs
         check_text(prompt, "the prompt")
-        settings.check(rigid=c.rigid is not None)
+        settings = c.settings(settings)
         if not sampler_spec(settings.sampler).fast:
             raise SMFError(f"streams continue the motion by editing: they need a sampler with a precomputed form, "
                            f"not {settings.sampler!r}")

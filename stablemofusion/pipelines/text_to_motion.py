@@ -33,7 +33,7 @@ class TextToMotionPipeline:
             raise SMFError("every prompt must be a non-empty text")
         for p in prompts:
             check_text(p, "every prompt")
-        settings.check(rigid=c.rigid is not None)
+        settings = c.settings(settings)
         n = len(prompts)
         secs = list(seconds) if isinstance(seconds, (list, tuple)) else [seconds] * n
         frs = list(frames) if isinstance(frames, (list, tuple)) else [frames] * n

@@ -37,7 +37,7 @@ class TimelinePipeline:
             if not isinstance(secs, (int, float)) or not np.isfinite(secs) or secs <= 0:
                 raise SMFError(f"timeline segment {prompt!r}: seconds must be a positive number, got {secs}")
             segs.append((prompt, int(round(secs * c.fps))))
-        settings.check(rigid=c.rigid is not None)
+        settings = c.settings(settings)
         # 2. prepare: the windows and the seed
         windows = plan_windows(segs, c.max_frames, int(round(overlap * c.fps)), c.min_frames)
         if len(windows) > 1:

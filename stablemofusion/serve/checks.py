@@ -27,7 +27,7 @@ class GenerateRequest(BaseModel):
     seconds: float | None = None  # None: predicted from the text (models with a length estimator), else 4 s
     seed: int | None = Field(default=None, ge=0, lt=MAX_SEED)
     guidance: float = Field(default=2.5, ge=0.0, le=MAX_GUIDANCE)
-    steps: int = Field(default=10, ge=1, le=MAX_STEPS)
+    steps: int | None = Field(default=None, ge=1, le=MAX_STEPS)  # None: the model's
     footskate: Literal["off", "post", "loop"] = "off"
 
 
@@ -48,7 +48,7 @@ class TimelineRequest(BaseModel):
     segments: list[Segment] = Field(min_length=1, max_length=MAX_SEGMENTS)
     seed: int | None = Field(default=None, ge=0, lt=MAX_SEED)
     guidance: float = Field(default=2.5, ge=0.0, le=MAX_GUIDANCE)
-    steps: int = Field(default=10, ge=1, le=MAX_STEPS)
+    steps: int | None = Field(default=None, ge=1, le=MAX_STEPS)  # None: the model's
     footskate: Literal["off", "post", "loop"] = "off"
 
 

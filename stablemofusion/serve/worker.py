@@ -34,7 +34,7 @@ class Job:
     seconds: float | None
     seed: int
     guidance: float = 2.5
-    steps: int = 10
+    steps: int | None = None  # None: the model's (a distilled student's own count)
     footskate: str = "off"
     segments: tuple[tuple[str, float], ...] | None = None
 

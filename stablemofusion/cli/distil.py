@@ -1,0 +1,58 @@
+"""`smf distil --teacher MODEL --out RUN [--data CORPUS] [--steps N] ... [--resume]`: a few-step student."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..diffusion.config import DistilConfig
+from .flags import add_config_flags, config_from_args
+
+_FLAGS = {  # DistilConfig field -> help
+    "teacher": "the teacher: a checkpoint, run or exported model folder (e.g. the shipped default model)",
+    "steps": "total distillation steps", "batch_size": "batch", "lr": "AdamW learning rate (constant after warm-up)",
+    "weight_decay": "AdamW weight decay", "warmup": "steps of linear learning-rate warm-up",
+    "grad_clip": "gradient norm clip", "target_decay": "EMA decay of the target network (the saved weights)",
+    "guidance_min": "smallest guidance scale drawn per item", "guidance_max": "largest guidance scale drawn per item",
+    "grid": "points of the skip schedule (the lcm sampler's: 50)", "loss": "l2 | huber (pseudo-Huber)",
+    "huber_c": "pseudo-Huber constant", "cond_drop": "fraction of items distilled without text",
+    "seed": "random seed", "mixed_precision": "no | fp16 | bf16", "checkpoint_every": "steps between checkpoints",
+    "bucket": "group similar lengths: sort runs of BUCKET batches by length (0 = off)",
+    "max_frames": "longest training crop (frames; default the teacher's)",
+    "min_frames": "shortest motion used (frames; default the teacher's)",
+    "sample_steps": "the student's default sampling step count (recorded in its checkpoint)",
+}
+
+
+def add_parser(sub, name: str) -> None:
+    p = sub.add_parser(name, help="distil a few-step student (consistency distillation, guidance as input)",
+                       description="Consistency distillation (LCM) of a teacher into a student that samples in a few "
+                                   "steps with one forward per step (the guidance scale is an input); "
+                                   "docs/inference.md, 'Few-step student'. Resumable with --resume.")
+    p.add_argument("--data", type=Path, required=True, help="corpus folder (the teacher's training corpus)")
+    p.add_argument("--out", type=Path, required=True, help="run folder: checkpoint/, log.csv, text-cache/")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    p.add_argument("--text-cache", type=Path, default=None, help="text embedding cache folder (default OUT/text-cache)")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--threads", type=int, default=None, help="CPU threads for torch (default: torch's choice)")
+    add_config_flags(p, DistilConfig, _FLAGS, {"teacher": str})
+    p.add_argument("--stop-after", type=int, default=None, help=argparse.SUPPRESS)  # simulate a kill (tests)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> None:
+    from ..diffusion.distil import check_distil_config, distil
+    from ..errors import SMFError
+
+    cfg = config_from_args(DistilConfig, args, _FLAGS)
+    check_distil_config(cfg)
+    if args.threads is not None:
+        if args.threads < 1:
+            raise SMFError(f"--threads must be at least 1, got {args.threads}")
+        import torch
+
+        torch.set_num_threads(args.threads)
+    losses = distil(args.data, args.out, cfg, resume=args.resume, stop_after=args.stop_after,
+                    progress=not args.no_progress, text_cache=args.text_cache)
+    if losses:
+        print(f"distilled {len(losses)} steps; last loss {losses[-1]:.4f}; student in {args.out / 'checkpoint'}")

@@ -1,0 +1,269 @@
+"""Consistency distillation of a few-step student from a trained teacher, with the guidance scale as input.
+
+Latent-consistency-model distillation (Luo et al. 2023; MotionLCM, Dai et al. 2024) on our features: the
+student is a copy of the teacher plus a zero-initialised guidance-scale embedding (``ModelConfig.guidance``),
+so it starts as the teacher's conditional branch and runs one forward per step. Step ``s``:
+
+1. a training batch exactly as ``smf train`` draws it (same data order, masks, condition drop), its frozen text
+   tokens from the cache;
+2. per item a guidance scale w ~ U[guidance_min, guidance_max] and a point t_{n+1} of the ``grid``-point skip
+   schedule (t = 20 i - 1 for T = 1000, grid 50: the ``lcm`` sampler's); x_{t_{n+1}} = q(x_0, noise);
+3. the teacher's guided DDIM step from t_{n+1} to t_n = t_{n+1} - T / grid (0 at the bottom) with x0 =
+   u + w (c - u) (both passes in one batch; dropped-text items get u);
+4. loss between the student's consistency function f(x_{t_{n+1}}, t_{n+1}, w) and the target network's
+   f(x_{t_n}, t_n, w) (no gradient), masked to valid frames; f = c_skip x + c_out D, the LCM boundary
+   scalings (f(x, 0) = x);
+5. AdamW on the student, then the target network (EMA of the student, ``target_decay``) follows it.
+
+Checkpoints hold the student (``model.safetensors``) and the target network (``ema.safetensors``: what the
+pipeline loads), the optimiser and the step; every random draw of step ``s`` is seeded from (seed, s), so a
+resumed run equals the uninterrupted one on a CPU.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import math
+import shutil
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from ..data.batches import get_batch
+from ..data.dataset import MotionTextDataset
+from ..errors import SMFError
+from .checkpoint import CHECKPOINT_DIR, CONFIG, EMA, MODEL, STATE, load_checkpoint, load_training_state, read_config, \
+    resolve, save_checkpoint
+from .config import CheckpointConfig, DistilConfig
+from .samplers import CONSISTENCY_GRID, TIMESTEP_SCALING
+from .solvers import consistency_scalings
+from .train import LOG_HEADER, _logged_seconds, _mix, masked_mse
+
+LOSSES = ("l2", "huber")
+# teacher-folder files that are not the teacher's own weights/config: carried into the student's checkpoints
+# (length estimator, known actions, ...), so the student's pipeline behaves like the teacher's around sampling
+_OWN_FILES = {CONFIG, MODEL, EMA, STATE, "Mean.npy", "Std.npy", "MODEL_CARD.md"}
+
+
+def check_distil_config(cfg: DistilConfig) -> None:
+    """One-line errors for settings no run can use."""
+    if not cfg.teacher:
+        raise SMFError("--teacher is required (a checkpoint, run or exported model folder)")
+    if cfg.steps < 1 or cfg.batch_size < 1:
+        raise SMFError("--steps and --batch-size must be at least 1")
+    if cfg.mixed_precision not in ("no", "fp16", "bf16"):
+        raise SMFError(f"--mixed-precision must be no, fp16 or bf16, not {cfg.mixed_precision!r}")
+    if cfg.loss not in LOSSES:
+        raise SMFError(f"--loss must be one of {', '.join(LOSSES)}, not {cfg.loss!r}")
+    if not 0 <= cfg.target_decay < 1:
+        raise SMFError(f"--target-decay must be in [0, 1), got {cfg.target_decay}")
+    if not 0 <= cfg.guidance_min <= cfg.guidance_max:
+        raise SMFError(f"need 0 <= --guidance-min <= --guidance-max, got {cfg.guidance_min}, {cfg.guidance_max}")
+    if cfg.grid != CONSISTENCY_GRID:
+        raise SMFError(f"--grid must be {CONSISTENCY_GRID}, the lcm sampler's skip schedule")
+    if not 1 <= cfg.sample_steps <= cfg.grid:
+        raise SMFError(f"--sample-steps must be in [1, {cfg.grid}], got {cfg.sample_steps}")
+    if cfg.warmup < 0 or cfg.lr <= 0 or not 0 <= cfg.cond_drop <= 1:
+        raise SMFError("--warmup must not be negative, --lr must be positive and --cond-drop in [0, 1]")
+
+
+def distil_lr(cfg: DistilConfig, step: int) -> float:
+    """Linear warm-up over ``cfg.warmup`` steps, then constant (as LCM)."""
+    return cfg.lr * min(1.0, (step + 1) / cfg.warmup) if cfg.warmup else cfg.lr
+
+
+def skip_grid(T: int, grid: int) -> torch.Tensor:
+    """The skip schedule's timesteps, ascending: (1..grid) * (T // grid) - 1 (the lcm sampler's)."""
+    return torch.arange(1, grid + 1) * (T // grid) - 1
+
+
+def masked_huber(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, c: float) -> torch.Tensor:
+    """Pseudo-Huber sqrt(d^2 + c^2) - c per feature, averaged over valid frames (mask (B, T) bool)."""
+    m = mask[..., None].to(pred.dtype)
+    per = torch.sqrt((pred - target) ** 2 + c * c) - c
+    return (per * m).sum() / (m.sum() * pred.shape[-1]).clamp_min(1.0)
+
+
+def student_from_teacher(teacher) -> torch.nn.Module:
+    """A student: the teacher's architecture with the guidance input, the teacher's weights (the guidance
+    embedding zero-initialised, so it starts as the teacher's conditional branch)."""
+    from ..models.base import build_denoiser
+
+    student = build_denoiser(replace(teacher.config.model, guidance=True))
+    missing, unexpected = student.load_state_dict(teacher.model.state_dict(), strict=False)
+    if unexpected or any(not k.startswith("guidance_embed.") for k in missing):
+        raise SMFError(f"the teacher's weights do not fit its student (missing {missing[:3]}, "
+                       f"unexpected {unexpected[:3]})")
+    return student
+
+
+def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool = False,
+           stop_after: int | None = None, progress: bool = True, text_cache: str | Path | None = None) -> list[float]:
+    """Distil ``cfg.teacher`` into a few-step student trained on the corpus at ``data``; checkpoints go to
+    ``out/checkpoint``, one row per step to ``out/log.csv``. Returns this run's step losses. ``stop_after``
+    ends the run after that many total steps, as if killed right after a checkpoint."""
+    check_distil_config(cfg)
+    from accelerate import Accelerator
+
+    from ..text.cache import TextEmbeddingCache
+    from ..text.frozen import load_text_encoder
+
+    out = Path(out)
+    accelerator = Accelerator(mixed_precision=cfg.mixed_precision, cpu=not torch.cuda.is_available())
+    device = accelerator.device
+    teacher = load_checkpoint(cfg.teacher)  # EMA weights, float32, eval mode
+    if teacher.config.student:
+        raise SMFError(f"{cfg.teacher} is already a distilled student; distil from its teacher")
+    tcfg = teacher.config
+    feat_bias = tcfg.train.feat_bias if tcfg.train else 5.0
+    ds = MotionTextDataset(data, "train", skeleton=tcfg.skeleton, seed=cfg.seed,
+                           max_frames=cfg.max_frames or tcfg.max_frames, min_frames=cfg.min_frames or tcfg.min_frames,
+                           feat_bias=feat_bias)
+    # the corpus normalised as the teacher was: x_teacher = x_ds * scale + shift (identity for its own corpus)
+    scale = torch.from_numpy(ds.std / teacher.std).float().to(device)
+    shift = torch.from_numpy((ds.mean - teacher.mean) / teacher.std).float().to(device)
+    renormalise = not (np.allclose(ds.std, teacher.std, rtol=1e-5) and np.allclose(ds.mean, teacher.mean, atol=1e-6))
+    encoder = load_text_encoder(tcfg.text_encoder).to(device)
+    cache = TextEmbeddingCache(text_cache or (out / "text-cache"), encoder)
+    torch.manual_seed(cfg.seed)  # the guidance embedding's initial weights
+    student = student_from_teacher(teacher)
+    config = replace(tcfg, model=replace(tcfg.model, guidance=True), step=None, export=None,
+                     distil=replace(cfg, teacher=str(resolve(cfg.teacher).resolve())))
+    optimizer = torch.optim.AdamW(student.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
+                                  fused=device.type == "cuda")
+    start = 0
+    if resume:
+        state = load_training_state(out / CHECKPOINT_DIR)
+        saved = read_config(out / CHECKPOINT_DIR)
+        differ = config.resume_mismatch(saved)
+        if differ:
+            raise SMFError(f"cannot resume {out}: this run differs from the saved one in {', '.join(differ)}")
+        from safetensors.torch import load_file
+
+        student.load_state_dict(load_file(out / CHECKPOINT_DIR / MODEL))
+        optimizer.load_state_dict(state["optimizer"])
+        start = int(state["step"])
+        for group in optimizer.param_groups:
+            group["weight_decay"] = cfg.weight_decay
+    target = copy.deepcopy(student).eval().requires_grad_(False)
+    if resume:
+        target.load_state_dict(load_file(out / CHECKPOINT_DIR / EMA))
+    teacher_model = teacher.model.to(device).eval().requires_grad_(False)
+    target.to(device)
+    cache.precompute(c.caption for e in ds.entries for c in e.captions)
+    cache.flush()
+    student, optimizer = accelerator.prepare(student, optimizer)
+    T = tcfg.schedule.num_train_timesteps
+    grid = skip_grid(T, cfg.grid)
+    from .schedule import make_train_scheduler
+
+    ab = make_train_scheduler(tcfg.schedule).alphas_cumprod.double()
+    log_path = out / "log.csv"
+    out.mkdir(parents=True, exist_ok=True)
+    if not resume or not log_path.exists():
+        log_path.write_text(LOG_HEADER + "\n")
+    seconds_before = _logged_seconds(log_path, start)
+    end = cfg.steps if stop_after is None else min(cfg.steps, stop_after)
+    losses: list[float] = []
+    bar = tqdm(range(start, end), initial=start, total=end, desc="distil", unit="step", disable=not progress)
+    extra = [p for p in sorted(resolve(cfg.teacher).iterdir()) if p.is_file() and p.name not in _OWN_FILES]
+    t0 = t_step = time.perf_counter()
+    with open(log_path, "a", newline="") as log_file:
+        log = csv.writer(log_file)
+        for step in bar:
+            batch = get_batch(ds, step, cfg.batch_size, cfg.seed, cfg.bucket)
+            x0 = batch["motion"].to(device)
+            if renormalise:
+                x0 = x0 * scale + shift
+            mask = batch["mask"].to(device)
+            tokens, tmask = cache.get_or_compute(batch["caption"], device=device)
+            B = x0.shape[0]
+            g = torch.Generator().manual_seed(_mix(cfg.seed, step))
+            index = torch.randint(0, cfg.grid, (B,), generator=g)
+            noise = torch.randn(x0.shape, generator=g)
+            drop = torch.rand(B, generator=g) < cfg.cond_drop
+            w = cfg.guidance_min + (cfg.guidance_max - cfg.guidance_min) * torch.rand(B, generator=g)
+            torch.manual_seed(_mix(cfg.seed, step, 1))  # dropout inside the student
+            t_hi = grid[index]
+            t_lo = (t_hi - T // cfg.grid).clamp_min(0)
+            x_hi = _q(x0, noise.to(device), ab[t_hi].to(device))
+            drop, w, t_hi, t_lo = drop.to(device), w.to(device), t_hi.to(device), t_lo.to(device)
+            with torch.no_grad(), accelerator.autocast():
+                x_lo = _teacher_ddim(teacher_model, x_hi, t_hi, t_lo, ab.to(device), tokens, tmask, drop, mask, w)
+                target_f = _consistency(target, x_lo, t_lo, tokens, tmask, drop, mask, w).float()
+            student.train()
+            with accelerator.autocast():
+                pred_f = _consistency(student, x_hi, t_hi, tokens, tmask, drop, mask, w)
+            if cfg.loss == "l2":
+                loss = masked_mse(pred_f.float(), target_f, mask)
+            else:
+                loss = masked_huber(pred_f.float(), target_f, mask, cfg.huber_c)
+            accelerator.backward(loss)
+            accelerator.clip_grad_norm_(student.parameters(), cfg.grad_clip)
+            lr = distil_lr(cfg, step)
+            for group in optimizer.param_groups:
+                group["lr"] = lr
+            optimizer.step()
+            optimizer.zero_grad(set_to_none=True)
+            with torch.no_grad():  # the target network follows the student
+                own = accelerator.unwrap_model(student).state_dict()
+                for k, v in target.state_dict().items():
+                    if v.is_floating_point():
+                        v.lerp_(own[k].detach(), 1.0 - cfg.target_decay)
+            value = loss.item()
+            if not math.isfinite(value):
+                raise SMFError(f"distillation diverged at step {step}: loss is {value}")
+            losses.append(value)
+            now = time.perf_counter()
+            rate = B / max(now - t_step, 1e-9)
+            t_step = now
+            log.writerow([step + 1, f"{value:.6f}", f"{lr:.3e}", f"{seconds_before + now - t0:.2f}", f"{rate:.1f}"])
+            bar.set_postfix(loss=f"{value:.4f}", samples_s=f"{rate:.0f}")
+            if (step + 1) % cfg.checkpoint_every == 0 or step + 1 == end:
+                log_file.flush()
+                cache.flush()
+                state = {"optimizer": optimizer.state_dict(), "step": step + 1}
+                save_checkpoint(out / CHECKPOINT_DIR, model=accelerator.unwrap_model(student),
+                                config=replace(config, step=step + 1), mean=teacher.mean, std=teacher.std,
+                                ema_state=target.state_dict(), training_state=state)
+                for f in extra:
+                    shutil.copy2(f, out / CHECKPOINT_DIR / f.name)
+    cache.close()
+    return losses
+
+
+def _q(x0: torch.Tensor, noise: torch.Tensor, ab: torch.Tensor) -> torch.Tensor:
+    """The forward process at alpha-bar ``ab`` (B,): sqrt(ab) x0 + sqrt(1 - ab) noise."""
+    a = ab.to(x0.dtype)[:, None, None]
+    return a.sqrt() * x0 + (1 - a).sqrt() * noise
+
+
+def _teacher_ddim(teacher, x, t_hi, t_lo, ab, tokens, tmask, drop, mask, w) -> torch.Tensor:
+    """One DDIM (eta 0) step of the teacher under classifier-free guidance at scale ``w`` (B,), from t_hi
+    to t_lo: x0 = u + w (c - u), eps = (x - sqrt(ab) x0) / sqrt(1 - ab), x' = sqrt(ab') x0 + sqrt(1 - ab') eps."""
+    B = x.shape[0]
+    both = torch.cat([drop, torch.ones_like(drop)])
+    t2 = torch.cat([t_hi, t_hi]).to(x.dtype)
+    pair = teacher(torch.cat([x, x]), t2, torch.cat([tokens, tokens]), torch.cat([tmask, tmask]), both,
+                   torch.cat([mask, mask])).float()
+    c, u = pair[:B], pair[B:]
+    x0 = u + w[:, None, None] * (c - u)
+    a_hi, a_lo = ab[t_hi].float()[:, None, None], ab[t_lo].float()[:, None, None]
+    eps = (x.float() - a_hi.sqrt() * x0) / (1 - a_hi).sqrt()
+    return a_lo.sqrt() * x0 + (1 - a_lo).sqrt() * eps
+
+
+def _consistency(model, x, t, tokens, tmask, drop, mask, w) -> torch.Tensor:
+    """f(x, t, w) = c_skip(t) x + c_out(t) D(x, t, w): the consistency function in the x0 parametrisation."""
+    c_skip, c_out = consistency_scalings(t.double(), TIMESTEP_SCALING)
+    d = model(x, t.to(x.dtype), tokens, tmask, drop, mask, guidance=w)
+    return c_skip.to(d.dtype)[:, None, None] * x.to(d.dtype) + c_out.to(d.dtype)[:, None, None] * d
+
+
+__all__ = ["DistilConfig", "check_distil_config", "distil", "distil_lr", "masked_huber", "skip_grid",
+           "student_from_teacher"]

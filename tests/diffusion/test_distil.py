@@ -1,0 +1,218 @@
+"""The few-step student (`smf distil`): the guidance input, the consistency sampler, exact resume, and the
+student loaded through the normal pipeline, `smf generate` and `smf bench`."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from stablemofusion.cli.main import main
+from stablemofusion.diffusion.checkpoint import load_checkpoint, read_config
+from stablemofusion.diffusion.config import CheckpointConfig, DistilConfig
+from stablemofusion.diffusion.distil import distil, masked_huber, skip_grid, student_from_teacher
+from stablemofusion.diffusion.samplers import make_sampler
+from stablemofusion.diffusion.solvers import solver_table
+from stablemofusion.diffusion.train import TrainConfig, train
+from stablemofusion.errors import SMFError
+
+
+@pytest.fixture(scope="module")
+def corpus(bandai_mini_corpus):
+    return bandai_mini_corpus
+
+
+@pytest.fixture(scope="module")
+def text_cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("text-cache")
+
+
+@pytest.fixture(scope="module")
+def teacher(corpus, text_cache, tmp_path_factory):
+    """A tiny teacher trained for a few steps (its weights are all non-trivial)."""
+    out = tmp_path_factory.mktemp("teacher")
+    cfg = TrainConfig(preset="tiny", steps=3, batch_size=4, lr=2e-3, checkpoint_every=3, min_frames=16)
+    train(corpus, out, cfg, progress=False, text_cache=text_cache)
+    (out / "checkpoint" / "notes.txt").write_text("carried into the student\n")
+    return out
+
+
+def _distil_args(teacher, corpus, text_cache, out, *extra):
+    return ["distil", "--teacher", str(teacher), "--data", str(corpus), "--out", str(out), "--steps", "6",
+            "--batch-size", "4", "--checkpoint-every", "2", "--min-frames", "16", "--text-cache", str(text_cache),
+            "--sample-steps", "2", "--warmup", "2", "--lr", "1e-3", "--no-progress", "--threads", "1", *extra]
+
+
+@pytest.fixture(scope="module")
+def student(teacher, corpus, text_cache, tmp_path_factory):
+    out = tmp_path_factory.mktemp("student")
+    assert main(_distil_args(teacher, corpus, text_cache, out)) == 0
+    return out
+
+
+# --- the sampler --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("steps", [1, 2, 4, 8])
+def test_lcm_table_equals_the_diffusers_lcm_scheduler(steps):
+    """The coefficient table of the consistency sampler reproduces LCMScheduler on the same noise."""
+    table = solver_table("lcm", steps)
+    sched = make_sampler("lcm")
+    sched.set_timesteps(steps)
+    assert table.t.tolist() == sched.timesteps.float().tolist()
+    denoise = (lambda x, t: torch.tanh(x) * 0.7 + 1e-3 * t)  # any x0 predictor
+    x = torch.randn(2, 12, 5, generator=torch.Generator().manual_seed(1))
+    ref, g = x.clone(), torch.Generator().manual_seed(7)
+    for t in sched.timesteps:
+        ref = sched.step(denoise(ref, t), t, ref, generator=g).prev_sample
+    ours, g = x.double(), torch.Generator().manual_seed(7)
+    for k in range(steps):
+        z = torch.randn(x.shape, generator=g).double() if k < steps - 1 else 0.0
+        ours = table.a[k] * ours + table.b[k] * denoise(ours, table.t[k]) + table.d[k] * z
+    assert torch.allclose(ours.float(), ref, atol=1e-5)
+    assert table.d[-1] == 0 and table.level_x0[-1] == 1  # the last step returns the clean prediction
+
+
+def test_lcm_timesteps_lie_on_the_distillation_grid():
+    grid = set(skip_grid(1000, 50).tolist())
+    for steps in (1, 2, 4, 8, 50):
+        assert set(solver_table("lcm", steps).t.int().tolist()) <= grid
+    with pytest.raises(SMFError, match="at most 50"):
+        solver_table("lcm", 51)
+
+
+# --- the student model ----------------------------------------------------------------------------------------
+
+
+def test_a_fresh_student_is_its_teachers_conditional_branch(teacher):
+    ck = load_checkpoint(teacher)
+    s = student_from_teacher(ck).eval()
+    assert s.takes_guidance and not ck.model.takes_guidance
+    x, t = torch.randn(2, 40, ck.model.motion_dim), torch.tensor([900.0, 20.0])
+    tokens, tmask = torch.randn(2, 7, 384), torch.ones(2, 7, dtype=torch.bool)
+    with torch.no_grad():
+        want = ck.model(x, t, tokens, tmask)
+        for w in (1.5, 4.0):
+            assert torch.allclose(s(x, t, tokens, tmask, guidance=w), want, atol=1e-6)
+        with pytest.raises(SMFError, match="guidance"):
+            s(x, t, tokens, tmask)
+        for p in s.guidance_embed.parameters():  # once trained, the scale changes the prediction
+            p.normal_(0, 0.1)
+        assert not torch.allclose(s(x, t, tokens, tmask, guidance=1.5), s(x, t, tokens, tmask, guidance=4.0))
+
+
+def test_a_student_config_round_trips(teacher):
+    cfg = read_config(teacher)
+    st = replace(cfg, model=replace(cfg.model, guidance=True), distil=DistilConfig(teacher="/x", sample_steps=3))
+    d = json.loads(json.dumps(st.to_dict()))
+    back = CheckpointConfig.from_dict(d)
+    assert back == st and back.student and back.model.guidance
+    assert "distil" not in cfg.to_dict() and "guidance" not in cfg.to_dict()["model"]  # teachers unchanged
+    assert not CheckpointConfig.from_dict(cfg.to_dict()).student
+    assert st.resume_mismatch(cfg)  # a student never resumes a teacher's run, nor the reverse
+
+
+def test_masked_huber_ignores_padding():
+    pred, target = torch.zeros(1, 4, 2), torch.zeros(1, 4, 2)
+    target[0, 3] = 100.0
+    mask = torch.tensor([[True, True, True, False]])
+    assert masked_huber(pred, target, mask, 0.001) == 0
+    target[0, 0] = 1.0
+    assert masked_huber(pred, target, mask, 0.001) > 0
+
+
+# --- the run --------------------------------------------------------------------------------------------------
+
+
+def test_distil_writes_a_student_checkpoint(student, teacher):
+    cfg = read_config(student)
+    assert cfg.student and cfg.model.guidance and cfg.step == 6
+    assert cfg.distil.sample_steps == 2 and cfg.distil.teacher == str((teacher / "checkpoint").resolve())
+    ck_dir = student / "checkpoint"
+    assert (ck_dir / "notes.txt").read_text() == "carried into the student\n"  # the teacher folder's extra files
+    t = load_checkpoint(teacher)
+    assert np.array_equal(np.load(ck_dir / "Mean.npy"), t.mean) and np.array_equal(np.load(ck_dir / "Std.npy"), t.std)
+    log = (student / "log.csv").read_text().splitlines()
+    assert log[0] == "step,loss,lr,seconds,samples_per_s" and len(log) == 7
+    s = load_checkpoint(student)  # the target network (EMA)
+    moved = [k for k, v in s.model.state_dict().items() if k in t.model.state_dict()
+             and not torch.equal(v, t.model.state_dict()[k])]
+    assert moved and any(p.abs().sum() > 0 for p in s.model.guidance_embed.mlp[2].parameters())
+
+
+def test_a_killed_distillation_resumes_exactly(teacher, corpus, text_cache, student, tmp_path):
+    part = tmp_path / "part"
+    assert main(_distil_args(teacher, corpus, text_cache, part, "--stop-after", "4")) == 0
+    assert read_config(part).step == 4
+    assert main(_distil_args(teacher, corpus, text_cache, part, "--resume")) == 0
+    losses = (lambda run: [r.split(",")[1] for r in (run / "log.csv").read_text().splitlines()[1:]])
+    assert losses(part) == losses(student)  # the same 6 losses, bit for bit
+    for ema in (True, False):
+        a, b = load_checkpoint(student, ema=ema).model.state_dict(), load_checkpoint(part, ema=ema).model.state_dict()
+        assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_distil_refuses_bad_inputs(teacher, student, corpus, text_cache, tmp_path, capsys):
+    assert main(_distil_args(student, corpus, text_cache, tmp_path / "a")) == 2  # a student is no teacher
+    assert "already a distilled student" in capsys.readouterr().err
+    assert main(_distil_args(teacher, corpus, text_cache, tmp_path / "b", "--loss", "l1")) == 2
+    assert main(_distil_args(teacher, corpus, text_cache, tmp_path / "c", "--resume")) == 2  # nothing to resume
+    with pytest.raises(SMFError, match="teacher"):
+        distil(corpus, tmp_path / "d", DistilConfig(teacher=""))
+
+
+# --- the student through the pipeline, smf generate and smf bench ---------------------------------------------
+
+
+def _count_forwards(model):
+    calls = []
+    orig = model.denoise
+
+    def counting(x, t, cond, mask=None):
+        calls.append(x.shape[0])
+        return orig(x, t, cond, mask)
+
+    model.denoise = counting
+    return calls
+
+
+def test_the_pipeline_samples_a_student_with_one_forward_per_step(student):
+    from stablemofusion.pipeline import MotionPipeline
+
+    pipe = MotionPipeline.from_pretrained(student, device="cpu")
+    assert pipe.student and pipe.settings().sampler == "lcm" and pipe.settings().steps == 2
+    calls = _count_forwards(pipe.model)
+    a = pipe.denoise(["a person walks", "a person runs"], [40, 48], seed=0)
+    assert calls == [2, 2]  # 2 steps, batch 2: no unconditional pass
+    b = pipe.denoise(["a person walks", "a person runs"], [40, 48], seed=0, guidance_scale=4.0)
+    assert not torch.allclose(a, b)  # the scale is an input
+    calls.clear()
+    pipe.denoise(["a person walks"], [40], seed=0, steps=3, sampler="ddim")  # the flags still work
+    assert calls == [1, 1, 1]
+    calls.clear()
+    res = pipe(["a person walks"], seconds=2.0, seed=0)  # end to end: rigid stage included
+    assert calls == [1, 1] and res[0].features.shape[0] == 40
+
+
+def test_teacher_defaults_are_unchanged(teacher):
+    from stablemofusion.pipeline import MotionPipeline
+
+    pipe = MotionPipeline.from_pretrained(teacher, device="cpu")
+    assert not pipe.student and pipe.settings().steps == 10 and pipe.settings().sampler == "sde-dpmsolver++-karras"
+    calls = _count_forwards(pipe.model)
+    pipe.denoise(["a person walks"], [40], seed=0, steps=2)
+    assert calls == [2, 2]  # classifier-free guidance: both passes in one batch
+
+
+def test_smf_generate_and_bench_use_the_students_defaults(student, tmp_path, capsys):
+    out = tmp_path / "gen"
+    assert main(["generate", "a person walks forward", "--checkpoint", str(student), "--out", str(out),
+                 "--format", "npy,json", "--seconds", "2", "--device", "cpu"]) == 0
+    meta = json.loads(next(out.glob("*.json")).read_text())
+    assert meta["sampler"] == "lcm" and meta["steps"] == 2 and meta["student"] is True
+    capsys.readouterr()
+    assert main(["bench", "--checkpoint", str(student), "--batch-sizes", "1", "--repeats", "1", "--frames", "40",
+                 "--engine", "fast", "--device", "cpu"]) == 0
+    report = json.loads(capsys.readouterr().out.split("\n", 1)[1])
+    assert report["student"] and report["results"][0]["sampler"] == "lcm" and report["results"][0]["steps"] == 2

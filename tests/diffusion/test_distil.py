@@ -216,3 +216,22 @@ def test_smf_generate_and_bench_use_the_students_defaults(student, tmp_path, cap
                  "--engine", "fast", "--device", "cpu"]) == 0
     report = json.loads(capsys.readouterr().out.split("\n", 1)[1])
     assert report["student"] and report["results"][0]["sampler"] == "lcm" and report["results"][0]["steps"] == 2
+
+
+def test_a_student_edits_streams_and_makes_timelines(student):
+    """The tasks built on hooks (imputation in x_t, x0 constraints) run with the consistency sampler too."""
+    from stablemofusion.pipeline import MotionPipeline
+
+    pipe = MotionPipeline.from_pretrained(student, device="cpu")
+    calls = _count_forwards(pipe.model)
+    first = pipe(["a person walks"], seconds=3.0, seed=0)[0]
+    calls.clear()
+    for impose in ("x0", "xt"):
+        r = pipe.edit("a person runs", first.features, "prefix", keep_start=1.0, seed=0, impose=impose)
+        assert np.abs(r.joints[:20] - first.joints[:20]).max() < 0.01  # the kept second is the source's (1 cm)
+    assert calls == [1, 1, 1, 1]
+    src = first.features
+    long = pipe.timeline([("a person walks", 8.0), ("a person runs", 4.0)], seed=0)
+    assert long.features.shape[0] == 240
+    stream = pipe.stream("a person walks", seed=0)
+    assert next(stream).features.shape[1] == src.shape[1]

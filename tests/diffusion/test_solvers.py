@@ -30,6 +30,8 @@ def test_the_engine_has_the_samplers_the_issue_asks_for():
 @pytest.mark.parametrize("steps", [1, 2, 5, 10, 25])
 @pytest.mark.parametrize("name", FAST)
 def test_solver_equals_diffusers(name, steps):
+    if steps > 1 and sampler_spec(name).stochastic and not sampler_spec(name).step_noise:
+        pytest.skip("its scheduler draws its own step noise (lcm: compared on the same draws in test_distil.py)")
     den = _denoiser()
     sched = make_sampler(name)
     sched.set_timesteps(steps)

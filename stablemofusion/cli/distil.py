@@ -16,6 +16,7 @@ _FLAGS = {  # DistilConfig field -> help
     "guidance_min": "smallest guidance scale drawn per item", "guidance_max": "largest guidance scale drawn per item",
     "grid": "points of the skip schedule (the lcm sampler's: 50)", "loss": "l2 | huber (pseudo-Huber)",
     "huber_c": "pseudo-Huber constant", "cond_drop": "fraction of items distilled without text",
+    "dropout": "keep the student's dropout active while distilling (default off: the targets have none)",
     "seed": "random seed", "mixed_precision": "no | fp16 | bf16", "checkpoint_every": "steps between checkpoints",
     "bucket": "group similar lengths: sort runs of BUCKET batches by length (0 = off)",
     "max_frames": "longest training crop (frames; default the teacher's)",

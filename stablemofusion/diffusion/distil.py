@@ -188,7 +188,7 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
             noise = torch.randn(x0.shape, generator=g)
             drop = torch.rand(B, generator=g) < cfg.cond_drop
             w = cfg.guidance_min + (cfg.guidance_max - cfg.guidance_min) * torch.rand(B, generator=g)
-            torch.manual_seed(_mix(cfg.seed, step, 1))  # dropout inside the student
+            torch.manual_seed(_mix(cfg.seed, step, 1))  # dropout inside the student (--dropout)
             t_hi = grid[index]
             t_lo = (t_hi - T // cfg.grid).clamp_min(0)
             x_hi = _q(x0, noise.to(device), ab[t_hi].to(device))
@@ -196,7 +196,7 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
             with torch.no_grad(), accelerator.autocast():
                 x_lo = _teacher_ddim(teacher_model, x_hi, t_hi, t_lo, ab.to(device), tokens, tmask, drop, mask, w)
                 target_f = _consistency(target, x_lo, t_lo, tokens, tmask, drop, mask, w).float()
-            student.train()
+            student.train(cfg.dropout)
             with accelerator.autocast():
                 pred_f = _consistency(student, x_hi, t_hi, tokens, tmask, drop, mask, w)
             if cfg.loss == "l2":

@@ -21,32 +21,34 @@ from pathlib import Path
 class AtSteps:
     """A pipeline whose text-to-motion calls use ``steps`` (everything else is the pipeline's)."""
 
-    def __init__(self, pipe, steps: int):
-        self.pipe, self.steps = pipe, steps
+    def __init__(self, pipe, steps: int, sampler: str | None = None):
+        self.pipe, self.steps, self.sampler = pipe, steps, sampler
 
     def __call__(self, *args, **kw):
-        return self.pipe(*args, steps=self.steps, **kw)
+        return self.pipe(*args, steps=self.steps, sampler=self.sampler, **kw)
 
     def __getattr__(self, name):
         return getattr(self.pipe, name)
 
 
-def measure(pipe, steps: int, args, classifier, labels, probes: dict, evaluator) -> dict:
+def measure(pipe, steps: int, args, classifier, labels, probes: dict, evaluator, sampler: str | None = None) -> dict:
     from stablemofusion.eval.monitor import PROBE_SECONDS
     from stablemofusion.eval.prompts import prompt_accuracy
     from stablemofusion.eval.protocol import EmbeddingModel, EvalConfig, evaluate
 
-    row: dict = {"steps": steps, "sampler": pipe.settings().sampler}
+    from stablemofusion.pipelines.settings import Settings
+
+    row: dict = {"steps": steps, "sampler": pipe.settings(Settings(sampler=sampler)).sampler}
     t0 = time.perf_counter()
     for name, items in probes.items():
-        acc = prompt_accuracy(AtSteps(pipe, steps), classifier, items, labels, samples=args.samples,
+        acc = prompt_accuracy(AtSteps(pipe, steps, sampler), classifier, items, labels, samples=args.samples,
                               seconds=PROBE_SECONDS, seed=args.seed)
         row[f"{name}_content"] = round(acc["all"]["content_acc"], 4)
         row[f"{name}_style"] = round(acc["all"]["style_acc"], 4)
     if evaluator is not None:
         for split in args.splits.split(","):
             cfg = EvalConfig(replications=1, mm_captions=0, max_items=args.fid_items, split=split, seed=args.seed,
-                             batch_size=32, steps=steps)
+                             batch_size=32, steps=steps, sampler=sampler)
             res = evaluate(pipe, EmbeddingModel(evaluator, pipe.text_cache), args.data, cfg, progress=False)
             gen = res["rows"]["Generated"]
             row[f"{split}_fid"] = round(float(gen["fid"][0]), 3)
@@ -57,7 +59,7 @@ def measure(pipe, steps: int, args, classifier, labels, probes: dict, evaluator)
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--student", type=Path, required=True)
+    p.add_argument("--student", type=Path, default=None, help="the student (none: teacher rows only)")
     p.add_argument("--teacher", type=Path, default=None, help="default: the shipped model")
     p.add_argument("--data", type=Path, required=True)
     p.add_argument("--probe", type=Path, required=True)
@@ -68,6 +70,7 @@ def main() -> None:
     p.add_argument("--splits", default="val", help="comma list of splits for FID (val, test)")
     p.add_argument("--student-steps", default="1,2,4,8")
     p.add_argument("--teacher-steps", default="1,2,4,8,10")
+    p.add_argument("--teacher-sampler", default=None, help="default: the teacher's own")
     p.add_argument("--samples", type=int, default=1, help="motions per prompt")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1)
@@ -96,9 +99,12 @@ def main() -> None:
     rows = []
     for who, path, steps_list in (("student", args.student, args.student_steps),
                                   ("teacher", args.teacher, args.teacher_steps)):
+        if who == "student" and path is None:
+            continue
         pipe = MotionPipeline.from_pretrained(path, device="cpu")
         for steps in (int(s) for s in steps_list.split(",") if s):
-            row = {"model": who, **measure(pipe, steps, args, classifier, labels, probes, evaluator)}
+            sampler = args.teacher_sampler if who == "teacher" else None
+            row = {"model": who, **measure(pipe, steps, args, classifier, labels, probes, evaluator, sampler)}
             rows.append(row)
             print(json.dumps(row), flush=True)
     keys = [k for k in rows[0] if k not in ("model", "steps", "sampler", "seconds")]

@@ -26,7 +26,7 @@ def run(args: argparse.Namespace) -> None:
               f"{c.skeleton} at {c.fps:g} fps, {c.min_frames}-{c.max_frames} frames, step {c.step or '?'}")
         if c.student:
             print(f"distilled few-step student of {c.distil.teacher}: samples with lcm in {c.distil.sample_steps} "
-                  f"steps by default, guidance as input (trained on {c.distil.guidance_min:g}-{c.distil.guidance_max:g})")
+                  f"step{'s' * (c.distil.sample_steps != 1)} by default, guidance as input (trained on {c.distil.guidance_min:g}-{c.distil.guidance_max:g})")
         return
     names = args.preset or list(PRESETS)
     print(f"{'preset':<15} {'arch':<7} {'parameters':>13} {'text part':>11}  description")

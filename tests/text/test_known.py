@@ -200,3 +200,29 @@ def test_detector_warning_and_fields_keep_their_shape(checkpoint_with_detector, 
     d = pipe.known_actions.check("a person walks forward")
     assert not d.out_of_domain and d.closest[0][0] == "walk"
     assert set(d.to_dict("a person walks forward")) == {"similarity", "out_of_domain", "closest_actions"}
+
+
+def test_shipped_detector_on_held_out_foreign_prompts_and_its_calibration(shipped):
+    """The threshold flags about FLAG_RATE of its calibration prompts and >= 90% of the held-out foreign prompts
+    (benchmarks/ood_heldout.txt, never used to train or calibrate it)."""
+    from pathlib import Path
+
+    from stablemofusion.text.domain import FLAG_RATE, calibration_inside
+
+    calib = calibration_inside("bandai")
+    assert len(calib) >= 100 and not any(x.startswith("#") for x in calib)
+    flagged = np.mean([c.out_of_domain for c in shipped.check_many(calib)])
+    assert flagged <= FLAG_RATE + 0.02
+    text = (Path(__file__).parents[2] / "benchmarks" / "ood_heldout.txt").read_text()
+    foreign = [x.strip() for x in text.splitlines() if x.strip() and not x.startswith("#")]
+    assert np.mean([c.out_of_domain for c in shipped.check_many(foreign)]) >= 0.9
+
+
+def test_foreign_phrasings_are_a_data_file_and_fill_the_grammar():
+    from stablemofusion.text.foreign import foreign_captions, foreign_phrases
+
+    phrases = foreign_phrases()
+    assert len(phrases) >= 400 and len(set(phrases)) == len(phrases)
+    captions = foreign_captions(2)
+    assert len(captions) == 2 * len(phrases)
+    assert not any("<" in c or "{" in c for c in captions)  # every verb form and slot filled

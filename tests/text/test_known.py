@@ -226,3 +226,27 @@ def test_foreign_phrasings_are_a_data_file_and_fill_the_grammar():
     captions = foreign_captions(2)
     assert len(captions) == 2 * len(phrases)
     assert not any("<" in c or "{" in c for c in captions)  # every verb form and slot filled
+
+
+def test_example_embeddings_are_read_from_the_model_folder_when_they_match(tmp_path, cache):
+    """A process's first check reads actions.safetensors instead of encoding every example; a stale file
+    (other sentences) is ignored, and the stored embeddings equal freshly encoded ones."""
+    from stablemofusion.text.known import EMBEDDINGS_FILE
+
+    folder = default_model_path()
+    assert (folder / EMBEDDINGS_FILE).is_file()
+    known = KnownActions.load(folder / ACTIONS_FILE, cache)
+    assert known._emb is not None  # read, not encoded
+    fresh = KnownActions(known.actions, known.threshold, LRUTextCache(load_text_encoder("minilm")))
+    assert torch.allclose(known._emb, fresh.examples_embedding(), atol=1e-5)
+
+    small = KnownActions({"walk": ["a person walks"], "bow": ["a person bows"]}, 0.5, cache)
+    small.save(tmp_path)
+    assert KnownActions.load(tmp_path / ACTIONS_FILE, cache)._emb is not None
+    d = json.loads((tmp_path / ACTIONS_FILE).read_text())
+    d["actions"]["bow"] = ["a person bows deeply"]
+    (tmp_path / ACTIONS_FILE).write_text(json.dumps(d))
+    stale = KnownActions.load(tmp_path / ACTIONS_FILE, cache)
+    assert stale._emb is None and stale.check("a person bows deeply").closest[0] == ("bow", pytest.approx(1.0, abs=1e-5))
+    (tmp_path / EMBEDDINGS_FILE).write_bytes(b"not safetensors")
+    assert KnownActions.load(tmp_path / ACTIONS_FILE, cache)._emb is None

@@ -42,6 +42,8 @@ WARM_STEPS = 2  # the warm-up generation before the worker reports ready
 MAX_STREAMS = 4  # live streams at once (`smf serve --max-streams`); one more is told so and closed
 STREAM_AHEAD_S = 1.5  # windows are made until the frames made play this long ahead of play time (a slow window
 # on a loaded CPU does not make frames late) ...
+STREAM_JOIN_S = 0.6  # a stream with less than STREAM_AHEAD_S + this made ahead joins a worker call that starts
+# (windows of several streams in one batch cost far less than one by one)
 STREAM_SEND_LEAD_S = 0.3  # ... but frames are sent at most this far ahead of their play time: a new prompt cuts
 # the frames not sent yet and the stream is made again from there (a new prompt shows after what was sent)
 STREAM_SWITCH_FACTOR = 1.25  # a new prompt's frames start this many times the slowest of the stream's recent

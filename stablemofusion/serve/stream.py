@@ -38,9 +38,9 @@ from pydantic import BaseModel, Field
 from .checks import STRICT, check_prompt, parse_body
 from .errors import ServeError, log_event
 from .limits import (MAX_GUIDANCE, MAX_SEED, MAX_STREAM_MESSAGE_BYTES, MAX_STREAM_MESSAGES, MAX_STREAM_SECONDS,
-                     MAX_STREAMS, STREAM_AHEAD_S, STREAM_DECIMALS, STREAM_GATHER_S, STREAM_MESSAGE_FRAMES,
-                     STREAM_MESSAGE_WINDOW_S, STREAM_RECENT_WINDOWS, STREAM_SEND_LEAD_S, STREAM_START_TIMEOUT_S,
-                     STREAM_SWITCH_FACTOR, WARM_STEPS)
+                     MAX_STREAMS, STREAM_AHEAD_S, STREAM_DECIMALS, STREAM_GATHER_S, STREAM_JOIN_S,
+                     STREAM_MESSAGE_FRAMES, STREAM_MESSAGE_WINDOW_S, STREAM_RECENT_WINDOWS, STREAM_SEND_LEAD_S,
+                     STREAM_START_TIMEOUT_S, STREAM_SWITCH_FACTOR, WARM_STEPS)
 from .worker import Failure, ProcessWorker, child_loop
 
 TRY_LATER = 1013  # WebSocket close code: the server is at its stream limit
@@ -257,6 +257,8 @@ class StreamHub:
         self.active: set[int] = set()
         self.windows = 0  # windows made, all streams
         self.cut_frames = 0  # frames made and cut before they were sent (new prompts), all streams
+        self.sessions: set = set()  # the open streams' sessions: asked to join each call as it starts
+        self.inviting = False  # a call is gathering its windows
         self.batches: deque[int] = deque(maxlen=1000)  # windows per worker call (recent calls)
         self.call_s: deque[float] = deque(maxlen=1000)  # wall time of those calls
         self._next_sid = 0
@@ -300,7 +302,11 @@ class StreamHub:
     async def _run(self) -> None:
         while True:
             items = [await self._queue.get()]
-            await asyncio.sleep(STREAM_GATHER_S)  # the other streams asking on the same tick
+            self.inviting = True  # the other streams asking on the same tick, or joining early
+            for session in self.sessions:
+                session.wake.set()
+            await asyncio.sleep(STREAM_GATHER_S)
+            self.inviting = False
             while not self._queue.empty():
                 items.append(self._queue.get_nowait())
             jobs = [j for j, _ in items]
@@ -405,7 +411,8 @@ class StreamSession:
 
     def _next_job(self, now: float) -> StreamJob | None:
         """The window to ask for now, if any: a new prompt's (the frames not sent beyond its cut are dropped),
-        else one more while the frames made play less than STREAM_AHEAD_S ahead."""
+        else one more while the frames made play less than STREAM_AHEAD_S ahead (or STREAM_AHEAD_S +
+        STREAM_JOIN_S while the worker's next call gathers windows: a batch)."""
         buf = self.buffer
         if self.pending is not None:
             job, self.pending, self.index = self.pending, None, self.pending_index
@@ -418,7 +425,8 @@ class StreamSession:
             return job
         if self.start is None or buf.made >= MAX_STREAM_SECONDS * self.fps:
             return None
-        if buf.made / self.fps - (now - self.start) < STREAM_AHEAD_S:
+        ahead = buf.made / self.fps - (now - self.start)
+        if ahead < STREAM_AHEAD_S or (self.hub.inviting and ahead < STREAM_AHEAD_S + STREAM_JOIN_S):
             return StreamJob(self.sid)
         return None
 
@@ -490,6 +498,7 @@ async def serve_stream(ws, hub: StreamHub, fps: float) -> None:
         await ws.close(TRY_LATER)
         return
     session = StreamSession(ws, hub, sid, fps)
+    hub.sessions.add(session)
     reader = asyncio.ensure_future(session.read())
     try:
         await session.play()
@@ -499,6 +508,7 @@ async def serve_stream(ws, hub: StreamHub, fps: float) -> None:
     finally:
         session.stopped = True
         reader.cancel()
+        hub.sessions.discard(session)
         hub.close(sid)
         try:
             await ws.close()

@@ -13,8 +13,8 @@ import pytest
 
 from stablemofusion.pipelines.stream import STREAM_CHUNK, STREAM_REWIND
 from stablemofusion.serve.errors import ServeError
-from stablemofusion.serve.limits import (STREAM_AHEAD_S, STREAM_MESSAGE_FRAMES, STREAM_SEND_LEAD_S,
-                                         STREAM_SWITCH_FACTOR)
+from stablemofusion.serve.limits import (STREAM_AHEAD_S, STREAM_JOIN_S, STREAM_MESSAGE_FRAMES,
+                                         STREAM_SEND_LEAD_S, STREAM_SWITCH_FACTOR)
 from stablemofusion.serve.stream import FrameBuffer, StreamFrames, StreamSession, cut_frame, due_frames
 
 FPS = 20
@@ -52,9 +52,9 @@ def test_the_send_and_cut_rules():
 
 
 def test_a_cut_never_reaches_back_further_than_a_stream_remembers():
-    """The frames made and not sent (what a new prompt may cut) are at most the lead made ahead plus a window,
-    within the frames a stream can be cut back (STREAM_REWIND)."""
-    assert STREAM_AHEAD_S * FPS + STREAM_CHUNK + STREAM_MESSAGE_FRAMES <= STREAM_REWIND
+    """The frames made and not sent (what a new prompt may cut) are at most the lead made ahead (joining a
+    call early included) plus a window, within the frames a stream can be cut back (STREAM_REWIND)."""
+    assert (STREAM_AHEAD_S + STREAM_JOIN_S) * FPS + STREAM_CHUNK <= STREAM_REWIND
 
 
 class FakeWebSocket:
@@ -81,7 +81,7 @@ class FakeHub:
     number of prompts used so far (so a frame made again after a cut differs)."""
 
     def __init__(self):
-        self.cut_frames, self.made, self.prompts = 0, 0, 0
+        self.cut_frames, self.made, self.prompts, self.inviting = 0, 0, 0, False
         self.jobs: list[tuple[float, object, int]] = []  # (time, job, frames sent then)
         self.session: StreamSession | None = None
 
@@ -134,3 +134,71 @@ def test_a_session_sends_frames_within_the_send_lead_keeps_the_buffer_bounded_an
     assert np.allclose(joints, np.arange(len(joints)) + np.where(index == 1, 0.2, 0.1))
     # the cut: after the frames sent, and about the send lead (or the slowest window, 50 ms, x the factor) ahead
     assert job.cut >= sent and (job.cut / FPS - prompted) <= STREAM_SEND_LEAD_S + 0.2
+
+
+class FakeWorker:
+    """The stream worker's interface on a thread: every call takes 0.1 s; windows as FakeHub's."""
+
+    def __init__(self):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.pool = ThreadPoolExecutor(max_workers=1)
+        self.made: dict[int, int] = {}
+        self.calls: list[list] = []
+
+    def submit(self, jobs, max_batch):
+        return self.pool.submit(self._run, jobs)
+
+    def _run(self, jobs):
+        time.sleep(0.1)
+        self.calls.append(jobs)
+        out = []
+        for job in jobs:
+            if job.close:
+                out.append(None)
+                continue
+            start = job.cut if job.cut is not None else self.made.get(job.sid, 0)
+            self.made[job.sid] = start + STREAM_CHUNK
+            out.append(StreamFrames(start, chunk(start, STREAM_CHUNK, 0)))
+        return out
+
+    def health(self):
+        return {}
+
+
+def test_streams_join_the_worker_call_that_starts_so_their_windows_are_batched():
+    """Two streams started 0.3 s apart: without joining, each would ask on its own phase (one window a call);
+    a stream with less than STREAM_AHEAD_S + STREAM_JOIN_S made ahead joins the other's call."""
+    from stablemofusion.serve.stream import StreamHub, serve_stream
+
+    class Socket(FakeWebSocket):
+        async def accept(self):
+            pass
+
+        async def send_text(self, text: str) -> None:
+            self.sent.append((time.monotonic(), json.loads(text)))
+
+    async def run(worker):
+        hub = StreamHub(worker, max_streams=2)
+        sockets = [Socket(), Socket()]
+        tasks = []
+        for ws in sockets:
+            tasks.append(asyncio.ensure_future(serve_stream(ws, hub, FPS)))
+            await ws.incoming.put({"type": "websocket.receive", "text": json.dumps({"prompt": "a person walks"})})
+            await asyncio.sleep(0.3)
+        await asyncio.sleep(4.0)
+        for ws in sockets:
+            await ws.incoming.put({"type": "websocket.receive", "text": json.dumps({"stop": True})})
+        await asyncio.wait_for(asyncio.gather(*tasks), 5)
+        hub.stop()
+        return sockets
+
+    worker = FakeWorker()
+    sockets = asyncio.run(run(worker))
+    windows = [sum(not j.close for j in jobs) for jobs in worker.calls]
+    later = windows[len(windows) // 2:]  # once both streams run (each first fills its lead alone)
+    assert sum(w == 2 for w in later) >= 0.8 * len(later), str(windows)
+    for ws in sockets:  # and each stream still gets its frames in order, none lost
+        messages = [m for _, m in ws.sent]
+        assert messages[0]["start"] == 0
+        assert all(b["start"] == a["start"] + len(a["joints"]) for a, b in zip(messages, messages[1:]))

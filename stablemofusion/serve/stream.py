@@ -11,7 +11,8 @@ Where it runs: windows are made by a stream worker of their own (not the batched
 could hold a live stream up for seconds): :class:`ThreadStreamWorker` on a thread (tests, embedding) or, for
 `smf serve`, :class:`StreamProcessWorker`, a supervised process like the batch worker. The event loop's
 :class:`StreamHub` gathers the windows every connection needs into one worker call (windows of several
-streams are denoised as one batch), and each connection (:class:`StreamSession`) is paced by the clock:
+streams are denoised as one batch; a connection with less than STREAM_AHEAD_S + STREAM_JOIN_S made ahead joins
+a call as it starts), and each connection (:class:`StreamSession`) is paced by the clock:
 it keeps windows made until its frames play STREAM_AHEAD_S ahead of play time (a slow window on a loaded CPU
 makes no frame late), but sends frames at most STREAM_SEND_LEAD_S ahead of their play time (a few frames a
 message); the frames made and not sent wait in its :class:`FrameBuffer`. A new prompt cuts that buffer back

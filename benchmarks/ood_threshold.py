@@ -1,11 +1,12 @@
 """The out-of-domain detector (stablemofusion.text.domain): train it, calibrate it and report it on held-out
 data; optionally write it into a model folder and report the free-form dev set last.
 
-Trained on the corpus's train-split captions (in domain) against foreign captions (stablemofusion.text.foreign).
-Calibrated (threshold) on held-out in-domain prompts the package makes from the lexicon's held-out words.
-Reported on held-out data neither saw in training:
-  in domain: benchmarks/prompts_heldout_lexicon.jsonl, the held-out phrasings ("a person ambles along"),
-             captions of held-out words;
+Trained on the corpus's train-split captions (in domain) against foreign captions (stablemofusion.text.foreign,
+assets/lexicons/foreign.txt). Calibrated (threshold) on free-form in-domain prompts written for it
+(assets/lexicons/bandai-calibration.txt, text.domain.calibration_inside). Reported on held-out data neither saw
+in training:
+  in domain: the calibration prompts, benchmarks/prompts_heldout_lexicon.jsonl, the held-out phrasings
+             ("a person ambles along"), captions of held-out words (hard on purpose: obscure held-out verbs);
   out of domain: benchmarks/ood_heldout.txt, benchmarks/ood_calibration.txt.
 Alternatives at the same flag rate: the closest action sentence (the previous check) and nearest neighbours
 (mean cosine of the 5 closest training captions). The dev set (--dev) is reported once, at the end, and never
@@ -35,7 +36,7 @@ def lines(name: str) -> list[str]:
 def main() -> None:
     from stablemofusion.cli.export import ABOUT, build_known_actions
     from stablemofusion.data.lexicon import load_lexicon, person_sentence
-    from stablemofusion.text.domain import FLAG_RATE, embed_texts, heldout_inside
+    from stablemofusion.text.domain import FLAG_RATE, calibration_inside, embed_texts, heldout_inside
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--lexicon", default="bandai")
@@ -51,15 +52,17 @@ def main() -> None:
     known = build_known_actions(args.lexicon, "minilm", corpus=args.corpus if args.corpus.is_dir() else None,
                                 text_cache=args.text_cache)
     print(f"trained and calibrated in {time.perf_counter() - t0:.0f} s; offset {known.detector.offset:.3f} "
-          f"scale {known.detector.scale:.3f} (flag rate {FLAG_RATE:.0%} of the package's held-out in-domain prompts)")
+          f"scale {known.detector.scale:.3f} (flag rate {FLAG_RATE:.0%} of the calibration prompts)")
     cache = known.text_cache
     lex = load_lexicon(args.lexicon)
     rows = [json.loads(x) for x in (HERE / "prompts_heldout_lexicon.jsonl").read_text().splitlines() if x.strip()]
-    calib = heldout_inside(args.lexicon)
+    hard = heldout_inside(args.lexicon)
+    calib = calibration_inside(args.lexicon)
     phrasings = [person_sentence(p) for w in lex.contents.values() for p in w.heldout]
-    sets = {"in: prompts_heldout_lexicon.jsonl": [r["prompt"] for r in rows],
+    sets = {"cal: calibration prompts (free-form)": calib,
+            "in: prompts_heldout_lexicon.jsonl": [r["prompt"] for r in rows],
             "in: held-out phrasings": phrasings,
-            "in: held-out-word captions": calib[len(phrasings):],
+            "in: held-out-word captions": hard[len(phrasings):],
             "out: ood_heldout.txt": lines("ood_heldout.txt"),
             "out: ood_calibration.txt": lines("ood_calibration.txt")}
     emb = {k: embed_texts(v, cache) for k, v in sets.items()}
@@ -75,8 +78,8 @@ def main() -> None:
             lambda e: torch.cat([(e[a:a + 256] @ train.T).topk(5, dim=1).values.mean(1)
                                  for a in range(0, len(e), 256)]).numpy())
     thresholds = {}
-    print(f"\nheld-out figures: share flagged, each method's threshold flagging {FLAG_RATE:.0%} of the package's "
-          "held-out in-domain prompts (phrasings + held-out-word captions)")
+    print(f"\nheld-out figures: share flagged, each method's threshold flagging {FLAG_RATE:.0%} of the "
+          "calibration prompts")
     for name, score in methods.items():
         t = float(np.quantile(score(calib_emb), FLAG_RATE))
         thresholds[name] = t

@@ -182,7 +182,8 @@ def main() -> None:
     report = {"single_stream": {k: v for k, v in single.items() if k not in ("joints", "index")},
               f"{len(many)}_streams": [{k: f[k] for k in ("frames", "late_frames", "worst_margin_s", "onscreen_s")}
                                       for f in many],
-              "stream_worker": {k: health[k] for k in ("windows", "call_ms_median", "call_ms_max", "windows_per_call")},
+              "stream_worker": {k: health[k] for k in ("windows", "cut_frames", "call_ms_median", "call_ms_max",
+                                                    "windows_per_call")},
               "load_average_1min": [round(load_before, 2), round(os.getloadavg()[0], 2)]}
     if args.classifier and args.data:
         labels = runs["labels"]

@@ -25,7 +25,7 @@ from .pipelines.result import MotionResult
 from .pipelines.sample import sample as sample_raw
 from .pipelines.settings import (BATCH_SIZE, DEFAULT_SECONDS, FOOTSKATE_MODES, GUIDANCE, LengthClampedWarning,
                                  OutOfDomainWarning, Settings, resolve_engine)
-from .pipelines.stream import STREAM_CHUNK, MotionStream, StreamPipeline
+from .pipelines.stream import STREAM_CHUNK, STREAM_REWIND, MotionStream, StreamPipeline
 from .pipelines.text_to_motion import TextToMotionPipeline
 from .pipelines.timeline import TimelinePipeline
 from .timeline import DEFAULT_OVERLAP
@@ -72,13 +72,15 @@ class MotionPipeline(Components):
 
     def stream(self, prompt: str, *, guidance_scale: float = GUIDANCE, steps: int | None = None,
                sampler: str | None = None, seed: int | None = None, chunk: int = STREAM_CHUNK,
-               engine: str | None = None) -> MotionStream:
+               engine: str | None = None, rewind: int = STREAM_REWIND) -> MotionStream:
         """An endless motion following ``prompt`` (:class:`~stablemofusion.pipelines.stream.StreamPipeline`): an
         iterator of :class:`~stablemofusion.pipelines.stream.Chunk` of ``chunk`` frames; ``stream.set_prompt(p)``
-        (or ``stream.send(p)``) changes the prompt from the next window on; window j uses ``seed + j``."""
+        (or ``stream.send(p)``) changes the prompt from the next window on; window j uses ``seed + j``;
+        ``stream.cut(n)`` rolls it back to frame ``n`` (any of its last ``rewind`` frames), so that the next
+        chunk starts there (continuing from frame ``n - 1``, with the prompt current then)."""
         settings = Settings(guidance_scale, steps, sampler, "off", None, engine)
         self.engine_for(sampler, engine)
-        return StreamPipeline(self)(prompt, seed=seed, settings=settings, chunk=chunk)
+        return StreamPipeline(self)(prompt, seed=seed, settings=settings, chunk=chunk, rewind=rewind)
 
     @torch.no_grad()
     def sample(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = GUIDANCE,

@@ -53,7 +53,9 @@ def add_parser(sub, name: str) -> None:
                    help="JSON-lines prompt file with labels (e.g. benchmarks/prompts_freeform.jsonl): label accuracy "
                         "of generated motions; needs --classifier")
     p.add_argument("--prompt-samples", type=int, default=3, help="motions per prompt of --prompts (default 3)")
-    p.add_argument("--prompt-seconds", type=float, default=4.0, help="length of the --prompts motions (default 4)")
+    p.add_argument("--prompt-seconds", default="4", help="length of the --prompts motions in seconds, or auto: the "
+                                                          "length the model predicts from the prompt, as `smf generate` "
+                                                          "does by default (default 4)")
     p.add_argument("--prompts-only", action="store_true", help="only the --prompts accuracy, not the T2M protocol")
     p.add_argument("--out", type=Path, default=None, help="JSON results file (a .md table is written beside it)")
     p.set_defaults(func=run)
@@ -183,14 +185,18 @@ def run(args: argparse.Namespace) -> None:
     if args.prompts is not None:
         if args.classifier is None or pipe is None:
             raise SMFError("--prompts needs --classifier DIR and a checkpoint")
-        if args.prompt_samples < 1 or not args.prompt_seconds > 0:
-            raise SMFError("--prompt-samples must be >= 1 and --prompt-seconds positive")
+        try:
+            seconds = None if args.prompt_seconds == "auto" else float(args.prompt_seconds)
+        except ValueError:
+            seconds = -1.0
+        if args.prompt_samples < 1 or not (seconds is None or seconds > 0):
+            raise SMFError("--prompt-samples must be >= 1 and --prompt-seconds positive or auto")
         from ..eval.classifier import corpus_labels, load_classifier
         from ..eval.prompts import load_prompts, prompt_accuracy
 
         prompt_result = prompt_accuracy(pipe, load_classifier(args.classifier), load_prompts(args.prompts),
                                         corpus_labels(args.data), samples=args.prompt_samples,
-                                        seconds=args.prompt_seconds, seed=args.seed)
+                                        seconds=seconds, seed=args.seed)
         prompt_result["file"] = str(args.prompts)
     if args.prompts_only:
         if prompt_result is None:

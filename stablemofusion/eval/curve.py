@@ -82,4 +82,54 @@ def draw_curve(evals: list[dict], log: dict[str, np.ndarray], out: str | Path, t
     plt.close(fig)
 
 
-__all__ = ["draw_curve", "read_run"]
+COMPARE_SERIES = (("probe_all_content_acc", "probe content, all"), ("probe_dataset-1_content_acc", "probe content, dataset 1"),
+                  ("probe_dataset-2_content_acc", "probe content, dataset 2"), ("val_fid", "validation FID (fixed subset)"))
+
+
+def draw_comparison(runs: dict[str, list[dict]], out: str | Path, title: str) -> None:
+    """Several runs' evaluations (name -> evaluations) overlaid: each of :data:`COMPARE_SERIES` against steps
+    (top) and training hours (bottom), one line per run."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..io import atomic_path
+
+    fig, axes = plt.subplots(2, len(COMPARE_SERIES), figsize=(5 * len(COMPARE_SERIES), 8))
+    for n, (name, evals) in enumerate(runs.items()):
+        steps = np.array([e["step"] for e in evals])
+        hours = np.array([e.get("train_seconds", np.nan) for e in evals]) / 3600
+        for row, x in enumerate((steps, hours)):
+            for col, (key, _) in enumerate(COMPARE_SERIES):
+                y = np.array([e.get(key, np.nan) for e in evals], dtype=float)
+                if np.isfinite(y).any():
+                    axes[row, col].plot(x, y, "o-", ms=3, color=f"C{n}", label=name)
+    for row, label in enumerate(("step", "training wall time (h)")):
+        for col, (key, ylabel) in enumerate(COMPARE_SERIES):
+            ax = axes[row, col]
+            ax.set(xlabel=label, ylabel=ylabel, **({} if key == "val_fid" else {"ylim": (0, 1)}))
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    with atomic_path(out, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+
+
+def comparison_table(runs: dict[str, list[dict]]) -> str:
+    """A markdown table of every run's evaluations: step, training hours and :data:`COMPARE_SERIES`."""
+    head = "| run | step | training h | " + " | ".join(name for _, name in COMPARE_SERIES) + " |"
+    lines = [head, "|" + "---|" * (3 + len(COMPARE_SERIES))]
+    for name, evals in runs.items():
+        for e in evals:
+            cells = [f"{e[k]:.3f}" if isinstance(e.get(k), (int, float)) else "-" for k, _ in COMPARE_SERIES]
+            hours = e.get("train_seconds")
+            lines.append(f"| {name} | {e['step']} | {hours / 3600:.2f} | " if hours is not None
+                         else f"| {name} | {e['step']} | - | ")
+            lines[-1] += " | ".join(cells) + " |"
+    return "\n".join(lines)
+
+
+__all__ = ["comparison_table", "draw_comparison", "draw_curve", "read_run"]

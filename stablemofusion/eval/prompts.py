@@ -78,8 +78,9 @@ def check_known(items: Sequence[PromptItem], classifier: MotionClassifier) -> No
 
 
 def prompt_accuracy(pipe, classifier: MotionClassifier, items: Sequence[PromptItem], labels: dict[str, LabelInfo],
-                    *, samples: int = 3, seconds: float = 4.0, seed: int = 0, batch: int = 32) -> dict:
-    """Generate ``samples`` motions per in-domain prompt (seeds ``seed + k``) and classify them; accuracy per
+                    *, samples: int = 3, seconds: float | None = 4.0, seed: int = 0, batch: int = 32) -> dict:
+    """Generate ``samples`` motions per in-domain prompt (seeds ``seed + k``; ``seconds`` None: the length the
+    pipeline predicts from the prompt) and classify them; accuracy per
     dataset and overall. With a pipeline that knows its actions, also the out-of-domain check: how many
     in-domain and out-of-domain prompts it flags."""
     inside = [it for it in items if not it.ood]

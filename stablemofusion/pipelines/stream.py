@@ -8,6 +8,10 @@ least settled). Features are relative to the body, so the new frames continue th
 stream keeps the world heading and position of its kept frames and places each window's joints there: the
 character continues from where it stands, with no pop.
 
+A stream can be cut back (:meth:`MotionStream.cut`) to any of its last ``rewind`` frames: the frames from there
+on are forgotten and the next window continues from the frames before the cut, with the prompt current then (the
+server makes windows ahead of play time and cuts back the ones it has not sent when a new prompt arrives).
+
 Joints come straight from the model's features (root-relative positions): the rigid final stage fits a whole
 motion at once, which a stream never has. Windows of several streams of the same shape are denoised in one
 batched call (:func:`advance`), each with its own prompt, guidance and seed.
@@ -15,6 +19,7 @@ batched call (:func:`advance`), each with its own prompt, guidance and seed.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -35,6 +40,7 @@ from .settings import Settings, base_seed, check_text
 STREAM_KEEP = 20  # frames of the motion so far each window keeps as its start (1 s at 20 fps)
 STREAM_CHUNK = 12  # frames each window adds (0.6 s at 20 fps): with the kept second and the dropped tail a
 # window is 40 frames, the shipped model's shortest motion, so a window costs no more than a shorter chunk's
+STREAM_REWIND = 60  # frames a stream can be cut back (3 s at 20 fps): it remembers its last keep + rewind frames
 
 
 @dataclass(frozen=True)
@@ -56,19 +62,47 @@ class Chunk:
 
 class MotionStream:
     """An endless motion: ``next(stream)`` makes the next :class:`Chunk`; :meth:`set_prompt` changes the prompt
-    from the next window on (``stream.send(prompt)`` does both, as a generator would). Window j uses
-    ``seed + j``. Build with :meth:`MotionPipeline.stream`."""
+    from the next window on (``stream.send(prompt)`` does both, as a generator would); :meth:`cut` rolls the
+    stream back to an earlier frame. Window j (counted along the frames kept) uses ``seed + j``. Build with
+    :meth:`MotionPipeline.stream`."""
 
-    def __init__(self, c: Components, prompt: str, seed: int, settings: Settings, chunk: int, keep: int):
-        self.c, self.seed, self.settings, self.chunk, self.keep = c, seed, settings, chunk, keep
+    def __init__(self, c: Components, prompt: str, seed: int, settings: Settings, chunk: int, keep: int,
+                 rewind: int = STREAM_REWIND):
+        self.c, self.seed, self.settings, self.chunk, self.keep, self.rewind = c, seed, settings, chunk, keep, rewind
         self.prompt, self.prompt_index = prompt, 0
-        self.frames = 0  # frames made so far
-        self.windows = 0
+        self.frames = 0  # frames made so far (less those cut)
+        self.windows = 0  # windows made so far (less those cut)
         self._seeded_at = 0  # the window the seed applies from
+        self._starts: deque[int] = deque()  # the first frames of the windows a cut may still drop
         dim = int(c.mean.shape[0])
-        self.tail = torch.zeros(0, dim, dtype=torch.float64)  # the last `keep` frames' features
-        self.tail_angle = torch.zeros(0, dtype=torch.float64)  # ... their world heading (yaw half-angles)
-        self.tail_xz = torch.zeros(0, 2, dtype=torch.float64)  # ... and root XZ (metres)
+        # the last keep + rewind frames (up to frame `frames`): features, world heading (yaw half-angles), root XZ
+        self._features = torch.zeros(0, dim, dtype=torch.float64)
+        self._angle = torch.zeros(0, dtype=torch.float64)
+        self._xz = torch.zeros(0, 2, dtype=torch.float64)
+
+    @property
+    def earliest_cut(self) -> int:
+        """The earliest frame :meth:`cut` accepts: the stream remembers the ``keep`` frames before it."""
+        first = self.frames - len(self._features)  # the first frame remembered
+        return first + self.keep if first else 0
+
+    def cut(self, frame: int) -> int:
+        """Roll the stream back to ``frame`` (``earliest_cut`` .. ``frames``): frames ``frame`` on are forgotten,
+        and the next chunk starts at ``frame``, continuing from the frames before it (their features, world
+        heading and position, as when they were made) with the prompt, seed and guidance current then; the
+        window count goes back to the windows that made the frames kept. Returns the frames dropped."""
+        frame = int(frame)
+        if not self.earliest_cut <= frame <= self.frames:
+            raise SMFError(f"a stream can be cut back to frames {self.earliest_cut} .. {self.frames}, not {frame}")
+        drop = self.frames - frame
+        n = len(self._features) - drop
+        self._features, self._angle, self._xz = self._features[:n], self._angle[:n], self._xz[:n]
+        self.frames = frame
+        while self._starts and self._starts[-1] >= frame:
+            self._starts.pop()
+            self.windows -= 1
+        self._seeded_at = min(self._seeded_at, self.windows)
+        return drop
 
     def set_prompt(self, prompt: str, *, seed: int | None = None, guidance_scale: float | None = None) -> int:
         """Use ``prompt`` from the next window on (and ``seed`` for that window, ``seed + 1`` for the one after,
@@ -111,7 +145,7 @@ class StreamPipeline:
         self.c = components
 
     def __call__(self, prompt: str, *, seed: int | None = None, settings: Settings = Settings(),
-                 chunk: int = STREAM_CHUNK, keep: int = STREAM_KEEP) -> MotionStream:
+                 chunk: int = STREAM_CHUNK, keep: int = STREAM_KEEP, rewind: int = STREAM_REWIND) -> MotionStream:
         c = self.c
         # 1. check inputs
         check_text(prompt, "the prompt")
@@ -124,8 +158,10 @@ class StreamPipeline:
         if not 0 < keep or not 0 < chunk or keep + chunk + TAIL > c.max_frames:
             raise SMFError(f"a stream window keeps 1+ frames and adds 1+ frames, at most {c.max_frames - TAIL} in "
                            f"all; got keep {keep}, chunk {chunk}")
+        if rewind < 0:
+            raise SMFError(f"a stream's rewind is 0 or more frames, not {rewind}")
         # 2. prepare: the seed; the windows are denoised by `advance` as the stream is read
-        return MotionStream(c, prompt, base_seed(seed), settings, chunk, keep)
+        return MotionStream(c, prompt, base_seed(seed), settings, chunk, keep, rewind)
 
 
 @torch.no_grad()
@@ -148,7 +184,7 @@ def _window(c: Components, streams: list[MotionStream], keep: int, frames: int, 
     if keep:
         kept[:keep] = True
         known = torch.zeros(len(streams), frames, int(c.mean.shape[0]), dtype=torch.float64)
-        known[:, :keep] = torch.stack([s.tail[-keep:] for s in streams])
+        known[:, :keep] = torch.stack([s._features[-keep:] for s in streams])
         mask = kept[None, :, None].expand(known.shape).to(c.device)
         x0_hook = replace_x0(c.normalise(known), mask)
     # 2. denoise, each stream with its prompt and its window's seed
@@ -160,7 +196,7 @@ def _window(c: Components, streams: list[MotionStream], keep: int, frames: int, 
     for s, r in zip(streams, raw):
         f = r.double()
         if keep:
-            f[:keep] = s.tail[-keep:]
+            f[:keep] = s._features[-keep:]
             f = blend_seams(f, kept)
         chunks.append(_emit(c, s, f[:keep + s.chunk], keep))
     return chunks
@@ -169,8 +205,8 @@ def _window(c: Components, streams: list[MotionStream], keep: int, frames: int, 
 def _emit(c: Components, s: MotionStream, f: torch.Tensor, keep: int) -> Chunk:
     """Place window features ``f`` (keep + chunk frames, dataset units) in the stream's world, append the new
     frames to the stream and return them as a chunk."""
-    a0 = s.tail_angle[-keep] if keep else torch.zeros((), dtype=torch.float64)
-    p0 = s.tail_xz[-keep] if keep else torch.zeros(2, dtype=torch.float64)
+    a0 = s._angle[-keep] if keep else torch.zeros((), dtype=torch.float64)
+    p0 = s._xz[-keep] if keep else torch.zeros(2, dtype=torch.float64)
     turn = qinv(yaw_quat(2.0 * a0))  # local (window frame 0 at the origin, facing +Z) -> world
     local = joints_from_features(f, c.skeleton)  # (n, J, 3)
     world = qrot(turn.expand(local.shape[:-1] + (4,)), local)
@@ -180,12 +216,16 @@ def _emit(c: Components, s: MotionStream, f: torch.Tensor, keep: int) -> Chunk:
     xz = qrot(turn.expand(root.shape[:-1] + (4,)), root)[:, [0, 2]] + p0
     angle = a0 + headings(f)
     chunk = Chunk(s.frames, s.prompt_index, s.prompt, world[keep:].float().numpy(), f[keep:].float().numpy())
-    s.tail = torch.cat([s.tail[len(s.tail) - keep:], f[keep:]])[-s.keep:]
-    s.tail_angle = torch.cat([s.tail_angle[len(s.tail_angle) - keep:], angle[keep:]])[-s.keep:]
-    s.tail_xz = torch.cat([s.tail_xz[len(s.tail_xz) - keep:], xz[keep:]])[-s.keep:]
+    remember = s.keep + s.rewind
+    s._features = torch.cat([s._features, f[keep:]])[-remember:]
+    s._angle = torch.cat([s._angle, angle[keep:]])[-remember:]
+    s._xz = torch.cat([s._xz, xz[keep:]])[-remember:]
+    s._starts.append(s.frames)
     s.frames += chunk.frames
     s.windows += 1
+    while s._starts and s._starts[0] < s.earliest_cut:  # never dropped by a cut: forgotten
+        s._starts.popleft()
     return chunk
 
 
-__all__ = ["STREAM_CHUNK", "STREAM_KEEP", "Chunk", "MotionStream", "StreamPipeline", "advance"]
+__all__ = ["STREAM_CHUNK", "STREAM_KEEP", "STREAM_REWIND", "Chunk", "MotionStream", "StreamPipeline", "advance"]

@@ -40,11 +40,16 @@ WARM_STEPS = 2  # the warm-up generation before the worker reports ready
 
 # live streams (WebSocket /v1/stream: serve/stream.py)
 MAX_STREAMS = 4  # live streams at once (`smf serve --max-streams`); one more is told so and closed
-STREAM_LEAD_S = 1.0  # frames are never sent more than this far ahead of their play time (a new prompt shows
-# after what was sent: within this)
-STREAM_REFILL_S = 0.4  # the next window is made when the frames sent ahead play for less than this, or less
-STREAM_REFILL_FACTOR = 1.75  # than this many times the slowest of the stream's recent windows (a loaded CPU)
-STREAM_RECENT_WINDOWS = 5
+STREAM_AHEAD_S = 1.5  # windows are made until the frames made play this long ahead of play time (a slow window
+# on a loaded CPU does not make frames late) ...
+STREAM_SEND_LEAD_S = 0.4  # ... but frames are sent at most this far ahead of their play time: a new prompt cuts
+# the frames not sent yet and the stream is made again from there (a new prompt shows after what was sent)
+STREAM_SWITCH_FACTOR = 1.25  # a new prompt's frames start this many times the slowest of the stream's recent
+STREAM_RECENT_WINDOWS = 5  # windows after the prompt came (at least STREAM_SEND_LEAD_S): they come in time
+STREAM_JOIN_S = 0.6  # a stream with less than STREAM_AHEAD_S + this made ahead joins a worker call that starts
+# (windows of several streams in one batch cost far less than one by one); AHEAD + JOIN + a window (54 frames)
+# must stay within the frames a stream can be cut back (pipelines/stream.py STREAM_REWIND, 60: tested)
+STREAM_MESSAGE_FRAMES = 2  # frames are sent when this many are due (10 messages a second at 20 fps), or more
 STREAM_GATHER_S = 0.002  # the stream hub gathers the windows asked for within this into one worker call
 MAX_STREAM_SECONDS = 1800.0  # a stream ends (with an error message) after this much motion
 STREAM_START_TIMEOUT_S = 30.0  # the first prompt must arrive within this after connecting

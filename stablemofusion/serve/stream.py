@@ -11,10 +11,15 @@ Where it runs: windows are made by a stream worker of their own (not the batched
 could hold a live stream up for seconds): :class:`ThreadStreamWorker` on a thread (tests, embedding) or, for
 `smf serve`, :class:`StreamProcessWorker`, a supervised process like the batch worker. The event loop's
 :class:`StreamHub` gathers the windows every connection needs into one worker call (windows of several
-streams are denoised as one batch), and each connection (:class:`StreamSession`) is paced by the clock:
-it asks for its next window when the frames it has sent play for less than STREAM_REFILL_S (or 1.75 times its
-recent windows' time, when the CPU is loaded, as far as the lead allows), and never sends
-frames more than STREAM_LEAD_S ahead of their play time. At most ``max_streams`` streams at once.
+streams are denoised as one batch; a connection with less than STREAM_AHEAD_S + STREAM_JOIN_S made ahead joins
+a call as it starts), and each connection (:class:`StreamSession`) is paced by the clock:
+it keeps windows made until its frames play STREAM_AHEAD_S ahead of play time (a slow window on a loaded CPU
+makes no frame late), but sends frames at most STREAM_SEND_LEAD_S ahead of their play time (a few frames a
+message); the frames made and not sent wait in its :class:`FrameBuffer`. A new prompt cuts that buffer back
+(:func:`cut_frame`: past the frames sent, and far enough ahead for the window to come in time) and the stream
+worker cuts the stream back to the same frame (:meth:`MotionStream.cut`) before making the next window with the
+new prompt: the prompt shows a few tenths of a second after it came, not after the whole buffer. At most
+``max_streams`` streams at once.
 """
 
 from __future__ import annotations
@@ -22,10 +27,11 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import math
 import time
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from pydantic import BaseModel, Field
@@ -33,8 +39,9 @@ from pydantic import BaseModel, Field
 from .checks import STRICT, check_prompt, parse_body
 from .errors import ServeError, log_event
 from .limits import (MAX_GUIDANCE, MAX_SEED, MAX_STREAM_MESSAGE_BYTES, MAX_STREAM_MESSAGES, MAX_STREAM_SECONDS,
-                     MAX_STREAMS, STREAM_DECIMALS, STREAM_LEAD_S, STREAM_MESSAGE_WINDOW_S, STREAM_RECENT_WINDOWS,
-                     STREAM_GATHER_S, STREAM_REFILL_FACTOR, STREAM_REFILL_S, STREAM_START_TIMEOUT_S, WARM_STEPS)
+                     MAX_STREAMS, STREAM_AHEAD_S, STREAM_DECIMALS, STREAM_GATHER_S, STREAM_JOIN_S,
+                     STREAM_MESSAGE_FRAMES, STREAM_MESSAGE_WINDOW_S, STREAM_RECENT_WINDOWS, STREAM_SEND_LEAD_S,
+                     STREAM_START_TIMEOUT_S, STREAM_SWITCH_FACTOR, WARM_STEPS)
 from .worker import Failure, ProcessWorker, child_loop
 
 TRY_LATER = 1013  # WebSocket close code: the server is at its stream limit
@@ -54,13 +61,16 @@ class StreamMessage(BaseModel):
 
 @dataclass(frozen=True)
 class StreamJob:
-    """One window of stream ``sid`` (``prompt`` a new prompt, or None: the same), or its end (``close``)."""
+    """One window of stream ``sid`` (``prompt`` a new prompt, or None: the same; ``new``: the stream's first,
+    which opens it; ``cut``: first cut the stream back to that frame), or its end (``close``)."""
 
     sid: int
     prompt: str | None = None
     seed: int | None = None
     guidance: float | None = None
     close: bool = False
+    new: bool = False
+    cut: int | None = None
 
 
 @dataclass(frozen=True)
@@ -80,12 +90,14 @@ def run_stream_jobs(pipe, streams: dict, jobs: list[StreamJob]) -> list:
         try:
             if job.close:
                 streams.pop(job.sid, None)
-            elif job.sid not in streams:
-                if job.prompt is None:
-                    raise ServeError(500, "the stream is gone (its worker restarted); start a new one")
+            elif job.new:
                 streams[job.sid] = pipe.stream(job.prompt, seed=job.seed, guidance_scale=_guidance(job.guidance))
                 live.append(i)
+            elif job.sid not in streams:
+                raise ServeError(500, "the stream is gone (its worker restarted); start a new one")
             else:
+                if job.cut is not None:
+                    streams[job.sid].cut(job.cut)
                 if job.prompt is not None:
                     streams[job.sid].set_prompt(job.prompt, seed=job.seed, guidance_scale=job.guidance)
                 live.append(i)
@@ -176,6 +188,67 @@ class StreamProcessWorker(ProcessWorker):
     process_name = "smf-stream"
 
 
+class FrameBuffer:
+    """The frames of one stream made but not sent yet: frames ``sent`` .. ``made - 1``, each with the prompt
+    index of its window. Frames sent are the client's; those not sent yet can be cut (a new prompt)."""
+
+    def __init__(self):
+        self.sent = 0
+        self.made = 0
+        self._joints: list[np.ndarray] = []  # one (J, 3) array per frame not sent
+        self._index: list[int] = []
+
+    def __len__(self) -> int:
+        return self.made - self.sent
+
+    def add(self, start: int, joints: np.ndarray, index: int) -> None:
+        """Frames ``start`` .. of a window (``start`` must be the next frame: ``made``)."""
+        if start != self.made:
+            raise ServeError(500, f"the stream went out of step (frame {start} came, {self.made} was next); "
+                                  "start a new one")
+        self._joints.extend(joints)
+        self._index.extend([index] * len(joints))
+        self.made += len(joints)
+
+    def cut(self, frame: int) -> int:
+        """Forget the frames from ``frame`` on (``sent`` .. ``made``); returns how many."""
+        if not self.sent <= frame <= self.made:
+            raise ValueError(f"frames {self.sent} .. {self.made} can be cut, not {frame}")
+        drop = self.made - frame
+        del self._joints[frame - self.sent:], self._index[frame - self.sent:]
+        self.made = frame
+        return drop
+
+    def take(self, upto: int) -> list[tuple[int, int, np.ndarray]]:
+        """Frames ``sent`` .. ``upto - 1`` (those made), now sent: (start, prompt index, joints (n, J, 3)), one
+        per run of frames of one prompt index."""
+        n = max(0, min(upto, self.made) - self.sent)
+        out = []
+        while n:
+            k = 1
+            while k < n and self._index[k] == self._index[0]:
+                k += 1
+            out.append((self.sent, self._index[0], np.stack(self._joints[:k])))
+            del self._joints[:k], self._index[:k]
+            self.sent += k
+            n -= k
+        return out
+
+
+def due_frames(elapsed: float, fps: float, lead: float = STREAM_SEND_LEAD_S) -> int:
+    """Frames that may be sent ``elapsed`` s after the play clock started: those that end playing within
+    ``lead`` (frame f plays from f / fps to (f + 1) / fps)."""
+    return max(0, math.floor((elapsed + lead) * fps + 1e-6))
+
+
+def cut_frame(sent: int, elapsed: float, fps: float, window_s: float) -> int:
+    """Where a new prompt's frames start, ``elapsed`` s after the play clock started: after the frames sent, and
+    no sooner than STREAM_SWITCH_FACTOR times ``window_s`` (the slowest recent window of the stream: the window
+    with the new prompt is back before its frames play) nor than STREAM_SEND_LEAD_S ahead."""
+    ahead = max(STREAM_SEND_LEAD_S, STREAM_SWITCH_FACTOR * window_s)
+    return max(sent, math.ceil((elapsed + ahead) * fps - 1e-6))
+
+
 class StreamHub:
     """The event loop's side of the stream worker: stream slots (at most ``max_streams``) and one gathering
     task that sends every window asked for meanwhile (and the ends of closed streams) as one worker call."""
@@ -184,6 +257,9 @@ class StreamHub:
         self.worker, self.max_streams = worker, max_streams
         self.active: set[int] = set()
         self.windows = 0  # windows made, all streams
+        self.cut_frames = 0  # frames made and cut before they were sent (new prompts), all streams
+        self.sessions: set = set()  # the open streams' sessions: asked to join each call as it starts
+        self.inviting = False  # a call is gathering its windows
         self.batches: deque[int] = deque(maxlen=1000)  # windows per worker call (recent calls)
         self.call_s: deque[float] = deque(maxlen=1000)  # wall time of those calls
         self._next_sid = 0
@@ -213,7 +289,8 @@ class StreamHub:
     def health(self) -> dict:
         calls = sorted(self.call_s)
         return {**self.worker.health(), "active": len(self.active), "max": self.max_streams, "windows": self.windows,
-                "recent_calls": len(calls), "call_ms_median": round(1000 * calls[len(calls) // 2]) if calls else None,
+                "cut_frames": self.cut_frames, "recent_calls": len(calls),
+                "call_ms_median": round(1000 * calls[len(calls) // 2]) if calls else None,
                 "call_ms_max": round(1000 * calls[-1]) if calls else None,
                 "windows_per_call": round(sum(self.batches) / len(self.batches), 2) if self.batches else None}
 
@@ -226,7 +303,11 @@ class StreamHub:
     async def _run(self) -> None:
         while True:
             items = [await self._queue.get()]
-            await asyncio.sleep(STREAM_GATHER_S)  # the other streams asking on the same tick
+            self.inviting = True  # the other streams asking on the same tick, or joining early
+            for session in self.sessions:
+                session.wake.set()
+            await asyncio.sleep(STREAM_GATHER_S)
+            self.inviting = False
             while not self._queue.empty():
                 items.append(self._queue.get_nowait())
             jobs = [j for j, _ in items]
@@ -253,8 +334,8 @@ class StreamHub:
 
 
 class StreamSession:
-    """One WebSocket connection's stream: a reader task takes the client's messages; :meth:`play` makes and
-    sends the windows, paced by the clock."""
+    """One WebSocket connection's stream: a reader task takes the client's messages; :meth:`play` has the
+    windows made ahead (one at a time) and sends their frames, paced by the clock."""
 
     def __init__(self, ws, hub: StreamHub, sid: int, fps: float):
         self.ws, self.hub, self.sid, self.fps = ws, hub, sid, fps
@@ -263,7 +344,8 @@ class StreamSession:
         self.prompts = 0  # prompt messages so far (the next one's prompt_index)
         self.index = -1  # the prompt_index of the frames being made
         self.stopped = False  # the client said stop, or left
-        self.last_chunk = 0  # frames of the last window
+        self.buffer = FrameBuffer()  # the frames made and not sent
+        self.start: float | None = None  # the play clock: when frame 0 was sent (monotonic)
         self.wake = asyncio.Event()
         self._send_lock = asyncio.Lock()
         self._recent: deque[float] = deque()
@@ -318,59 +400,91 @@ class StreamSession:
         self.prompts += 1
         self.wake.set()
 
-    async def _sleep(self, seconds: float) -> None:
-        """Sleep up to ``seconds``; wakes early when the client stops or leaves."""
-        self.wake.clear()
-        if seconds > 0 and not self.stopped:
-            try:
-                await asyncio.wait_for(self.wake.wait(), seconds)
-            except asyncio.TimeoutError:
-                pass
+    async def _sleep(self, seconds: float | None) -> None:
+        """Sleep up to ``seconds`` (None: no limit) or until woken (a message, a stop, a window made): the caller
+        clears ``wake`` before it looks at what it waits for."""
+        if self.stopped or (seconds is not None and seconds <= 0):
+            return
+        try:
+            await asyncio.wait_for(self.wake.wait(), seconds)
+        except asyncio.TimeoutError:
+            pass
 
-    def refill_s(self, sent: int) -> float:
-        """How far ahead of play time the next window is asked for: STREAM_REFILL_S, more when recent windows
-        were slow, never so much that a window's frames would pass STREAM_LEAD_S."""
-        slow = STREAM_REFILL_FACTOR * max(self._window_s, default=0.0)
-        chunk_s = self.last_chunk / self.fps
-        return min(max(STREAM_REFILL_S, slow), STREAM_LEAD_S - chunk_s)
+    def _next_job(self, now: float) -> StreamJob | None:
+        """The window to ask for now, if any: a new prompt's (the frames not sent beyond its cut are dropped),
+        else one more while the frames made play less than STREAM_AHEAD_S ahead (or STREAM_AHEAD_S +
+        STREAM_JOIN_S while the worker's next call gathers windows: a batch)."""
+        buf = self.buffer
+        if self.pending is not None:
+            job, self.pending, self.index = self.pending, None, self.pending_index
+            if self.start is None:  # the first window (the play clock starts with its frames)
+                return replace(job, new=True)
+            frame = cut_frame(buf.sent, now - self.start, self.fps, max(self._window_s, default=0.0))
+            if frame < buf.made:
+                self.hub.cut_frames += buf.cut(frame)
+                job = replace(job, cut=frame)
+            return job
+        if self.start is None or buf.made >= MAX_STREAM_SECONDS * self.fps:
+            return None
+        ahead = buf.made / self.fps - (now - self.start)
+        if ahead < STREAM_AHEAD_S or (self.hub.inviting and ahead < STREAM_AHEAD_S + STREAM_JOIN_S):
+            return StreamJob(self.sid)
+        return None
 
     async def play(self) -> None:
-        """Wait for the first prompt, then make window after window until the client stops or leaves."""
+        """Wait for the first prompt, then make windows ahead and send their frames, until the client stops or
+        leaves (or the stream reaches MAX_STREAM_SECONDS)."""
         deadline = time.monotonic() + STREAM_START_TIMEOUT_S
         while self.pending is None and not self.stopped:
             if time.monotonic() > deadline:
                 await self.error(f"no prompt within {STREAM_START_TIMEOUT_S:g} s of connecting; closing")
                 return
+            self.wake.clear()
             await self._sleep(deadline - time.monotonic())
-        start, sent = None, 0  # the play clock (when frame 0 was sent) and the frames sent
-        while not self.stopped:
-            if start is not None:  # 1. pace: the next window when what was sent plays for less than the refill
-                await self._sleep(start + sent / self.fps - self.refill_s(sent) - time.monotonic())
-                if self.stopped:
-                    break
-                if sent / self.fps >= MAX_STREAM_SECONDS:
-                    await self.error(f"a stream lasts at most {MAX_STREAM_SECONDS:g} s; start a new one")
-                    return
-            job, self.pending = self.pending or StreamJob(self.sid), None  # 2. the window, with the latest prompt
-            if job.prompt is not None:
-                self.index = self.pending_index
-            asked = time.monotonic()
-            outcome = await self.hub.window(job)
-            self._window_s.append(time.monotonic() - asked)
-            if isinstance(outcome, Failure):
-                await self.error(outcome.message)
-                await self.ws.close(SERVER_ERROR)
-                return
-            if start is None:
-                start = time.monotonic()
-            n = len(outcome.joints)  # 3. never more than the lead ahead of play time
-            await self._sleep((sent + n) / self.fps - (time.monotonic() - start) - STREAM_LEAD_S)
-            if self.stopped:
-                break
-            await self.send({"type": "frames", "start": outcome.start, "fps": self.fps, "prompt_index": self.index,
-                             "joints": np.round(outcome.joints.astype(np.float64), STREAM_DECIMALS).tolist()})
-            sent += n
-            self.last_chunk = n
+        buf, fps = self.buffer, self.fps
+        window: tuple[asyncio.Future, float, int] | None = None  # the window asked for: (outcome, when, index)
+        try:
+            while not self.stopped:
+                self.wake.clear()
+                now = time.monotonic()
+                if window is not None and window[0].done():  # 1. a window made: its frames wait to be sent
+                    outcome, asked, index = window[0].result(), window[1], window[2]
+                    window = None
+                    if not isinstance(outcome, Failure):
+                        self._window_s.append(now - asked)
+                        try:
+                            buf.add(outcome.start, outcome.joints, index)
+                        except ServeError as e:
+                            outcome = Failure(e.status, e.message)
+                    if isinstance(outcome, Failure):
+                        await self.error(outcome.message)
+                        await self.ws.close(SERVER_ERROR)
+                        return
+                    if self.start is None:
+                        self.start = now
+                if self.start is not None:  # 2. send the frames due: at most STREAM_SEND_LEAD_S ahead
+                    for first, index, joints in buf.take(due_frames(now - self.start, fps)):
+                        await self.send({"type": "frames", "start": first, "fps": fps, "prompt_index": index,
+                                         "joints": np.round(joints.astype(np.float64), STREAM_DECIMALS).tolist()})
+                    if buf.sent >= MAX_STREAM_SECONDS * fps:
+                        await self.error(f"a stream lasts at most {MAX_STREAM_SECONDS:g} s; start a new one")
+                        return
+                    now = time.monotonic()
+                if window is None:  # 3. the next window: one at a time
+                    job = self._next_job(now)
+                    if job is not None:
+                        future = asyncio.ensure_future(self.hub.window(job))
+                        future.add_done_callback(lambda _: self.wake.set())
+                        window = (future, now, self.index)
+                wake = []  # 4. sleep until a message is due, a window is wanted or made, or the client speaks
+                if self.start is not None and len(buf):
+                    wake.append(self.start + min(buf.sent + STREAM_MESSAGE_FRAMES, buf.made) / fps - STREAM_SEND_LEAD_S)
+                if self.start is not None and window is None and buf.made < MAX_STREAM_SECONDS * fps:
+                    wake.append(self.start + buf.made / fps - STREAM_AHEAD_S)
+                await self._sleep(min(wake) - time.monotonic() if wake else None)
+        finally:
+            if window is not None:
+                window[0].cancel()
 
 
 async def serve_stream(ws, hub: StreamHub, fps: float) -> None:
@@ -385,6 +499,7 @@ async def serve_stream(ws, hub: StreamHub, fps: float) -> None:
         await ws.close(TRY_LATER)
         return
     session = StreamSession(ws, hub, sid, fps)
+    hub.sessions.add(session)
     reader = asyncio.ensure_future(session.read())
     try:
         await session.play()
@@ -394,6 +509,7 @@ async def serve_stream(ws, hub: StreamHub, fps: float) -> None:
     finally:
         session.stopped = True
         reader.cancel()
+        hub.sessions.discard(session)
         hub.close(sid)
         try:
             await ws.close()
@@ -401,5 +517,5 @@ async def serve_stream(ws, hub: StreamHub, fps: float) -> None:
             pass
 
 
-__all__ = ["MAX_STREAM_MESSAGE_BYTES", "StreamHub", "StreamJob", "StreamMessage", "StreamProcessWorker",
-           "ThreadStreamWorker", "run_stream_jobs", "serve_stream"]
+__all__ = ["MAX_STREAM_MESSAGE_BYTES", "FrameBuffer", "StreamHub", "StreamJob", "StreamMessage", "StreamProcessWorker",
+           "ThreadStreamWorker", "cut_frame", "due_frames", "run_stream_jobs", "serve_stream"]

@@ -5,15 +5,14 @@ Why not the closest action sentence: a prompt with a style, a persona and an irr
 every bare "a person ..." sentence, and a foreign action with a familiar subject sits close to one. The
 training captions carry the same subjects, styles and details as the foreign captions (both come from the
 corpus caption grammar), so the classifier can only separate them by the action. Measured on held-out data
-(``benchmarks/ood_threshold.py``, docs/prompts.md): at 5% of held-out in-domain prompts flagged it flags 75.5%
-of held-out foreign prompts, against 15.5% for the closest action sentence and 34.5% for nearest neighbours over
-all training captions.
+(``benchmarks/ood_threshold.py``, docs/prompts.md).
 
 The detector is ``ood.safetensors`` beside ``actions.json`` (which names it, with the calibration): an MLP
 384 -> 256 -> 1 in float16 (about 200 kB), depending only on the text encoder and the captions, not on the
 denoiser's weights. Its score is ``sigmoid((logit - offset) / scale)``: 0.5 at the calibrated threshold,
-where ``offset`` is the logit below which :data:`FLAG_RATE` of held-out in-domain captions fall (captions
-made from the lexicon's held-out words, which neither the classifier nor the motion model saw).
+where ``offset`` is the logit below which :data:`FLAG_RATE` of the calibration prompts fall
+(:func:`calibration_inside`: free-form in-domain prompts written the way users type them, which neither the
+classifier nor the motion model saw).
 """
 
 from __future__ import annotations
@@ -27,9 +26,10 @@ from ..errors import SMFError
 from .frozen import sentence_embedding
 
 DETECTOR_FILE = "ood.safetensors"
-FLAG_RATE = 0.05  # share of held-out in-domain prompts the threshold flags (benchmarks/ood_threshold.py)
+FLAG_RATE = 0.05  # share of the calibration prompts (calibration_inside) the threshold flags
 HIDDEN, DROPOUT, EPOCHS, LR, WEIGHT_DECAY, BATCH = 256, 0.2, 15, 3e-3, 1e-2, 512
-FOREIGN_PER_PHRASE = 24  # foreign captions per foreign phrasing (175 phrasings)
+FOREIGN_PER_PHRASE = 24  # foreign captions per foreign phrasing (assets/lexicons/foreign.txt)
+CALIBRATION_FILE = "{lexicon}-calibration.txt"  # in assets/lexicons: free-form in-domain prompts
 HELDOUT_PER_PAIR = 2  # held-out captions per (content, style) pair for the calibration
 
 
@@ -177,10 +177,22 @@ def heldout_inside(lexicon: str = "bandai", per_pair: int | None = None) -> list
     return phrasings + lexicon_captions(lexicon, per_pair, heldout=True, seed="ood-heldout")
 
 
+def calibration_inside(lexicon: str = "bandai") -> list[str]:
+    """The prompts the threshold is calibrated on: the lexicon's free-form in-domain prompts
+    (``assets/lexicons/<lexicon>-calibration.txt``), or :func:`heldout_inside` for a lexicon without them."""
+    from importlib import resources
+
+    path = resources.files("stablemofusion") / "assets" / "lexicons" / CALIBRATION_FILE.format(lexicon=lexicon)
+    if not path.is_file():
+        return heldout_inside(lexicon)
+    lines = path.read_text(encoding="utf-8").splitlines()
+    return [x.strip() for x in lines if x.strip() and not x.lstrip().startswith("#")]
+
+
 def build_detector(inside_captions: list[str], text_cache, *, lexicon: str = "bandai", flag_rate: float = FLAG_RATE,
                    seed: int = 0, encoder: str = "minilm", progress: bool = False) -> DomainDetector:
     """Train the classifier on ``inside_captions`` against the foreign captions and calibrate it on the
-    lexicon's held-out in-domain prompts (:func:`heldout_inside`)."""
+    lexicon's calibration prompts (:func:`calibration_inside`)."""
     from .foreign import foreign_captions
 
     if progress:
@@ -188,7 +200,7 @@ def build_detector(inside_captions: list[str], text_cache, *, lexicon: str = "ba
     inside = embed_texts(inside_captions, text_cache)
     outside = embed_texts(foreign_captions(FOREIGN_PER_PHRASE, lexicon=lexicon), text_cache)
     clf = train_classifier(inside, outside, seed=seed, progress=progress)
-    return DomainDetector.calibrate(clf, embed_texts(heldout_inside(lexicon), text_cache), flag_rate, encoder)
+    return DomainDetector.calibrate(clf, embed_texts(calibration_inside(lexicon), text_cache), flag_rate, encoder)
 
 
 def detector_entry(detector_file: str = DETECTOR_FILE) -> dict:
@@ -197,5 +209,5 @@ def detector_entry(detector_file: str = DETECTOR_FILE) -> dict:
                                             "similarity = its calibrated in-domain score, out of domain below 0.5"}
 
 
-__all__ = ["DETECTOR_FILE", "FLAG_RATE", "DomainClassifier", "DomainDetector", "build_detector", "corpus_captions",
-           "detector_entry", "embed_texts", "heldout_inside", "lexicon_captions", "train_classifier"]
+__all__ = ["DETECTOR_FILE", "FLAG_RATE", "DomainClassifier", "DomainDetector", "build_detector", "calibration_inside",
+           "corpus_captions", "detector_entry", "embed_texts", "heldout_inside", "lexicon_captions", "train_classifier"]

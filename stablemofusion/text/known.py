@@ -1,7 +1,9 @@
 """Out-of-domain check: how close a prompt is to the actions a model was trained on.
 
 A model folder may hold ``actions.json``: ``{"threshold": float, "actions": {label: [example sentences]},
-"detector": {"file": "ood.safetensors"}}`` (written by ``smf export --lexicon NAME``). A prompt's similarity
+"detector": {"file": "ood.safetensors"}}`` (written by ``smf export --lexicon NAME``), and beside it
+``actions.safetensors``: the example sentences' embeddings, so that a process's first check does not encode
+every example (used only when its sentences and text encoder match). A prompt's similarity
 to an action is the largest cosine similarity between its sentence embedding (the frozen encoder's
 mean-pooled, normalised token states, :func:`~stablemofusion.text.frozen.sentence_embedding`) and those of
 the action's examples: the ``closest`` actions. The check's ``similarity`` is the detector's calibrated
@@ -13,6 +15,7 @@ it knows.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +27,8 @@ from .domain import DETECTOR_FILE, DomainDetector
 from .frozen import sentence_embedding
 
 ACTIONS_FILE = "actions.json"
+EMBEDDINGS_FILE = "actions.safetensors"
+MAX_EMBEDDINGS_BYTES = 64 * 2**20  # a larger embeddings file is not read (the examples are encoded instead)
 
 
 @dataclass(frozen=True)
@@ -76,7 +81,29 @@ class KnownActions:
             if Path(detector_file).name != detector_file:
                 raise SMFError(f"{path}: the detector must be a file beside it, not {detector_file!r}")
             detector = DomainDetector.load(path.parent / detector_file)
-        return cls(actions, threshold, text_cache, detector=detector)
+        known = cls(actions, threshold, text_cache, detector=detector)
+        known._emb = known._stored_embeddings(path.parent / EMBEDDINGS_FILE)
+        return known
+
+    def _fingerprint(self) -> str:
+        """sha256 of the example sentences in order, and the text encoder's name when the cache has one."""
+        encoder = getattr(getattr(self.text_cache, "encoder", None), "name", "")
+        return hashlib.sha256(json.dumps([encoder, self.actions]).encode()).hexdigest()
+
+    def _stored_embeddings(self, path: Path) -> torch.Tensor | None:
+        """The examples' embeddings saved beside actions.json, or None when absent, unreadable or stale."""
+        from safetensors import SafetensorError, safe_open
+
+        if not path.is_file() or path.stat().st_size > MAX_EMBEDDINGS_BYTES:
+            return None
+        try:
+            with safe_open(str(path), framework="pt", device="cpu") as f:
+                if (f.metadata() or {}).get("fingerprint") != self._fingerprint():
+                    return None
+                emb = f.get_tensor("embeddings").float()
+        except (OSError, SafetensorError, KeyError, RuntimeError):
+            return None
+        return emb if emb.ndim == 2 and len(emb) == len(self._owner) else None
 
     def save(self, folder: str | Path, about: str = "") -> Path:
         """Write ``actions.json`` (and the detector's file beside it) into ``folder``; returns the json path."""
@@ -87,8 +114,30 @@ class KnownActions:
         if self.detector is not None:
             self.detector.save(folder / DETECTOR_FILE)
             d["detector"] = {"file": DETECTOR_FILE}
+        if self._emb is not None or self.text_cache is not None:  # without an encoder, the next load encodes them
+            self.save_embeddings(folder)
         write_text(folder / ACTIONS_FILE, json.dumps(d, indent=1) + "\n")
         return folder / ACTIONS_FILE
+
+    def save_embeddings(self, folder: str | Path) -> Path:
+        """Write the examples' embeddings (float32, with the fingerprint of sentences and encoder) into
+        ``folder/actions.safetensors``."""
+        from safetensors.torch import save_file
+
+        from ..io import atomic_path
+
+        path = Path(folder) / EMBEDDINGS_FILE
+        with atomic_path(path) as tmp:
+            save_file({"embeddings": self.examples_embedding().contiguous()}, str(tmp),
+                      metadata={"fingerprint": self._fingerprint()})
+            tmp.chmod(0o644)
+        return path
+
+    def examples_embedding(self) -> torch.Tensor:
+        """(E, dim) unit embeddings of every example sentence, in ``actions`` order (encoded once)."""
+        if self._emb is None:
+            self._emb = self.embed([e for examples in self.actions.values() for e in examples])
+        return self._emb
 
     def embed(self, texts: list[str]) -> torch.Tensor:
         out = []
@@ -99,20 +148,16 @@ class KnownActions:
 
     def similarities(self, prompts: list[str]) -> torch.Tensor:
         """(B, A) largest cosine similarity of each prompt to each action's examples."""
-        if self._emb is None:
-            self._emb = self.embed([e for examples in self.actions.values() for e in examples])
+        self.examples_embedding()
         return self._similarities(self.embed(list(prompts)))
 
     def _similarities(self, emb: torch.Tensor) -> torch.Tensor:
-        if self._emb is None:
-            self._emb = self.embed([e for examples in self.actions.values() for e in examples])
-        sims = emb @ self._emb.T  # (B, E)
+        sims = emb @ self.examples_embedding().T  # (B, E)
         best = torch.full((len(emb), len(self.actions)), -1.0)
         return best.scatter_reduce(1, self._owner.expand(len(emb), -1), sims, reduce="amax")
 
     def check_many(self, prompts: list[str]) -> list[DomainCheck]:
-        if self._emb is None:  # the examples first, as before: a prompt equal to one keeps the same encoding batch
-            self._emb = self.embed([e for examples in self.actions.values() for e in examples])
+        self.examples_embedding()  # the examples first (when not stored): their encoding batches stay as they were
         emb = self.embed(list(prompts))
         sims = self._similarities(emb)
         scores = None if self.detector is None else self.detector.scores(emb)
@@ -129,4 +174,4 @@ class KnownActions:
         return self.check_many([prompt])[0]
 
 
-__all__ = ["ACTIONS_FILE", "DomainCheck", "KnownActions"]
+__all__ = ["ACTIONS_FILE", "EMBEDDINGS_FILE", "DomainCheck", "KnownActions"]

@@ -186,3 +186,21 @@ def test_self_evaluation_goes_into_eval_jsonl_and_the_curve(corpus, text_cache, 
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert main(["curve", str(tmp_path / "nothing"), "--out", str(out)]) == 2
     assert main(["curve", str(tmp_path / "run"), "--out", str(tmp_path / "curve.jpg")]) == 2
+
+
+def test_curve_compares_runs(tmp_path, capsys):
+    for name, acc in (("a", 0.4), ("b", 0.5)):
+        run = tmp_path / name
+        run.mkdir()
+        (run / "log.csv").write_text("step,loss,lr,seconds,samples_per_s\n1,0.5,1e-4,1.0,64\n")
+        (run / "eval.jsonl").write_text("".join(json.dumps({"step": s, "train_seconds": 3600.0 * s,
+                                                            "probe_all_content_acc": acc * s, "val_fid": 2.0 / s})
+                                                + "\n" for s in (1, 2)))
+    out = tmp_path / "compare.png"
+    assert main(["curve", str(tmp_path / "a"), str(tmp_path / "b"), "--label", "arm A", "--label", "arm B",
+                 "--out", str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    table = [x for x in capsys.readouterr().out.splitlines() if x.startswith("| arm")]
+    assert table == ["| arm A | 1 | 1.00 | 0.400 | - | - | 2.000 |", "| arm A | 2 | 2.00 | 0.800 | - | - | 1.000 |",
+                     "| arm B | 1 | 1.00 | 0.500 | - | - | 2.000 |", "| arm B | 2 | 2.00 | 1.000 | - | - | 1.000 |"]
+    assert main(["curve", str(tmp_path / "a"), str(tmp_path / "b"), "--label", "x", "--out", str(out)]) == 2

@@ -116,6 +116,15 @@ def test_evaluate_prompts_cli(classifier_dir, eval_corpus, tiny_checkpoint, tmp_
     assert code == 0
     res = json.loads(out.read_text())["prompts"]
     assert res["all"]["n"] == 2 and "Prompt following" in capsys.readouterr().out
+    code = main(["evaluate", "--checkpoint", str(tiny_checkpoint), "--data", str(eval_corpus), "--classifier",
+                 str(classifier_dir), "--prompts", str(path), "--prompts-only", "--prompt-samples", "1",
+                 "--prompt-seconds", "auto", "--steps", "2", "--out", str(out)])
+    assert code == 0 and json.loads(out.read_text())["prompts"]["seconds"] is None  # the pipeline's own length
+    capsys.readouterr()
+    for bad in ("abc", "0"):
+        assert main(["evaluate", "--checkpoint", str(tiny_checkpoint), "--data", str(eval_corpus), "--classifier",
+                     str(classifier_dir), "--prompts", str(path), "--prompts-only", "--prompt-seconds", bad]) == 2
+        assert "--prompt-seconds positive or auto" in capsys.readouterr().err
     path.write_text(json.dumps({"prompt": "a man walks", "content": "jump", "dataset": 1}) + "\n")
     code = main(["evaluate", "--checkpoint", str(tiny_checkpoint), "--data", str(eval_corpus), "--classifier",
                  str(classifier_dir), "--prompts", str(path), "--prompts-only"])

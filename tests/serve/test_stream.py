@@ -12,7 +12,7 @@ import pytest
 from stablemofusion.errors import SMFError
 from stablemofusion.motion.features import joints_from_features
 from stablemofusion.serve import create_app
-from stablemofusion.serve.limits import STREAM_LEAD_S
+from stablemofusion.serve.limits import STREAM_AHEAD_S, STREAM_SEND_LEAD_S
 
 from serve_helpers import live_server
 
@@ -50,6 +50,58 @@ def test_the_stream_continues_where_the_character_stands(pipe):
     assert steps[seams].max() <= inside.max()
 
 
+def test_a_cut_back_to_a_window_start_is_the_stream_that_never_made_the_dropped_frames(pipe):
+    """Rolling back (what the server does with frames it has not sent when a new prompt arrives): cut at a
+    window's start, the next chunk is exactly the chunk of a stream that switched prompt there, same seed."""
+    a = pipe.stream("a person walks forward", seed=5)
+    made = [next(a) for _ in range(4)]  # frames 0 .. 47
+    assert a.cut(24) == 24 and a.frames == 24 and a.windows == 2
+    after = a.send("a person waves both hands")
+    b = pipe.stream("a person walks forward", seed=5)
+    kept = [next(b), next(b)]
+    switched = b.send("a person waves both hands")
+    assert after.start == 24 and after.prompt_index == 1 and after.prompt == "a person waves both hands"
+    assert np.array_equal(after.joints, switched.joints) and np.array_equal(after.features, switched.features)
+    assert all(np.array_equal(m.joints, k.joints) for m, k in zip(made, kept))
+    assert not np.allclose(after.joints, made[2].joints)  # the new prompt, not the frames that were cut
+    assert [c.start for c in (next(a), next(b))] == [36, 36]
+
+
+def test_a_cut_mid_window_joins_the_kept_frames_exactly(pipe):
+    """Cut inside a chunk: the frames kept plus the frames made after the cut are one motion: its joints are
+    those of its features decoded at once (the world heading and position restored to the cut), and the step
+    at the cut is no larger than the steps inside."""
+    s = pipe.stream("a person walks forward", seed=1)
+    made = [next(s) for _ in range(5)]  # frames 0 .. 59
+    s.cut(41)
+    s.set_prompt("a person runs")
+    new = [next(s), next(s)]
+    assert [c.start for c in new] == [41, 53] and all(c.prompt_index == 1 for c in new)
+    joints = np.concatenate([c.joints for c in made])[:41]
+    features = np.concatenate([c.features for c in made])[:41]
+    joints = np.concatenate([joints] + [c.joints for c in new])
+    features = np.concatenate([features] + [c.features for c in new])
+    whole = joints_from_features(features.astype(np.float64), pipe.skeleton)
+    assert np.abs(joints - whole).max() < 1e-3
+    steps = np.linalg.norm(np.diff(joints, axis=0), axis=-1).max(-1)
+    assert steps[40] <= np.delete(steps, [40, 52]).max()
+    again = [next(s) for _ in range(6)]  # and it goes on (frames 65 .. 136): cut back to any of the last 60
+    assert s.earliest_cut == s.frames - 60
+    with pytest.raises(SMFError):
+        s.cut(s.frames - 61)
+    with pytest.raises(SMFError):
+        s.cut(s.frames + 1)
+    assert s.cut(s.frames - 60) == 60 and next(s).start == again[-1].start + 12 - 60
+
+
+def test_a_cut_back_to_frame_0_restarts_the_stream(pipe):
+    s = pipe.stream("a person walks forward", seed=2)
+    first = next(s)
+    next(s)
+    s.cut(0)
+    assert s.frames == 0 and s.windows == 0 and np.array_equal(next(s).joints, first.joints)
+
+
 @pytest.fixture(scope="module")
 def live(pipe):
     app = create_app(pipe, max_streams=2)
@@ -72,34 +124,38 @@ def idle(hub, timeout: float = 10.0) -> None:
 
 
 def frames(ws, n: int, timeout: float = 30.0) -> list[dict]:
-    """The next ``n`` frames messages (errors are collected into ``errors`` of the last)."""
+    """The next frames messages, until they hold ``n`` frames or more (error messages are skipped)."""
     out = []
-    while len(out) < n:
+    while sum(len(m["joints"]) for m in out) < n:
         m = json.loads(ws.recv(timeout=timeout))
         if m["type"] == "frames":
             out.append(m)
     return out
 
 
+def contiguous(messages: list[dict]) -> bool:
+    return all(b["start"] == a["start"] + len(a["joints"]) for a, b in zip(messages, messages[1:]))
+
+
 def test_protocol_frames_prompt_index_errors_and_stop(server):
     app, url = server
     with ws_client.connect(url, open_timeout=10) as ws:
         ws.send(json.dumps({"prompt": "a person walks forward", "seed": 1}))
-        first = frames(ws, 2)
-        assert [m["start"] for m in first] == [0, 12] and first[0]["fps"] == 20
-        assert first[0]["prompt_index"] == 0 and np.array(first[0]["joints"]).shape == (12, 22, 3)
+        first = frames(ws, 24)
+        assert first[0]["start"] == 0 and contiguous(first) and first[0]["fps"] == 20
+        assert first[0]["prompt_index"] == 0 and np.array(first[0]["joints"]).shape[1:] == (22, 3)
         for bad, why in [("not json", "not valid JSON"), (json.dumps({"prompt": "x", "bogus": 1}), "bogus"),
                          (json.dumps({"prompt": ""}), "prompt must have 1 to 300"), (json.dumps({"seed": 2}), "prompt"),
                          (json.dumps({"stop": False}), "stop"), (json.dumps([1]), "")]:
             ws.send(bad)
             m = json.loads(ws.recv(timeout=30))
             while m["type"] == "frames":
+                first.append(m)
                 m = json.loads(ws.recv(timeout=30))
             assert m["type"] == "error" and why in m["error"]
         ws.send(json.dumps({"prompt": "a person waves both hands", "guidance": 3.0}))
-        got = frames(ws, 6)
-        starts = [m["start"] for m in first + got]
-        assert starts == list(range(0, 12 * len(starts), 12))  # contiguous, nothing lost to the errors
+        got = frames(ws, 72)
+        assert contiguous(first + got)  # nothing lost to the errors
         assert [m["prompt_index"] for m in got][-1] == 1  # bad messages are not prompts
         ws.send(json.dumps({"stop": True}))
         with pytest.raises(ConnectionClosed) as closed:
@@ -140,21 +196,37 @@ def test_a_client_that_leaves_ends_its_stream_and_its_work(server):
     assert hub.health()["open"] == 0  # and the worker dropped its state
 
 
-def test_frames_are_paced_never_more_than_the_lead_ahead(server):
+def test_frames_are_paced_never_more_than_the_send_lead_ahead_and_a_new_prompt_cuts_the_rest(server):
+    """Frames are made up to STREAM_AHEAD_S ahead but sent at most STREAM_SEND_LEAD_S ahead of play time; a new
+    prompt drops the frames made and not sent beyond its cut, so it shows well before the frames made ahead
+    would have played, and the frames stay contiguous."""
     app, url = server
+    hub = app.state.streams
+    cut_before = hub.cut_frames
     with ws_client.connect(url) as ws:
         ws.send(json.dumps({"prompt": "a person walks", "seed": 0}))
-        t0, ahead = None, []
-        for _ in range(12):
+        t0, ahead, got, sent = None, [], [], None
+        while sum(len(m["joints"]) for m in got) < 160:
             m = frames(ws, 1)[0]
             now = time.monotonic()
             t0 = now if t0 is None else t0
-            n = len(m["joints"])
-            ahead.append((m["start"] + n) / m["fps"] - (now - t0))  # how far the chunk's end is ahead of play
-    assert max(ahead) <= STREAM_LEAD_S + 0.1  # the server's bound (its clock starts a moment before ours)
-    assert 12 * 12 / 20 - (now - t0) < STREAM_LEAD_S + 0.1  # 7.2 s of motion took 7.2 s less the lead, at least
-    # Whether frames arrive before their play time depends on the CPU and its load: a figure of
-    # benchmarks/stream_check.py (shipped model, docs/serve.md), not a timed assertion here.
+            got.append(m)
+            ahead.append((m["start"] + len(m["joints"])) / m["fps"] - (now - t0))  # its end ahead of play
+            if sent is None and m["start"] >= 80:
+                assert hub.health()["active"] == 1
+                sent = time.monotonic()
+                ws.send(json.dumps({"prompt": "a person waves both hands"}))
+    assert max(ahead) <= STREAM_SEND_LEAD_S + 0.1  # the server's bound (its clock starts a moment before ours)
+    received = sum(len(m["joints"]) for m in got)
+    assert received / 20 - (now - t0) < STREAM_SEND_LEAD_S + 0.1  # 8 s of motion took 8 s less the lead, at least
+    assert contiguous(got) and got[0]["start"] == 0
+    new = next(m for m in got if m["prompt_index"] == 1)
+    assert all(m["prompt_index"] == 0 for m in got if m["start"] < new["start"])
+    assert all(m["prompt_index"] == 1 for m in got if m["start"] >= new["start"])
+    assert hub.cut_frames > cut_before  # frames made ahead were dropped ...
+    assert t0 + new["start"] / 20 - sent < STREAM_AHEAD_S  # ... so the prompt shows before they would have played
+    # Whether frames arrive before their play time, and how soon a prompt shows, depend on the CPU and its
+    # load: figures of benchmarks/stream_check.py (shipped model, docs/serve.md), not timed assertions here.
 
 
 def test_a_page_of_another_site_cannot_open_a_stream(server):

@@ -200,3 +200,53 @@ def test_detector_warning_and_fields_keep_their_shape(checkpoint_with_detector, 
     d = pipe.known_actions.check("a person walks forward")
     assert not d.out_of_domain and d.closest[0][0] == "walk"
     assert set(d.to_dict("a person walks forward")) == {"similarity", "out_of_domain", "closest_actions"}
+
+
+def test_shipped_detector_on_held_out_foreign_prompts_and_its_calibration(shipped):
+    """The threshold flags about FLAG_RATE of its calibration prompts and >= 90% of the held-out foreign prompts
+    (benchmarks/ood_heldout.txt, never used to train or calibrate it)."""
+    from pathlib import Path
+
+    from stablemofusion.text.domain import FLAG_RATE, calibration_inside
+
+    calib = calibration_inside("bandai")
+    assert len(calib) >= 100 and not any(x.startswith("#") for x in calib)
+    flagged = np.mean([c.out_of_domain for c in shipped.check_many(calib)])
+    assert flagged <= FLAG_RATE + 0.02
+    text = (Path(__file__).parents[2] / "benchmarks" / "ood_heldout.txt").read_text()
+    foreign = [x.strip() for x in text.splitlines() if x.strip() and not x.startswith("#")]
+    assert np.mean([c.out_of_domain for c in shipped.check_many(foreign)]) >= 0.9
+
+
+def test_foreign_phrasings_are_a_data_file_and_fill_the_grammar():
+    from stablemofusion.text.foreign import foreign_captions, foreign_phrases
+
+    phrases = foreign_phrases()
+    assert len(phrases) >= 400 and len(set(phrases)) == len(phrases)
+    captions = foreign_captions(2)
+    assert len(captions) == 2 * len(phrases)
+    assert not any("<" in c or "{" in c for c in captions)  # every verb form and slot filled
+
+
+def test_example_embeddings_are_read_from_the_model_folder_when_they_match(tmp_path, cache):
+    """A process's first check reads actions.safetensors instead of encoding every example; a stale file
+    (other sentences) is ignored, and the stored embeddings equal freshly encoded ones."""
+    from stablemofusion.text.known import EMBEDDINGS_FILE
+
+    folder = default_model_path()
+    assert (folder / EMBEDDINGS_FILE).is_file()
+    known = KnownActions.load(folder / ACTIONS_FILE, cache)
+    assert known._emb is not None  # read, not encoded
+    fresh = KnownActions(known.actions, known.threshold, LRUTextCache(load_text_encoder("minilm")))
+    assert torch.allclose(known._emb, fresh.examples_embedding(), atol=1e-5)
+
+    small = KnownActions({"walk": ["a person walks"], "bow": ["a person bows"]}, 0.5, cache)
+    small.save(tmp_path)
+    assert KnownActions.load(tmp_path / ACTIONS_FILE, cache)._emb is not None
+    d = json.loads((tmp_path / ACTIONS_FILE).read_text())
+    d["actions"]["bow"] = ["a person bows deeply"]
+    (tmp_path / ACTIONS_FILE).write_text(json.dumps(d))
+    stale = KnownActions.load(tmp_path / ACTIONS_FILE, cache)
+    assert stale._emb is None and stale.check("a person bows deeply").closest[0] == ("bow", pytest.approx(1.0, abs=1e-5))
+    (tmp_path / EMBEDDINGS_FILE).write_bytes(b"not safetensors")
+    assert KnownActions.load(tmp_path / ACTIONS_FILE, cache)._emb is None

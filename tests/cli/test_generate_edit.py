@@ -93,3 +93,34 @@ def test_raw_mocap_bvh_through_a_joint_map(bandai_mini_source, tmp_path, capsys)
                  "prefix", "--keep-start", "1", "--seconds", "4", "--steps", "2", "--format", "npy",
                  "--out", str(tmp_path / "o")]) == 0
     assert len(np.load(next((tmp_path / "o").glob("*_joints.npy")))) == 80
+
+
+def test_threads_default_to_the_idle_cores(monkeypatch):
+    """`smf generate/edit` use --threads, else OMP_NUM_THREADS, else the cores less the load average (>= 1)."""
+    import argparse
+    import os
+
+    import torch
+
+    from stablemofusion.cli.options import idle_threads, set_threads
+    from stablemofusion.errors import SMFError
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
+    for load, want in ((0.0, 4), (0.4, 4), (1.0, 3), (2.6, 1), (9.0, 1)):
+        monkeypatch.setattr(os, "getloadavg", lambda load=load: (load, load, load))
+        assert idle_threads() == want, load
+    before = torch.get_num_threads()
+    try:
+        monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+        monkeypatch.setattr(os, "getloadavg", lambda: (3.0, 3.0, 3.0))
+        set_threads(argparse.Namespace(threads=None))
+        assert torch.get_num_threads() == 1  # one idle core of four
+        set_threads(argparse.Namespace(threads=3))
+        assert torch.get_num_threads() == 3
+        monkeypatch.setenv("OMP_NUM_THREADS", "2")
+        set_threads(argparse.Namespace(threads=None))
+        assert torch.get_num_threads() == 3  # the user's OMP_NUM_THREADS: left alone
+        with pytest.raises(SMFError, match="--threads must be at least 1"):
+            set_threads(argparse.Namespace(threads=0))
+    finally:
+        torch.set_num_threads(before)

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from ..diffusion.config import DistilConfig
-from .flags import add_config_flags, config_from_args
+from .flags import add_config_flags, apply_threads, config_from_args
 
 _FLAGS = {  # DistilConfig field -> help
     "teacher": "the teacher: a checkpoint, run or exported model folder (e.g. the shipped default model)",
@@ -43,16 +43,10 @@ def add_parser(sub, name: str) -> None:
 
 def run(args: argparse.Namespace) -> None:
     from ..diffusion.distil import check_distil_config, distil
-    from ..errors import SMFError
 
     cfg = config_from_args(DistilConfig, args, _FLAGS)
     check_distil_config(cfg)
-    if args.threads is not None:
-        if args.threads < 1:
-            raise SMFError(f"--threads must be at least 1, got {args.threads}")
-        import torch
-
-        torch.set_num_threads(args.threads)
+    apply_threads(args.threads)
     losses = distil(args.data, args.out, cfg, resume=args.resume, stop_after=args.stop_after,
                     progress=not args.no_progress, text_cache=args.text_cache)
     if losses:

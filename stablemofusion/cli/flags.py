@@ -25,3 +25,17 @@ def add_config_flags(p: argparse.ArgumentParser, cls: type, helps: dict[str, str
 def config_from_args(cls: type, args: argparse.Namespace, helps: dict[str, str]):
     """The dataclass ``cls`` built from the flags :func:`add_config_flags` added (other fields keep defaults)."""
     return cls(**{name: getattr(args, name) for name in helps})
+
+
+def apply_threads(threads: int | None) -> None:
+    """Set torch's CPU threads from a ``--threads`` value (None: leave them); a one-line error below 1."""
+    if threads is None:
+        return
+    if threads < 1:
+        from ..errors import SMFError
+
+        raise SMFError(f"--threads must be at least 1, got {threads}")
+    import torch
+
+    torch.set_num_threads(threads)
+

@@ -85,13 +85,11 @@ def set_threads(args) -> None:
 
     import torch
 
-    from ..errors import SMFError
+    from .flags import apply_threads
 
-    if args.threads is not None:
-        if args.threads < 1:
-            raise SMFError(f"--threads must be at least 1, got {args.threads}")
-        torch.set_num_threads(args.threads)
-    elif "OMP_NUM_THREADS" not in os.environ:
+    if args.threads is not None or "OMP_NUM_THREADS" in os.environ:
+        apply_threads(args.threads)
+    else:
         torch.set_num_threads(min(torch.get_num_threads(), idle_threads()))
 
 

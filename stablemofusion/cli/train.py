@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from ..diffusion.train import TrainConfig
-from .flags import add_config_flags, config_from_args
+from .flags import add_config_flags, apply_threads, config_from_args
 
 _FLAGS = {  # TrainConfig field -> help
     "preset": "model preset (see `smf info`)", "steps": "total optimisation steps", "batch_size": "batch per device",
@@ -58,12 +58,7 @@ def run(args: argparse.Namespace) -> None:
 
     cfg = config_from_args(TrainConfig, args, _FLAGS)
     check_train_config(cfg)
-    if args.threads is not None:
-        if args.threads < 1:
-            raise SMFError(f"--threads must be at least 1, got {args.threads}")
-        import torch
-
-        torch.set_num_threads(args.threads)
+    apply_threads(args.threads)
     monitor = None
     if args.eval_every:
         if args.eval_every < 0 or args.probe is None or args.classifier is None:

@@ -39,10 +39,10 @@ from ..data.dataset import MotionTextDataset
 from ..errors import SMFError
 from .checkpoint import CHECKPOINT_DIR, CONFIG, EMA, MODEL, STATE, load_checkpoint, load_training_state, read_config, \
     resolve, save_checkpoint
-from .config import CheckpointConfig, DistilConfig
+from .config import DistilConfig
 from .samplers import CONSISTENCY_GRID, TIMESTEP_SCALING
 from .solvers import consistency_scalings
-from .train import LOG_HEADER, _logged_seconds, _mix, masked_mse
+from .train import _mix, masked_mse, open_log
 
 LOSSES = ("l2", "huber")
 # teacher-folder files that are not the teacher's own weights/config: carried into the student's checkpoints
@@ -163,11 +163,7 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
     from .schedule import make_train_scheduler
 
     ab = make_train_scheduler(tcfg.schedule).alphas_cumprod.double()
-    log_path = out / "log.csv"
-    out.mkdir(parents=True, exist_ok=True)
-    if not resume or not log_path.exists():
-        log_path.write_text(LOG_HEADER + "\n")
-    seconds_before = _logged_seconds(log_path, start)
+    log_path, seconds_before = open_log(out, resume, start)
     end = cfg.steps if stop_after is None else min(cfg.steps, stop_after)
     losses: list[float] = []
     bar = tqdm(range(start, end), initial=start, total=end, desc="distil", unit="step", disable=not progress)

@@ -144,11 +144,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     noise_sched = make_train_scheduler(cfg.schedule)
     T = cfg.schedule.num_train_timesteps
     synonyms = _synonyms(data) if cfg.text_augment > 0 else None
-    log_path = out / "log.csv"
-    out.mkdir(parents=True, exist_ok=True)
-    if not resume or not log_path.exists():
-        log_path.write_text(LOG_HEADER + "\n")
-    seconds_before = _logged_seconds(log_path, start)
+    log_path, seconds_before = open_log(out, resume, start)
     end = cfg.steps if stop_after is None else min(cfg.steps, stop_after)
     losses: list[float] = []
     bar = tqdm(range(start, end), initial=start, total=end, desc="train", unit="step", disable=not progress or
@@ -211,6 +207,15 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
                 accelerator.wait_for_everyone()
     cache.close()
     return losses
+
+
+def open_log(out: Path, resume: bool, start: int) -> tuple[Path, float]:
+    """``out/log.csv``, started afresh unless resuming, and the training seconds it records up to ``start``."""
+    log_path = out / "log.csv"
+    out.mkdir(parents=True, exist_ok=True)
+    if not resume or not log_path.exists():
+        log_path.write_text(LOG_HEADER + "\n")
+    return log_path, _logged_seconds(log_path, start)
 
 
 def _logged_seconds(log_path: Path, step: int) -> float:
@@ -303,4 +308,4 @@ def _ema_state(model, ema) -> dict[str, torch.Tensor]:
     return state
 
 
-__all__ = ["TrainConfig", "check_train_config", "learning_rate", "masked_mse", "train"]
+__all__ = ["TrainConfig", "check_train_config", "learning_rate", "masked_mse", "open_log", "train"]

@@ -124,11 +124,10 @@ def comparison_table(runs: dict[str, list[dict]]) -> str:
     lines = [head, "|" + "---|" * (3 + len(COMPARE_SERIES))]
     for name, evals in runs.items():
         for e in evals:
-            cells = [f"{e[k]:.3f}" if isinstance(e.get(k), (int, float)) else "-" for k, _ in COMPARE_SERIES]
             hours = e.get("train_seconds")
-            lines.append(f"| {name} | {e['step']} | {hours / 3600:.2f} | " if hours is not None
-                         else f"| {name} | {e['step']} | - | ")
-            lines[-1] += " | ".join(cells) + " |"
+            cells = [name, str(e["step"]), "-" if hours is None else f"{hours / 3600:.2f}"]
+            cells += [f"{e[k]:.3f}" if isinstance(e.get(k), (int, float)) else "-" for k, _ in COMPARE_SERIES]
+            lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 

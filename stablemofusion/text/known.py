@@ -148,7 +148,6 @@ class KnownActions:
 
     def similarities(self, prompts: list[str]) -> torch.Tensor:
         """(B, A) largest cosine similarity of each prompt to each action's examples."""
-        self.examples_embedding()
         return self._similarities(self.embed(list(prompts)))
 
     def _similarities(self, emb: torch.Tensor) -> torch.Tensor:

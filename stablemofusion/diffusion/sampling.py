@@ -158,7 +158,7 @@ class Noise:
 
     def generator(self) -> torch.Generator | list[torch.Generator]:
         """A generator for schedulers that draw their own step noise (no ``variance_noise``)."""
-        seed = lambda g: int(torch.randint(0, 2**62, (1,), generator=g))  # noqa: E731
+        seed = lambda g: int(torch.randint(0, 2**62, (1,), generator=g, device=g.device))  # noqa: E731
         if self.per_item:
             return [torch.Generator(device=self.device).manual_seed(seed(g)) for g in self.gens]
         return torch.Generator(device=self.device).manual_seed(seed(self.gen))

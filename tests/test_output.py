@@ -1,6 +1,8 @@
 """stablemofusion.output: bytes and files of a MotionResult from one place; never overwrites silently."""
 
+import dataclasses
 import io
+import json
 
 import numpy as np
 import pytest
@@ -8,8 +10,8 @@ import pytest
 from stablemofusion.errors import SMFError
 from stablemofusion.motion.features import features_from_joints
 from stablemofusion.motion.files import load_motion
-from stablemofusion.output import (FORMATS, OUTPUTS, WRITERS, bvh_text, free_stem, json_payload, npy_bytes,
-                                   parse_formats, write_result, write_results, writer)
+from stablemofusion.output import (FORMATS, JSON_DECIMALS, OUTPUTS, WRITERS, bvh_text, free_stem, json_bytes,
+                                   json_payload, npy_bytes, parse_formats, write_result, write_results, writer)
 from stablemofusion.pipelines.result import MotionResult
 
 
@@ -27,6 +29,20 @@ def test_bytes_of_each_format(result):
     body = json_payload(result, steps=10)
     assert list(body)[:5] == ["prompt", "fps", "frames", "seed", "steps"] and body["frames"] == result.frames
     assert np.allclose(body["joints"], result.joints, atol=1e-5)
+
+
+def test_json_bytes_are_the_compact_json_of_the_rounded_joints(result):
+    """Compact one-line UTF-8 JSON whose numbers are the rounded joints exactly (orjson writes 0.00009 where
+    the standard library writes 9e-05: the same values)."""
+    data = json_bytes(result, steps=10, note="pas à pas")
+    rounded = np.round(result.joints, JSON_DECIMALS).tolist()
+    expected = {"prompt": result.prompt, "fps": result.fps, "frames": result.frames, "seed": result.seed,
+                "steps": 10, "note": "pas à pas", "joints": rounded}
+    assert json.loads(data) == expected and list(json.loads(data)) == list(expected)
+    assert data.endswith(b"\n") and data.count(b"\n") == 1 and b", " not in data and "à".encode() in data
+    bad = dataclasses.replace(result, joints=np.full_like(result.joints, np.nan))
+    with pytest.raises(SMFError, match="NaN"):
+        json_bytes(bad)
 
 
 def test_files_never_overwrite_silently(result, tmp_path):

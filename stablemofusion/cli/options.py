@@ -8,11 +8,12 @@ from pathlib import Path
 
 
 def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
-    """--out, --format, --overwrite, --guidance, --steps, --sampler, --seed, --checkpoint, --device, --engine and
-    the footskate flags."""
+    """--out, --format, --overwrite, --guidance, --steps, --sampler, --seed, --checkpoint, --teacher, --device,
+    --engine and the footskate flags."""
     from ..diffusion.engine import ENGINES
     from ..output import FORMATS
     from ..pipelines.settings import FOOTSKATE_MODES, GUIDANCE, SAMPLER, STEPS, STUDENT
+    from .flags import add_teacher_flag
 
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--format", default="npy,mp4,bvh", help=f"comma list of {','.join(FORMATS)} (default npy,mp4,bvh)")
@@ -25,6 +26,7 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"sampler name (default: the model's: {SAMPLER}, a distilled student {STUDENT})")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
+    add_teacher_flag(p)
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     p.add_argument("--threads", type=int, default=None,
                    help="CPU threads for torch (default: OMP_NUM_THREADS if set, else the idle cores: the cores less "
@@ -97,7 +99,7 @@ def load_pipeline(args):
     from ..pipeline import MotionPipeline
 
     set_threads(args)
-    return MotionPipeline.from_pretrained(args.checkpoint, device=args.device, engine=args.engine)
+    return MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device, engine=args.engine)
 
 
 def output_meta(args, pipe) -> dict:

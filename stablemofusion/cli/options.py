@@ -12,7 +12,7 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
     --engine and the footskate flags."""
     from ..diffusion.engine import ENGINES
     from ..output import FORMATS
-    from ..pipelines.settings import FOOTSKATE_MODES, GUIDANCE, SAMPLER, STEPS, STUDENT
+    from ..pipelines.settings import FOOTSKATE_MODES, GUIDANCE, SAMPLER, STEPS, STUDENT, STUDENT_EDIT_STEPS
     from .flags import add_teacher_flag
 
     p.add_argument("--out", type=Path, required=True, help="output folder")
@@ -21,7 +21,8 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
                    help="replace files of the same name (default: a free name, NAME-2, NAME-3, ...)")
     p.add_argument("--guidance", type=float, default=GUIDANCE, help=f"classifier-free guidance scale (default {GUIDANCE})")
     p.add_argument("--steps", type=int, default=None,
-                   help=f"sampling steps (default: the model's: {STEPS}, a distilled student its own count)")
+                   help=f"sampling steps (default: the model's: {STEPS}, a distilled student its own count; editing "
+                        f"with a student at least {STUDENT_EDIT_STEPS})")
     p.add_argument("--sampler", default=None,
                    help=f"sampler name (default: the model's: {SAMPLER}, a distilled student {STUDENT})")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -102,9 +103,10 @@ def load_pipeline(args):
     return MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device, engine=args.engine)
 
 
-def output_meta(args, pipe) -> dict:
-    """What the JSON output records of how a motion was made (the steps and sampler ``pipe`` used)."""
+def output_meta(args, pipe, *, edit: bool = False) -> dict:
+    """What the JSON output records of how a motion was made (the steps and sampler ``pipe`` used; ``edit``:
+    for an edit)."""
     from ..pipelines.settings import Settings
 
-    s = pipe.settings(Settings(args.guidance, args.steps, args.sampler))
+    s = pipe.settings(Settings(args.guidance, args.steps, args.sampler), edit=edit)
     return {"sampler": s.sampler, "steps": s.steps, "guidance": args.guidance, "student": pipe.student}

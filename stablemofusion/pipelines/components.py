@@ -101,11 +101,12 @@ class Components:
         """Whether the model is a distilled few-step student (guidance as input, one forward per step)."""
         return self.config.student
 
-    def settings(self, settings: Settings | None = None) -> Settings:
+    def settings(self, settings: Settings | None = None, *, edit: bool = False) -> Settings:
         """``settings`` (default: all defaults) with this model's steps and sampler where they are None (a
-        student: its distilled step count and consistency sampling), checked."""
+        student: its distilled step count and consistency sampling; for an ``edit`` at least
+        STUDENT_EDIT_STEPS), checked."""
         student_steps = self.config.distil.sample_steps if self.student else None
-        return (settings or Settings()).for_model(student_steps).check(rigid=self.rigid is not None)
+        return (settings or Settings()).for_model(student_steps, edit=edit).check(rigid=self.rigid is not None)
 
     @property
     def window_seconds(self) -> float:

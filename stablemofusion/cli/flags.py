@@ -40,7 +40,6 @@ def apply_threads(threads: int | None) -> None:
     torch.set_num_threads(threads)
 
 
-
 def add_teacher_flag(p: argparse.ArgumentParser) -> None:
     """``--teacher``: the model's teacher instead of the distilled student (commands that take ``--checkpoint``)."""
     from ..pipelines.settings import STEPS

@@ -3,6 +3,10 @@
 A folder alone rebuilds its pipeline: ``config.json`` is a :class:`CheckpointConfig` (model, schedule, text
 encoder, skeleton, frame rate and length range, training settings); ``Mean.npy``/``Std.npy`` the normalisation (Std already divided by the feature bias).
 Folders are written to a temporary sibling and renamed into place, so a crash never leaves a half folder.
+
+A distilled student names its teacher (``distil.teacher``, :func:`teacher_folder`); a release may ship the teacher
+inside the student's folder (``teacher/``, :func:`export_checkpoint`), where it uses the student's text-side files
+(:func:`companion_file`).
 """
 
 from __future__ import annotations
@@ -178,6 +182,10 @@ def export_checkpoint(src: str | Path, dst: str | Path, *, dtype: torch.dtype = 
         shipped = load_checkpoint(teacher, ema=True)
         check_teacher(ck, shipped)
         config = replace(config, distil=replace(config.distil, teacher=TEACHER_DIR))
+    elif ck.config.student and not Path(ck.config.distil.teacher).is_absolute():
+        # a name relative to the source folder: the release, elsewhere, names the same teacher absolutely
+        named = (ck.path / ck.config.distil.teacher).resolve()
+        config = replace(config, distil=replace(config.distil, teacher=str(named)))
     for name, f in (copy_files or {}).items():
         if not Path(f).is_file():
             raise SMFError(f"no such file to copy into the release: {f}")

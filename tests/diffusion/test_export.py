@@ -45,7 +45,7 @@ def test_export_ships_a_student_with_its_teacher_inside(tmp_path, capsys, save_t
     import json
     import shutil
 
-    from stablemofusion.diffusion.checkpoint import CONFIG, TEACHER_DIR
+    from stablemofusion.diffusion.checkpoint import CONFIG, TEACHER_DIR, teacher_folder
     from stablemofusion.pipeline import MotionPipeline, default_model_path
     from stablemofusion.text import TEXT_SIDE_FILES
 
@@ -74,6 +74,8 @@ def test_export_ships_a_student_with_its_teacher_inside(tmp_path, capsys, save_t
     assert student_pipe.student and not teacher_pipe.student
     for pipe in (student_pipe, teacher_pipe):
         assert pipe.known_actions is not None and pipe.length_estimator is not None
+    assert main(["export", "--checkpoint", str(moved), "--out", str(tmp_path / "alone")]) == 0  # no teacher inside
+    assert teacher_folder(tmp_path / "alone") == (tmp_path / "moved" / TEACHER_DIR).resolve()  # still names it
 
 
 def test_export_carries_the_checkpoints_own_text_side(tmp_path, save_tiny_checkpoint):

@@ -2,8 +2,9 @@
 code's outputs to them. Made with the code of commit cdb32c3 (branch wip-student), when the 1-step student became
 the default model: the teacher (``default_model/teacher``, selected explicitly with ``teacher=True``: SDE-DPM-Solver++
 2M Karras, 10 steps) on every task (text to motion, footskate post, a timeline, every edit mode, x_t imputation,
-the HTTP response), and the student (``default_model``: lcm, 1 step; edits at STUDENT_EDIT_STEPS) on a few
-(keys ``student/...``). Both with the default rigid stage. (Earlier files were made from the previous default
+the HTTP response), and the student (``default_model``: lcm, 1 step; edits at STUDENT_EDIT_STEPS) on a few,
+the HTTP response's joints included (keys ``student/...``; that key was added later on the same branch, every
+other array regenerated bit for bit the same). Both with the default rigid stage. (Earlier files were made from the previous default
 model, a 10-step model of session 5, at 54506c9.)
 
     OMP_NUM_THREADS=1 python tests/golden/make_golden.py   # writes tests/golden/golden.npz
@@ -105,6 +106,7 @@ def main() -> None:
     body = http_body(teacher=True)
     arrays["http/joints"] = np.asarray(body.pop("joints"), dtype=np.float32)
     arrays["http/meta"] = np.frombuffer(json.dumps(body, sort_keys=True).encode(), dtype=np.uint8)
+    arrays["student/http/joints"] = np.asarray(http_body()["joints"], dtype=np.float32)
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     (HERE / "golden.npz").write_bytes(buf.getvalue())

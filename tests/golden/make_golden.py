@@ -4,8 +4,8 @@ the default model: the teacher (``default_model/teacher``, selected explicitly w
 2M Karras, 10 steps) on every task (text to motion, footskate post, a timeline, every edit mode, x_t imputation,
 the HTTP response), and the student (``default_model``: lcm, 1 step; edits at STUDENT_EDIT_STEPS) on a few,
 the HTTP response's joints included (keys ``student/...``; that key was added later on the same branch, every
-other array regenerated bit for bit the same). Both with the default rigid stage. (Earlier files were made from the previous default
-model, a 10-step model of session 5, at 54506c9.)
+other array regenerated bit for bit the same). Both with the default rigid stage. (Earlier files were made from
+the previous default model, a 10-step model of session 5, at 54506c9.)
 
     OMP_NUM_THREADS=1 python tests/golden/make_golden.py   # writes tests/golden/golden.npz
 """

@@ -1,6 +1,7 @@
 """Editing quality on real test-split motions: how exactly each mode keeps what it keeps, and the seams.
 
-    python benchmarks/edit_quality.py --data CORPUS [--checkpoint MODEL] [--motions 12] [--impose x0 xt]
+    python benchmarks/edit_quality.py --data CORPUS [--checkpoint MODEL] [--teacher] [--steps N] [--motions 12]
+        [--impose x0 xt]
 
 For each mode and way of imposing (x0 replacement, x_t imputation), over the first N test motions of at
 least 120 frames (one prompt per motion, cycled from PROMPTS): the largest joint error at kept frames
@@ -38,12 +39,14 @@ def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--data", required=True)
     p.add_argument("--checkpoint", default=None)
+    p.add_argument("--teacher", action="store_true", help="the model's teacher instead (smf generate --teacher)")
+    p.add_argument("--steps", type=int, default=None, help="sampling steps (default: the model's)")
     p.add_argument("--motions", type=int, default=12)
     p.add_argument("--impose", nargs="+", default=["x0", "xt"])
     p.add_argument("--seconds", type=float, default=1.5, help="kept seconds at each end")
     p.add_argument("--modes", nargs="+", default=list(MODES))
     a = p.parse_args()
-    pipe = MotionPipeline.from_pretrained(a.checkpoint, device="cpu")
+    pipe = MotionPipeline.from_pretrained(a.checkpoint, teacher=a.teacher, device="cpu")
     layout = MotionLayout(a.data)
     sources = [f for f in (layout.load_features(i) for i in layout.ids("test")) if len(f) >= 120][:a.motions]
     fps, sk = pipe.fps, pipe.skeleton
@@ -56,7 +59,8 @@ def main() -> None:
                 src = src[:pipe.max_frames].astype(np.float64)
                 ks = a.seconds if mode in ("prefix", "inbetween") else 0.0
                 ke = a.seconds if mode in ("suffix", "inbetween") else 0.0
-                r = pipe.edit(PROMPTS[i % len(PROMPTS)], src, mode, keep_start=ks, keep_end=ke, seed=i, impose=impose)
+                r = pipe.edit(PROMPTS[i % len(PROMPTS)], src, mode, keep_start=ks, keep_end=ke, seed=i, impose=impose,
+                              steps=a.steps)
                 ref, _ = pipe.finish(src)  # the source on the model's rigid skeleton, as the output is
                 ref = joints_from_features(ref, sk)
                 if mode == "upper-body":

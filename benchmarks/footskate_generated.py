@@ -7,8 +7,8 @@ skate ratio, sliding speed and ground penetration per mode and for the real moti
 global heading/start the features leave free), seconds per motion for each mode, and, with --evaluator,
 the FID of each mode against the real test motions.
 
-    python benchmarks/footskate_generated.py --checkpoint /work/runs/default --data /work/cache/bandai-corpus \
-        --n 64 [--steps 10] [--evaluator DIR]
+    python benchmarks/footskate_generated.py [--checkpoint MODEL] [--teacher] --data /work/cache/bandai-corpus \
+        --n 64 [--steps N] [--evaluator DIR]
 """
 
 from __future__ import annotations
@@ -46,10 +46,11 @@ def pick_test_items(pipe: MotionPipeline, data: Path, n: int,
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--checkpoint", type=Path, required=True)
+    ap.add_argument("--checkpoint", type=Path, default=None, help="model folder (default: the shipped model)")
+    ap.add_argument("--teacher", action="store_true", help="the model's teacher instead (smf generate --teacher)")
     ap.add_argument("--data", type=Path, required=True)
     ap.add_argument("--n", type=int, default=64)
-    ap.add_argument("--steps", type=int, default=10)
+    ap.add_argument("--steps", type=int, default=None, help="sampling steps (default: the model's)")
     ap.add_argument("--batch", type=int, default=16)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--modes", default="off,post,loop")
@@ -59,7 +60,7 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(1)
     warnings.simplefilter("ignore")
-    pipe = MotionPipeline.from_pretrained(args.checkpoint, device="cpu")
+    pipe = MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device="cpu")
     ids, captions, lengths = pick_test_items(pipe, args.data, args.n)
     test_ids = [s for s in (args.data / "test.txt").read_text().split() if s]
     cleanup_features(np.load(args.data / "new_joint_vecs" / f"{ids[0]}.npy")[:40])  # pay torch.optim's import
@@ -86,7 +87,8 @@ def main() -> None:
         cleanup_features(f)
     cleanup_s = (time.perf_counter() - t) / max(1, min(16, len(feats.get("off", []))))
     report = {
-        "checkpoint": str(args.checkpoint), "motions": len(ids), "steps": args.steps,
+        "checkpoint": str(args.checkpoint), "teacher": args.teacher, "motions": len(ids),
+        "steps": pipe.settings().steps if args.steps is None else args.steps,
         "loop_steps": args.loop_steps, "loop_skip_last": args.loop_skip_last,
         "mean_frames": float(np.mean(lengths)),
         "metrics": {m: mean_metrics(j) for m, j in joints.items()},

@@ -1,6 +1,6 @@
 """AITS after each efficient-inference trick, cumulatively (the paper's Table 5 at our scale).
 
-    python benchmarks/inference_tricks.py --checkpoint RUN [--frames 196] [--batch-size 1] [--repeats 3]
+    python benchmarks/inference_tricks.py [--checkpoint RUN] [--teacher] [--frames 196] [--batch-size 1] [--repeats 3]
 
 Rows: baseline (DDPM 1000 steps, text encoded by the language model on every call, conditional and
 unconditional passes separately) -> + 10-step SDE DPM-Solver++ Karras -> + text embedding cache ->
@@ -43,13 +43,17 @@ def aits(pipe: MotionPipeline, prompts, frames: int, *, sampler: str, steps: int
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--checkpoint", default=None, help="checkpoint or run folder (default: shipped model)")
+    ap.add_argument("--teacher", action="store_true", help="the model's teacher (the shipped model is a student)")
     ap.add_argument("--frames", type=int, default=196)
     ap.add_argument("--batch-size", type=int, default=1)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--baseline-steps", type=int, default=1000)
     args = ap.parse_args()
     device = "cuda" if torch.cuda.is_available() else "cpu"
-    pipe = MotionPipeline.from_pretrained(args.checkpoint, device=device, dtype=torch.float32)
+    pipe = MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=device, dtype=torch.float32)
+    if pipe.student:
+        raise SystemExit("the tricks are a diffusion model's (classifier-free guidance, many steps): this is a "
+                         "distilled student; pass --teacher")
     prompts = [f"a person walks forward and waves with the right hand {i}" for i in range(args.batch_size)]
     rows = []
     steps = [("Baseline: DDPM, language model every call, separate CFG passes", "ddpm", args.baseline_steps, False, False),

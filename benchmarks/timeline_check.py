@@ -1,7 +1,7 @@
 """A 20 s three-prompt timeline, checked as the issue asks: does the label classifier recognise each segment,
 and is any join's velocity jump larger than the largest frame-to-frame change inside the segments?
 
-    python benchmarks/timeline_check.py --classifier CL [--seeds 5] [--checkpoint MODEL]
+    python benchmarks/timeline_check.py --classifier CL [--seeds 5] [--checkpoint MODEL] [--teacher] [--steps N]
 
 Timeline "walk forward:8; wave both hands:6; bow:6" (the issue's example actions). For each seed: the
 classifier's content label of each segment's frames (restricted to nothing: all 24 contents compete); the
@@ -34,16 +34,18 @@ def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--classifier", required=True)
     p.add_argument("--checkpoint", default=None)
+    p.add_argument("--teacher", action="store_true", help="the model's teacher instead (smf generate --teacher)")
+    p.add_argument("--steps", type=int, default=None, help="sampling steps (default: the model's)")
     p.add_argument("--seeds", type=int, default=5)
     a = p.parse_args()
-    pipe = MotionPipeline.from_pretrained(a.checkpoint, device="cpu")
+    pipe = MotionPipeline.from_pretrained(a.checkpoint, teacher=a.teacher, device="cpu")
     clf = load_classifier(a.classifier)
     fps = pipe.fps
     bounds = np.cumsum([0] + [int(round(s * fps)) for _, s in SEGMENTS])
     recognised, worst_ratio = 0, 0.0
     for seed in range(a.seeds):
         t0 = time.perf_counter()
-        r = pipe.timeline(SEGMENTS, seed=seed)
+        r = pipe.timeline(SEGMENTS, seed=seed, steps=a.steps)
         took = time.perf_counter() - t0
         labels = [c for c, _ in clf.predict([r.features[bounds[i]:bounds[i + 1]] for i in range(len(SEGMENTS))])]
         dv = velocity_change(r.joints, fps)

@@ -66,6 +66,9 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes 0700
     try:
         yield tmp
+        for f in tmp.rglob("*"):  # some writers (safetensors) make 0600 files; give them the usual permissions
+            if f.is_file() and not f.is_symlink():
+                os.chmod(f, 0o666 & ~umask)
         old = target.with_name(f".{target.name}.old")
         if target.exists():
             os.replace(target, old)

@@ -109,6 +109,7 @@ class MotionPipeline(Components):
         settings = Settings(guidance_scale, steps, sampler, footskate, footskate_options, engine)
         if edit is None:
             return sample_raw(self, prompts, lengths, settings, seed, batched_cfg=batched_cfg)
+        settings = self.settings(settings, edit=True)
         x0_hook, xt_hook = edit_hooks(edit, self.mean, self.std, len(prompts), self.device, self.dtype, impose)
         self.engine_for(sampler, engine)
         raw = sample_raw(self, prompts, lengths, settings.with_engine("fast"), seed, x0_hook=x0_hook,

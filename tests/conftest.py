@@ -92,3 +92,25 @@ def _save_tiny_checkpoint(path: Path, mean: np.ndarray, std: np.ndarray) -> Path
     save_checkpoint(path, model=model, mean=mean, std=std, ema_state=model.state_dict(),
                     config=CheckpointConfig.for_skeleton(cfg, "humanml3d"))
     return path
+
+
+@pytest.fixture(scope="session")
+def save_tiny_student():
+    """The function below, for tests in any folder."""
+    return _save_tiny_student
+
+
+def _save_tiny_student(path: Path, teacher: Path, name: str | None = None, sample_steps: int = 1) -> Path:
+    """A distilled student of the checkpoint ``teacher`` (its weights plus the zero-initialised guidance input,
+    not trained), saved at ``path``; its ``distil.teacher`` is ``name`` (default: ``teacher`` as given)."""
+    from dataclasses import replace
+
+    from stablemofusion.diffusion.checkpoint import load_checkpoint, save_checkpoint
+    from stablemofusion.diffusion.config import DistilConfig
+    from stablemofusion.diffusion.distil import student_from_teacher
+
+    ck = load_checkpoint(teacher)
+    config = replace(ck.config, model=replace(ck.config.model, guidance=True),
+                     distil=DistilConfig(teacher=str(teacher) if name is None else name, sample_steps=sample_steps))
+    save_checkpoint(path, model=student_from_teacher(ck), config=config, mean=ck.mean, std=ck.std)
+    return path

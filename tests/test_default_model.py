@@ -1,4 +1,5 @@
-"""The default model shipped inside the package: small, documented, loads offline, generates the main job."""
+"""The default model shipped inside the package: small, documented, loads offline, generates the main job; a
+1-step distilled student with its 10-step teacher in teacher/, one flag (--teacher, teacher=True) away."""
 
 import json
 
@@ -7,10 +8,13 @@ import pytest
 import torch
 
 from stablemofusion.cli.main import main
+from stablemofusion.diffusion.checkpoint import TEACHER_DIR, teacher_folder
 from stablemofusion.motion.skeleton import HUMANML3D
 from stablemofusion.motion.features import joints_from_features
 from stablemofusion.motion.files import load_motion
 from stablemofusion.pipeline import MotionPipeline, default_model_path
+from stablemofusion.pipelines.settings import SAMPLER, STEPS, STUDENT
+from stablemofusion.text import TEXT_SIDE_FILES
 
 
 @pytest.fixture(scope="module")
@@ -19,27 +23,64 @@ def pipe():
     return MotionPipeline.from_pretrained(None, device="cpu")
 
 
+@pytest.fixture(scope="module")
+def teacher():
+    torch.set_num_threads(1)
+    return MotionPipeline.from_pretrained(None, teacher=True, device="cpu")
+
+
 def test_shipped_files_size_licence_and_config():
     path = default_model_path()
     assert path is not None, "the default model must ship inside the package"
-    size = sum(f.stat().st_size for f in path.iterdir())
+    size = sum(f.stat().st_size for f in path.rglob("*") if f.is_file())  # the teacher's folder included
     assert size <= 25e6
-    assert not (path / "training_state.pt").exists() and not (path / "ema.safetensors").exists()
+    assert not list(path.rglob("training_state.pt")) and not list(path.rglob("ema.safetensors"))
     card = (path / "MODEL_CARD.md").read_text()
-    for words in ("CC BY-NC 4.0", "non-commercial", "smf train", "Bandai-Namco"):
+    for words in ("CC BY-NC 4.0", "non-commercial", "smf train", "smf distil", "Bandai-Namco", "--teacher",
+                  "Figures: docs/inference.md, 'Few-step student'"):
         assert words in card
+    for folder in (path, path / TEACHER_DIR):
+        config = json.loads((folder / "config.json").read_text())
+        assert config["text_encoder"] == "minilm" and config["export"]["dtype"] == "float16"
+        assert np.load(folder / "Mean.npy").shape == (263,) and np.load(folder / "Std.npy").shape == (263,)
+
+
+def test_the_default_model_is_a_one_step_student_with_its_teacher_inside():
+    path = default_model_path()
     config = json.loads((path / "config.json").read_text())
-    assert config["text_encoder"] == "minilm" and config["export"]["dtype"] == "float16"
-    assert np.load(path / "Mean.npy").shape == (263,) and np.load(path / "Std.npy").shape == (263,)
+    assert config["distil"]["teacher"] == TEACHER_DIR and config["distil"]["sample_steps"] == 1  # relative: movable
+    assert teacher_folder(path) == path / TEACHER_DIR
+    assert "distil" not in json.loads((path / TEACHER_DIR / "config.json").read_text())
+    # the text side once, at the top; the teacher uses its parent's
+    assert all((path / name).is_file() and not (path / TEACHER_DIR / name).exists() for name in TEXT_SIDE_FILES)
+    assert {f.name for f in (path / TEACHER_DIR).iterdir()} == {"config.json", "model.safetensors", "Mean.npy",
+                                                                "Std.npy"}
 
 
-def test_default_model_generates_plausible_motion(pipe):
-    out = pipe(["a person walks forward normally"], seconds=4, seed=0)[0]
+def test_teacher_true_selects_the_teacher_with_the_students_text_side(pipe, teacher):
+    assert pipe.student and (pipe.settings().sampler, pipe.settings().steps) == (STUDENT, 1)
+    assert not teacher.student and (teacher.settings().sampler, teacher.settings().steps) == (SAMPLER, STEPS)
+    assert teacher.known_actions is not None and teacher.length_estimator is not None
+    assert teacher.predict_seconds("a person walks forward") == pipe.predict_seconds("a person walks forward")
+
+
+@pytest.mark.parametrize("which", ["student", "teacher"])
+def test_default_model_generates_plausible_motion(pipe, teacher, which):
+    out = (pipe if which == "student" else teacher)(["a person walks forward normally"], seconds=4, seed=0)[0]
     assert out.features.shape == (80, 263) and np.isfinite(out.features).all()
     j = out.joints
     height = j[:, 15, 1] - np.minimum(j[:, 10, 1], j[:, 11, 1])  # head above the lower foot
     assert 1.2 < np.median(height) < 2.1  # a standing adult, not noise
     assert np.linalg.norm(j[-1, 0, [0, 2]] - j[0, 0, [0, 2]]) > 0.5  # a walk travels (4 s at >= 0.125 m/s)
+
+
+def test_generate_with_teacher_flag_samples_with_the_teacher(tmp_path):
+    for flags, (sampler, steps, student) in (([], (STUDENT, 1, True)), (["--teacher"], (SAMPLER, STEPS, False))):
+        out = tmp_path / ("t" if flags else "s")
+        assert main(["generate", "a person walks forward", "--seconds", "2", "--format", "json", "--out", str(out),
+                     *flags]) == 0
+        meta = json.loads(next(out.glob("*.json")).read_text())
+        assert (meta["sampler"], meta["steps"], meta["student"]) == (sampler, steps, student)
 
 
 def test_main_command_writes_video_joints_and_bvh(tmp_path, capsys):

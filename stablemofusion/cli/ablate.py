@@ -14,12 +14,15 @@ DEFAULT_SAMPLERS = ("ddpm,ddim,pndm,deis-karras,dpmsolver++-karras,sde-dpmsolver
 
 
 def add_parser(sub, name: str) -> None:
+    from .flags import add_teacher_flag
+
     p = sub.add_parser(name, help="sampler and architecture ablation tables",
                        description="Reproduce the paper's sampler table (min. steps within 5% of each sampler's "
                                    "best FID and top-3) and architecture table (each preset trained alike).")
     kinds = p.add_subparsers(dest="kind", metavar="KIND", required=True)
     s = kinds.add_parser("samplers", help="sampler x steps table for one checkpoint")
     s.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
+    add_teacher_flag(s)
     s.add_argument("--samplers", default=DEFAULT_SAMPLERS, help=f"comma list (default {DEFAULT_SAMPLERS})")
     s.add_argument("--grid", default=DEFAULT_GRID, help=f"comma list of step counts (default {DEFAULT_GRID})")
     s.add_argument("--ddpm-steps", default="1000", help="extra step counts for ddpm (default 1000; '' = none)")
@@ -71,7 +74,8 @@ def run_samplers(args: argparse.Namespace) -> None:
         raise SMFError("--samplers is empty")
     grid = _ints(args.grid, "--grid")
     extra = _ints(args.ddpm_steps, "--ddpm-steps") if args.ddpm_steps else []
-    pipe = MotionPipeline.from_pretrained(args.checkpoint, device=args.device, rigid=rigid_config(args))
+    pipe = MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device,
+                                          rigid=rigid_config(args))
     for s in samplers:
         make_sampler(s, pipe.schedule)  # unknown names fail before any work
     cfg = eval_config(args, mm_captions=0 if args.mm_captions is None else args.mm_captions)

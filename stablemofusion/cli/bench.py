@@ -15,9 +15,11 @@ from pathlib import Path
 
 def add_parser(sub, name: str) -> None:
     from ..pipelines.settings import SAMPLER, STEPS, STUDENT
+    from .flags import add_teacher_flag
 
     p = sub.add_parser(name, help="average inference time per sentence (batch 1 and 32)")
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
+    add_teacher_flag(p)
     p.add_argument("--preset", default=None, help="time an untrained preset instead of a checkpoint")
     p.add_argument("--sampler", action="append", default=None, help=f"repeatable (default: the model's: {SAMPLER}, a "
                                                                       f"distilled student {STUDENT})")
@@ -42,7 +44,11 @@ def _pipeline(args):
     from ..pipeline import MotionPipeline
 
     if args.preset is None:
-        return MotionPipeline.from_pretrained(args.checkpoint, device=args.device)
+        return MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device)
+    if args.teacher or args.checkpoint is not None:
+        from ..errors import SMFError
+
+        raise SMFError("--preset times an untrained preset: not with --checkpoint or --teacher")
     import numpy as np
 
     from ..diffusion.config import CheckpointConfig

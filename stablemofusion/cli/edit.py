@@ -70,4 +70,4 @@ def run(args: argparse.Namespace) -> None:
                        seconds=args.seconds, path=path, impose=args.impose, **kwargs)
     write_results([result], args.out, formats,
                   {"edit": args.mode, "impose": args.impose, "keep_start": args.keep_start, "keep_end": args.keep_end,
-                   **output_meta(args, pipe)}, overwrite=args.overwrite, rig=rig)
+                   **output_meta(args, pipe, edit=True)}, overwrite=args.overwrite, rig=rig)

@@ -40,11 +40,14 @@ def add_eval_args(p: argparse.ArgumentParser) -> None:
 
 
 def add_parser(sub, name: str) -> None:
+    from .flags import add_teacher_flag
+
     p = sub.add_parser(name, help="evaluate a checkpoint with the T2M protocol",
                        description="FID, R-precision top-1/2/3, matching distance, diversity, multimodality over "
                                    "N replications (mean ± 95% interval), average inference time per sentence.")
     p.add_argument("--checkpoint", type=Path, default=None,
                    help="checkpoint or run folder (default: the shipped model; 'none' = real motion only)")
+    add_teacher_flag(p)
     add_eval_args(p)
     p.add_argument("--classifier", type=Path, default=None,
                    help="motion classifier folder (`smf train-classifier`): adds label accuracy of the test captions' "
@@ -175,12 +178,15 @@ def run(args: argparse.Namespace) -> None:
         raise SMFError(f"no such corpus folder: {args.data}")
     cfg = eval_config(args)
     real_only = args.checkpoint is not None and str(args.checkpoint).lower() == "none"
-    pipe = None if real_only else MotionPipeline.from_pretrained(args.checkpoint, device=args.device,
-                                                                 rigid=rigid_config(args))
+    if real_only and args.teacher:
+        raise SMFError("--teacher needs a model: not with --checkpoint none")
+    pipe = None if real_only else MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher,
+                                                                 device=args.device, rigid=rigid_config(args))
     from ..motion.skeleton import get_skeleton
 
     sk = pipe.skeleton if pipe else get_skeleton("humanml3d")
     name = "real motion only" if real_only else str(args.checkpoint or "the shipped default model")
+    name += " (its teacher)" if args.teacher else ""
     prompt_result = None
     if args.prompts is not None:
         if args.classifier is None or pipe is None:

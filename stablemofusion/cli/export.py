@@ -1,4 +1,5 @@
-"""`smf export --checkpoint RUN --out DIR [--card MODEL_CARD.md]`: a small release folder (EMA weights, fp16)."""
+"""`smf export --checkpoint RUN --out DIR [--card MODEL_CARD.md] [--teacher-folder TEACHER] [--text-side MODEL]`: a
+small release folder (EMA weights, fp16); a distilled student's with its teacher inside (docs/models.md)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,12 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--out", type=Path, required=True, help="release folder to write (replaced atomically)")
     p.add_argument("--card", type=Path, default=None, help="model card (markdown) copied in as MODEL_CARD.md")
     p.add_argument("--dtype", default="float16", choices=("float16", "bfloat16", "float32"))
+    p.add_argument("--teacher-folder", type=Path, default=None, metavar="TEACHER",
+                   help="for a distilled student: its teacher (checkpoint, run or exported folder), exported too into "
+                        "OUT/teacher/, which the student's config then names (`--teacher` of generate, edit, serve, ...)")
+    p.add_argument("--text-side", type=Path, default=None, metavar="MODEL",
+                   help="copy the length estimator, known actions and out-of-domain detector of this model folder "
+                        "(default: the checkpoint's own, if it has them)")
     p.add_argument("--lexicon", default=None,
                    help="corpus lexicon (e.g. bandai) whose actions the model knows: writes actions.json and the "
                         "out-of-domain detector ood.safetensors, so prompts unlike the training captions get a warning")
@@ -38,17 +45,38 @@ def run(args: argparse.Namespace) -> None:
         if not args.card.is_file():
             raise SMFError(f"no such model card: {args.card}")
         extra["MODEL_CARD.md"] = args.card.read_text(encoding="utf-8")
+    copies = text_side_files(args.text_side if args.text_side is not None else args.checkpoint,
+                             required=args.text_side is not None)
     known = None
     if args.lexicon is not None:  # built first: a failure leaves no half-written release
         from ..diffusion.checkpoint import load_checkpoint
+        from ..text import ACTIONS_FILE, DETECTOR_FILE, EMBEDDINGS_FILE
 
+        copies = {n: f for n, f in copies.items() if n not in (ACTIONS_FILE, EMBEDDINGS_FILE, DETECTOR_FILE)}
         known = build_known_actions(args.lexicon, load_checkpoint(args.checkpoint).config.text_encoder,
                                     corpus=args.corpus, text_cache=args.text_cache, flag_rate=args.ood_flag_rate)
-    out = export_checkpoint(args.checkpoint, args.out, dtype=getattr(torch, args.dtype), extra_files=extra)
+    out = export_checkpoint(args.checkpoint, args.out, dtype=getattr(torch, args.dtype), extra_files=extra,
+                            teacher=args.teacher_folder, copy_files=copies)
     if known is not None:
         known.save(out, about=ABOUT)
-    size = sum(f.stat().st_size for f in out.iterdir())
+    size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
     print(f"exported {args.checkpoint} -> {out} ({size / 1e6:.1f} MB)")
+
+
+def text_side_files(folder: Path, *, required: bool) -> dict[str, Path]:
+    """The text-side files (:data:`~stablemofusion.text.TEXT_SIDE_FILES`) that go with the model in ``folder``
+    (name -> file); ``required``: SMFError when it has none."""
+    from ..diffusion.checkpoint import companion_file, resolve
+    from ..errors import SMFError
+    from ..text import TEXT_SIDE_FILES
+
+    if required and not resolve(folder).is_dir():
+        raise SMFError(f"no such model folder: {folder}")
+    found = {name: companion_file(folder, name) for name in TEXT_SIDE_FILES}
+    found = {name: f for name, f in found.items() if f is not None}
+    if required and not found:
+        raise SMFError(f"{folder} has none of the text-side files ({', '.join(TEXT_SIDE_FILES)})")
+    return found
 
 
 ABOUT = ("closest actions: example sentences per action from the lexicon's training phrasings; out of domain: the "

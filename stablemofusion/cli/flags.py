@@ -39,3 +39,11 @@ def apply_threads(threads: int | None) -> None:
 
     torch.set_num_threads(threads)
 
+
+def add_teacher_flag(p: argparse.ArgumentParser) -> None:
+    """``--teacher``: the model's teacher instead of the distilled student (commands that take ``--checkpoint``)."""
+    from ..pipelines.settings import STEPS
+
+    p.add_argument("--teacher", action="store_true",
+                   help=f"sample with the model's {STEPS}-step teacher instead of its distilled student (the teacher "
+                        "the student's folder names; the shipped default model has one)")

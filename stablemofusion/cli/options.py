@@ -8,11 +8,12 @@ from pathlib import Path
 
 
 def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
-    """--out, --format, --overwrite, --guidance, --steps, --sampler, --seed, --checkpoint, --device, --engine and
-    the footskate flags."""
+    """--out, --format, --overwrite, --guidance, --steps, --sampler, --seed, --checkpoint, --teacher, --device,
+    --engine and the footskate flags."""
     from ..diffusion.engine import ENGINES
     from ..output import FORMATS
-    from ..pipelines.settings import FOOTSKATE_MODES, GUIDANCE, SAMPLER, STEPS, STUDENT
+    from ..pipelines.settings import FOOTSKATE_MODES, GUIDANCE, SAMPLER, STEPS, STUDENT, STUDENT_EDIT_STEPS
+    from .flags import add_teacher_flag
 
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--format", default="npy,mp4,bvh", help=f"comma list of {','.join(FORMATS)} (default npy,mp4,bvh)")
@@ -20,11 +21,13 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
                    help="replace files of the same name (default: a free name, NAME-2, NAME-3, ...)")
     p.add_argument("--guidance", type=float, default=GUIDANCE, help=f"classifier-free guidance scale (default {GUIDANCE})")
     p.add_argument("--steps", type=int, default=None,
-                   help=f"sampling steps (default: the model's: {STEPS}, a distilled student its own count)")
+                   help=f"sampling steps (default: the model's: {STEPS}, a distilled student its own count; editing "
+                        f"with a student at least {STUDENT_EDIT_STEPS})")
     p.add_argument("--sampler", default=None,
                    help=f"sampler name (default: the model's: {SAMPLER}, a distilled student {STUDENT})")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
+    add_teacher_flag(p)
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     p.add_argument("--threads", type=int, default=None,
                    help="CPU threads for torch (default: OMP_NUM_THREADS if set, else the idle cores: the cores less "
@@ -97,12 +100,13 @@ def load_pipeline(args):
     from ..pipeline import MotionPipeline
 
     set_threads(args)
-    return MotionPipeline.from_pretrained(args.checkpoint, device=args.device, engine=args.engine)
+    return MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device, engine=args.engine)
 
 
-def output_meta(args, pipe) -> dict:
-    """What the JSON output records of how a motion was made (the steps and sampler ``pipe`` used)."""
+def output_meta(args, pipe, *, edit: bool = False) -> dict:
+    """What the JSON output records of how a motion was made (the steps and sampler ``pipe`` used; ``edit``:
+    for an edit)."""
     from ..pipelines.settings import Settings
 
-    s = pipe.settings(Settings(args.guidance, args.steps, args.sampler))
+    s = pipe.settings(Settings(args.guidance, args.steps, args.sampler), edit=edit)
     return {"sampler": s.sampler, "steps": s.steps, "guidance": args.guidance, "student": pipe.student}

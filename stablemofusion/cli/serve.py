@@ -9,6 +9,7 @@ from pathlib import Path
 
 def add_parser(sub, name: str) -> None:
     from ..diffusion.engine import ENGINES
+    from .flags import add_teacher_flag
 
     p = sub.add_parser(name, help="serve text-to-motion over HTTP",
                        description="An HTTP API (POST /v1/generate, GET /v1/health) with dynamic batching.")
@@ -18,6 +19,7 @@ def add_parser(sub, name: str) -> None:
                    help="a Host header name to accept besides localhost, 127.0.0.1 and ::1 (repeatable; needed "
                         "when clients reach the server by another name or address)")
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
+    add_teacher_flag(p)
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     p.add_argument("--engine", default="auto", choices=("auto",) + ENGINES,
                    help="denoising engine of the worker (default auto; 'compiled' pays on a CPU server: a one-off "
@@ -39,7 +41,7 @@ def run(args: argparse.Namespace) -> None:
 
     from ..diffusion.checkpoint import read_config
     from ..errors import SMFError
-    from ..pipeline import default_model_path
+    from ..pipelines.components import model_folder
     from ..serve import ProcessWorker, WorkerSpec, create_app
     from ..serve.limits import MAX_STREAMS
     from ..serve.server import uvicorn_config
@@ -52,9 +54,7 @@ def run(args: argparse.Namespace) -> None:
     max_streams = MAX_STREAMS if args.max_streams is None else args.max_streams
     if max_streams < 0:
         raise SMFError(f"--max-streams must be 0 or more, got {max_streams}")
-    checkpoint = args.checkpoint or default_model_path()
-    if checkpoint is None:
-        raise SMFError("no default model is shipped in this version; pass --checkpoint")
+    checkpoint = model_folder(args.checkpoint, teacher=args.teacher)
     config = read_config(checkpoint)  # checks the folder; the worker process loads the model itself
     spec = WorkerSpec(str(checkpoint), args.device, args.threads, args.engine)
     streams = StreamProcessWorker(spec, config) if max_streams else None

@@ -3,12 +3,17 @@
 A folder alone rebuilds its pipeline: ``config.json`` is a :class:`CheckpointConfig` (model, schedule, text
 encoder, skeleton, frame rate and length range, training settings); ``Mean.npy``/``Std.npy`` the normalisation (Std already divided by the feature bias).
 Folders are written to a temporary sibling and renamed into place, so a crash never leaves a half folder.
+
+A distilled student names its teacher (``distil.teacher``, :func:`teacher_folder`); a release may ship the teacher
+inside the student's folder (``teacher/``, :func:`export_checkpoint`), where it uses the student's text-side files
+(:func:`companion_file`).
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, replace
+import shutil
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +29,7 @@ MODEL = "model.safetensors"
 EMA = "ema.safetensors"
 STATE = "training_state.pt"
 CHECKPOINT_DIR = "checkpoint"  # inside a training run folder, beside log.csv and text-cache/
+TEACHER_DIR = "teacher"  # inside a released student's folder: the teacher it was distilled from (smf export)
 
 
 @dataclass
@@ -49,17 +55,26 @@ def save_checkpoint(path: str | Path, *, model: Denoiser, config: CheckpointConf
     from ..io import atomic_dir
 
     with atomic_dir(path) as tmp:
-        save_file(_contiguous(model.state_dict(), dtype), tmp / MODEL)
-        if ema_state is not None:
-            save_file(_contiguous(ema_state, dtype), tmp / EMA)
-        (tmp / CONFIG).write_text(json.dumps(config.to_dict(), indent=2) + "\n")
-        np.save(tmp / "Mean.npy", np.asarray(mean, dtype=np.float32))
-        np.save(tmp / "Std.npy", np.asarray(std, dtype=np.float32))
-        if training_state is not None:
-            torch.save(training_state, tmp / STATE)
-        for name, text in (extra_files or {}).items():
-            (tmp / name).write_text(text, encoding="utf-8")
+        _write_checkpoint(tmp, model=model, config=config, mean=mean, std=std, ema_state=ema_state,
+                          training_state=training_state, dtype=dtype, extra_files=extra_files)
     return Path(path)
+
+
+def _write_checkpoint(folder: Path, *, model: Denoiser, config: CheckpointConfig, mean: np.ndarray, std: np.ndarray,
+                      ema_state: dict[str, torch.Tensor] | None = None, training_state: dict | None = None,
+                      dtype: torch.dtype | None = None, extra_files: dict[str, str] | None = None) -> None:
+    """The files of a checkpoint in ``folder`` (created; the caller makes the whole folder atomic)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    save_file(_contiguous(model.state_dict(), dtype), folder / MODEL)
+    if ema_state is not None:
+        save_file(_contiguous(ema_state, dtype), folder / EMA)
+    (folder / CONFIG).write_text(json.dumps(config.to_dict(), indent=2) + "\n")
+    np.save(folder / "Mean.npy", np.asarray(mean, dtype=np.float32))
+    np.save(folder / "Std.npy", np.asarray(std, dtype=np.float32))
+    if training_state is not None:
+        torch.save(training_state, folder / STATE)
+    for name, text in (extra_files or {}).items():
+        (folder / name).write_text(text, encoding="utf-8")
 
 
 def resolve(path: str | Path) -> Path:
@@ -80,6 +95,38 @@ def read_config(path: str | Path) -> CheckpointConfig:
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise SMFError(f"{path / CONFIG}: invalid JSON ({e})") from None
     return CheckpointConfig.from_dict(config, where=str(path / CONFIG))
+
+
+def teacher_folder(path: str | Path) -> Path:
+    """The folder of the teacher that the distilled student in ``path`` names (``distil.teacher``: a relative
+    name is relative to the student's folder, as in a release that ships its teacher in ``teacher/``).
+    SMFError for a model that is not a student, or whose teacher is not there."""
+    path = resolve(path)
+    config = read_config(path)
+    if config.distil is None or not config.distil.teacher:
+        raise SMFError(f"{path} is not a distilled student: it has no teacher")
+    named = Path(config.distil.teacher)
+    folder = resolve(named if named.is_absolute() else path / named)
+    if not (folder / CONFIG).is_file():
+        raise SMFError(f"the teacher of {path} is not there: {folder}")
+    return folder
+
+
+def companion_file(path: str | Path, name: str) -> Path | None:
+    """The file ``name`` that goes with the model in ``path`` (the text side: length estimator, known actions):
+    the model folder's own; else, for a teacher shipped inside its student's folder (the parent folder is a
+    student whose ``distil.teacher`` is this folder), the student's. None when neither has it."""
+    path = resolve(path)
+    if (path / name).is_file():
+        return path / name
+    parent = path.resolve().parent
+    if not (parent / CONFIG).is_file() or not (parent / name).is_file():
+        return None
+    try:
+        named = teacher_folder(parent)
+    except SMFError:  # the parent is no student, or names a teacher that is not there
+        return None
+    return parent / name if named.resolve() == path.resolve() else None
 
 
 def load_weights(path: str | Path, *, ema: bool = True) -> dict[str, torch.Tensor]:
@@ -117,10 +164,57 @@ def load_training_state(path: str | Path) -> dict:
 
 
 def export_checkpoint(src: str | Path, dst: str | Path, *, dtype: torch.dtype = torch.float16,
-                      extra_files: dict[str, str] | None = None) -> Path:
+                      extra_files: dict[str, str] | None = None, teacher: str | Path | None = None,
+                      copy_files: dict[str, Path] | None = None) -> Path:
     """Write a release folder from a checkpoint: the EMA weights only (as ``model.safetensors`` in ``dtype``),
-    config.json, Mean/Std and ``extra_files`` (name -> text, e.g. a model card). No optimiser state."""
+    config.json, Mean/Std, ``extra_files`` (name -> text, e.g. a model card) and ``copy_files`` (name -> a file
+    copied in, e.g. the length estimator). No optimiser state. ``teacher``: for a distilled student, its teacher
+    folder, exported the same way into ``TEACHER_DIR`` inside the release, which the student's
+    ``distil.teacher`` then names (relative, so the release can move). One atomic folder."""
+    from ..io import atomic_dir
+
     ck = load_checkpoint(src, ema=True)
-    config = replace(ck.config, export=ExportInfo(from_step=ck.config.step, dtype=str(dtype).replace("torch.", "")))
-    return save_checkpoint(dst, model=ck.model, config=config, mean=ck.mean, std=ck.std, dtype=dtype,
-                           extra_files=extra_files)
+    config = _exported(ck.config, dtype)
+    shipped = None
+    if teacher is not None:
+        if not ck.config.student:
+            raise SMFError(f"{src} is not a distilled student: only a student ships its teacher")
+        shipped = load_checkpoint(teacher, ema=True)
+        check_teacher(ck, shipped)
+        config = replace(config, distil=replace(config.distil, teacher=TEACHER_DIR))
+    elif ck.config.student and not Path(ck.config.distil.teacher).is_absolute():
+        # a name relative to the source folder: the release, elsewhere, names the same teacher absolutely
+        named = (ck.path / ck.config.distil.teacher).resolve()
+        config = replace(config, distil=replace(config.distil, teacher=str(named)))
+    for name, f in (copy_files or {}).items():
+        if not Path(f).is_file():
+            raise SMFError(f"no such file to copy into the release: {f}")
+    with atomic_dir(dst) as tmp:
+        _write_checkpoint(tmp, model=ck.model, config=config, mean=ck.mean, std=ck.std, dtype=dtype,
+                          extra_files=extra_files)
+        for name, f in (copy_files or {}).items():
+            shutil.copyfile(f, tmp / name)
+        if shipped is not None:
+            _write_checkpoint(tmp / TEACHER_DIR, model=shipped.model, config=_exported(shipped.config, dtype),
+                              mean=shipped.mean, std=shipped.std, dtype=dtype)
+    return Path(dst)
+
+
+def _exported(config: CheckpointConfig, dtype: torch.dtype) -> CheckpointConfig:
+    return replace(config, export=ExportInfo(from_step=config.step, dtype=str(dtype).replace("torch.", "")))
+
+
+def check_teacher(student: Checkpoint, teacher: Checkpoint) -> None:
+    """SMFError unless ``teacher`` can be ``student``'s teacher: an ordinary model of the student's architecture
+    (without the guidance input), noise schedule, text encoder, skeleton and normalisation."""
+    if teacher.config.student:
+        raise SMFError(f"{teacher.path} is itself a distilled student, not a teacher")
+    s, t = student.config, teacher.config
+    differ = [name for name, a, b in (
+        ("architecture", replace(s.model, guidance=False).to_dict(), t.model.to_dict()),
+        ("noise schedule", asdict(s.schedule), asdict(t.schedule)), ("text encoder", s.text_encoder, t.text_encoder),
+        ("skeleton", s.skeleton, t.skeleton)) if json.dumps(a, sort_keys=True) != json.dumps(b, sort_keys=True)]
+    if not (np.array_equal(student.mean, teacher.mean) and np.array_equal(student.std, teacher.std)):
+        differ.append("Mean/Std")
+    if differ:
+        raise SMFError(f"{teacher.path} cannot be the teacher of {student.path}: {', '.join(differ)} differ")

@@ -37,8 +37,8 @@ from tqdm import tqdm
 from ..data.batches import get_batch
 from ..data.dataset import MotionTextDataset
 from ..errors import SMFError
-from .checkpoint import CHECKPOINT_DIR, CONFIG, EMA, MODEL, STATE, load_checkpoint, load_training_state, read_config, \
-    resolve, save_checkpoint
+from .checkpoint import CHECKPOINT_DIR, CONFIG, EMA, MODEL, STATE, companion_file, load_checkpoint, \
+    load_training_state, read_config, resolve, save_checkpoint
 from .config import DistilConfig
 from .samplers import CONSISTENCY_GRID, TIMESTEP_SCALING
 from .solvers import consistency_scalings
@@ -167,7 +167,7 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
     end = cfg.steps if stop_after is None else min(cfg.steps, stop_after)
     losses: list[float] = []
     bar = tqdm(range(start, end), initial=start, total=end, desc="distil", unit="step", disable=not progress)
-    extra = [p for p in sorted(resolve(cfg.teacher).iterdir()) if p.is_file() and p.name not in _OWN_FILES]
+    extra = teacher_extras(cfg.teacher)
     t0 = t_step = time.perf_counter()
     with open(log_path, "a", newline="") as log_file:
         log = csv.writer(log_file)
@@ -227,10 +227,25 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
                 save_checkpoint(out / CHECKPOINT_DIR, model=accelerator.unwrap_model(student),
                                 config=replace(config, step=step + 1), mean=teacher.mean, std=teacher.std,
                                 ema_state=target.state_dict(), training_state=state)
-                for f in extra:
-                    shutil.copy2(f, out / CHECKPOINT_DIR / f.name)
+                for name, f in extra.items():
+                    shutil.copy2(f, out / CHECKPOINT_DIR / name)
     cache.close()
     return losses
+
+
+def teacher_extras(teacher: str | Path) -> dict[str, Path]:
+    """The files of the teacher's folder that are not its own weights and config (name -> file), carried into the
+    student's checkpoints; for a teacher shipped inside its student's folder, the text side is the student's
+    (:func:`~.checkpoint.companion_file`)."""
+    from ..text import TEXT_SIDE_FILES
+
+    folder = resolve(teacher)
+    extra = {p.name: p for p in sorted(folder.iterdir()) if p.is_file() and p.name not in _OWN_FILES}
+    for name in TEXT_SIDE_FILES:
+        found = companion_file(folder, name)
+        if found is not None:
+            extra.setdefault(name, found)
+    return extra
 
 
 def _q(x0: torch.Tensor, noise: torch.Tensor, ab: torch.Tensor) -> torch.Tensor:

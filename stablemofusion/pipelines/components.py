@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..diffusion.checkpoint import load_checkpoint
+from ..diffusion.checkpoint import companion_file, load_checkpoint, teacher_folder
 from ..diffusion.config import CheckpointConfig
 from ..diffusion.engine import SolverEngine, check_engine
 from ..diffusion.solvers import SolverTable, solver_table
@@ -25,11 +25,21 @@ from .settings import DEFAULT_SECONDS, LengthClampedWarning, OutOfDomainWarning,
 
 
 def default_model_path() -> Path | None:
-    """The default model shipped inside the package, if any."""
+    """The default model shipped inside the package, if any (a distilled student; its teacher in ``teacher/``)."""
     from importlib import resources
 
     path = Path(str(resources.files("stablemofusion") / "assets" / "default_model"))
     return path if (path / "config.json").is_file() else None
+
+
+def model_folder(path: str | Path | None = None, *, teacher: bool = False) -> Path:
+    """The one place that says which model folder a call means: ``path`` (``None``: the shipped default model),
+    or with ``teacher`` the teacher that model was distilled from (SMFError for a model without one)."""
+    if path is None:
+        path = default_model_path()
+        if path is None:
+            raise SMFError("no default model is shipped in this version; pass a checkpoint folder")
+    return teacher_folder(path) if teacher else Path(path)
 
 
 class Components:
@@ -62,25 +72,27 @@ class Components:
         self.length_estimator: LengthEstimator | None = None  # from the folder's length.safetensors
 
     @classmethod
-    def from_pretrained(cls, path: str | Path | None = None, *, device: str | torch.device | None = None,
-                        dtype: torch.dtype | None = None, **kwargs):
-        """Load a checkpoint folder (or a training run folder); ``None`` = the shipped default model.
+    def from_pretrained(cls, path: str | Path | None = None, *, teacher: bool = False,
+                        device: str | torch.device | None = None, dtype: torch.dtype | None = None, **kwargs):
+        """Load a checkpoint folder (or a training run folder); ``None`` = the shipped default model (a distilled
+        student); ``teacher``: the teacher that model names instead (:func:`model_folder`). The known actions and
+        the length estimator are the folder's, or for a teacher shipped inside its student's folder the
+        student's (:func:`~stablemofusion.diffusion.checkpoint.companion_file`).
         On CUDA the model runs in float16 unless ``dtype`` says otherwise; on CPU in float32."""
-        if path is None:
-            path = default_model_path()
-            if path is None:
-                raise SMFError("no default model is shipped in this version; pass a checkpoint folder")
+        path = model_folder(path, teacher=teacher)
         device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         if dtype is None:
             dtype = torch.float16 if device.type == "cuda" else torch.float32
         ck = load_checkpoint(path)
         c = cls(ck.model, ck.mean, ck.std, ck.config, device=device, dtype=dtype, **kwargs)
-        if (ck.path / ACTIONS_FILE).is_file():
-            c.known_actions = KnownActions.load(ck.path / ACTIONS_FILE, c.text_cache)
-        if (ck.path / LENGTH_WEIGHTS).is_file():
-            c.length_estimator = LengthEstimator.load(ck.path)
+        actions = companion_file(ck.path, ACTIONS_FILE)
+        if actions is not None:
+            c.known_actions = KnownActions.load(actions, c.text_cache)
+        length = companion_file(ck.path, LENGTH_WEIGHTS)
+        if length is not None:
+            c.length_estimator = LengthEstimator.load(length.parent)
             if c.length_estimator.config.text_encoder != ck.config.text_encoder:
-                raise SMFError(f"{ck.path}: the length estimator was trained with the text encoder "
+                raise SMFError(f"{length.parent}: the length estimator was trained with the text encoder "
                                f"{c.length_estimator.config.text_encoder}, the model uses {ck.config.text_encoder}")
         return c
 
@@ -89,11 +101,12 @@ class Components:
         """Whether the model is a distilled few-step student (guidance as input, one forward per step)."""
         return self.config.student
 
-    def settings(self, settings: Settings | None = None) -> Settings:
+    def settings(self, settings: Settings | None = None, *, edit: bool = False) -> Settings:
         """``settings`` (default: all defaults) with this model's steps and sampler where they are None (a
-        student: its distilled step count and consistency sampling), checked."""
+        student: its distilled step count and consistency sampling; for an ``edit`` at least
+        STUDENT_EDIT_STEPS), checked."""
         student_steps = self.config.distil.sample_steps if self.student else None
-        return (settings or Settings()).for_model(student_steps).check(rigid=self.rigid is not None)
+        return (settings or Settings()).for_model(student_steps, edit=edit).check(rigid=self.rigid is not None)
 
     @property
     def window_seconds(self) -> float:

@@ -39,7 +39,7 @@ class EditPipeline:
         # 1. check inputs
         check_text(prompt, "the prompt")
         check_edit_inputs(mode, keep_start, keep_end, seconds)
-        settings = c.settings(settings)
+        settings = c.settings(settings, edit=True)  # a student: more steps than its own (STUDENT_EDIT_STEPS)
         if not sampler_spec(settings.sampler).fast:
             raise SMFError(f"editing needs a sampler with a precomputed form, not {settings.sampler!r}")
         # 2. prepare: the plan, its hooks and the seed

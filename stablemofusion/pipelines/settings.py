@@ -16,6 +16,9 @@ GUIDANCE = 2.5  # classifier-free guidance scale (a distilled student takes it a
 STEPS = 10  # sampling steps of an ordinary model (a distilled student: its checkpoint's distil.sample_steps)
 SAMPLER = DEFAULT_SAMPLER  # sampler of an ordinary model
 STUDENT = STUDENT_SAMPLER  # sampler of a distilled student (multistep consistency sampling)
+# steps of a distilled student when it edits a motion (at least; its own count if larger): at 1 step the kept frames
+# are imposed on its only prediction, which never saw them, and seams were twice the teacher's (docs/editing.md)
+STUDENT_EDIT_STEPS = 8
 BATCH_SIZE = 32  # prompts per sampling call
 DEFAULT_SECONDS = 4.0  # length of a motion when none is given and the model has no length estimator
 FOOTSKATE_MODES = ("off", "post", "loop")
@@ -60,10 +63,10 @@ class Settings:
             raise SMFError("the footskate cleanup works on the rigid body: it needs the rigid stage")
         return self
 
-    def for_model(self, student_steps: int | None) -> "Settings":
+    def for_model(self, student_steps: int | None, *, edit: bool = False) -> "Settings":
         """These settings with the model's defaults where they leave steps or sampler None: ``student_steps``
-        is a distilled student's step count (None for an ordinary model)."""
-        steps, sampler = model_defaults(student_steps)
+        is a distilled student's step count (None for an ordinary model); ``edit``: for an edit."""
+        steps, sampler = model_defaults(student_steps, edit=edit)
         return replace(self, steps=steps if self.steps is None else self.steps,
                        sampler=sampler if self.sampler is None else self.sampler)
 
@@ -76,10 +79,13 @@ class Settings:
         return self.guidance_scale != 1.0
 
 
-def model_defaults(student_steps: int | None) -> tuple[int, str]:
+def model_defaults(student_steps: int | None, *, edit: bool = False) -> tuple[int, str]:
     """(steps, sampler) a model samples with by default: a distilled student (``student_steps``, from its
-    checkpoint) its step count with consistency sampling, any other model STEPS with SAMPLER."""
-    return (STEPS, SAMPLER) if student_steps is None else (int(student_steps), STUDENT)
+    checkpoint) its step count with consistency sampling (for an ``edit`` at least STUDENT_EDIT_STEPS), any
+    other model STEPS with SAMPLER."""
+    if student_steps is None:
+        return STEPS, SAMPLER
+    return (max(int(student_steps), STUDENT_EDIT_STEPS) if edit else int(student_steps)), STUDENT
 
 
 def check_footskate(mode: str) -> None:

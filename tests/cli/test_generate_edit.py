@@ -42,6 +42,21 @@ def test_edit_of_a_bvh_keeps_the_source_frame_count(tmp_path, capsys):
     assert len(out) == n
 
 
+def test_edit_with_the_student_takes_its_edit_steps_and_teacher_its_own(tmp_path):
+    """The shipped student edits at STUDENT_EDIT_STEPS (at 1 step its only prediction never sees the kept part);
+    --teacher edits with the teacher's defaults. The JSON records what was used."""
+    import json
+
+    from stablemofusion.pipelines.settings import SAMPLER, STEPS, STUDENT, STUDENT_EDIT_STEPS
+
+    for flags, expected in (([], (STUDENT, STUDENT_EDIT_STEPS)), (["--teacher"], (SAMPLER, STEPS))):
+        out = tmp_path / ("t" if flags else "s")
+        assert main(["edit", "a person waves", "--motion", "example:wave-both-hands", "--mode", "prefix",
+                     "--keep-start", "1", "--format", "json", "--out", str(out), *flags]) == 0
+        meta = json.loads(next(out.glob("*.json")).read_text())
+        assert (meta["sampler"], meta["steps"]) == expected
+
+
 def test_source_features_have_one_frame_per_joint_frame():
     m = load_motion("example:wave-both-hands")
     assert len(source_features(m, HUMANML3D, 20.0)) == len(m.joints)

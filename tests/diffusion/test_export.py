@@ -1,4 +1,7 @@
-"""Release export: EMA weights only, float16, model card inside, loads back as a pipeline."""
+"""Release export: EMA weights only, float16, model card inside, loads back as a pipeline; a student with its
+teacher inside (the shipped layout)."""
+
+import re
 
 import numpy as np
 import torch
@@ -33,3 +36,75 @@ def test_export_keeps_ema_weights_in_fp16(tmp_path, capsys):
     ck = load_checkpoint(out)
     assert ck.config.export.from_step == 3
     assert main(["export", "--checkpoint", str(tmp_path / "nope"), "--out", str(out)]) == 2
+
+
+def test_export_ships_a_student_with_its_teacher_inside(tmp_path, capsys, save_tiny_checkpoint, save_tiny_student):
+    """The shipped layout: the student at the top with the text side, its teacher in teacher/ (named relative,
+    so the folder can move), both fp16 EMA weights; the pipeline loads either, the teacher with the student's
+    text side."""
+    import json
+    import shutil
+
+    from stablemofusion.diffusion.checkpoint import CONFIG, TEACHER_DIR, teacher_folder
+    from stablemofusion.pipeline import MotionPipeline, default_model_path
+    from stablemofusion.text import TEXT_SIDE_FILES
+
+    teacher = save_tiny_checkpoint(tmp_path / "teacher", np.zeros(263), np.full(263, 0.1))
+    student = save_tiny_student(tmp_path / "student", teacher)
+    text_side = tmp_path / "text-side"
+    text_side.mkdir()
+    for name in TEXT_SIDE_FILES:
+        shutil.copy(default_model_path() / name, text_side / name)
+    card = tmp_path / "card.md"
+    card.write_text("# the pair\n")
+    out = tmp_path / "release"
+    assert main(["export", "--checkpoint", str(student), "--teacher-folder", str(teacher), "--text-side",
+                 str(text_side), "--card", str(card), "--out", str(out)]) == 0
+    own = {CONFIG, MODEL, "Mean.npy", "Std.npy"}
+    assert {f.name for f in out.iterdir()} == own | set(TEXT_SIDE_FILES) | {"MODEL_CARD.md", TEACHER_DIR}
+    assert {f.name for f in (out / TEACHER_DIR).iterdir()} == own  # the text side once, in the student's folder
+    config = json.loads((out / CONFIG).read_text())
+    assert config["distil"]["teacher"] == TEACHER_DIR and config["export"]["dtype"] == "float16"
+    inner = load_checkpoint(out / TEACHER_DIR)
+    assert not inner.config.student and inner.config.export.dtype == "float16"
+    assert all(v.dtype == torch.float16 for v in load_file(out / TEACHER_DIR / MODEL).values() if v.is_floating_point())
+    moved = shutil.move(out, tmp_path / "moved")  # a relative name: the pair still finds each other
+    student_pipe = MotionPipeline.from_pretrained(moved, device="cpu")
+    teacher_pipe = MotionPipeline.from_pretrained(moved, teacher=True, device="cpu")
+    assert student_pipe.student and not teacher_pipe.student
+    for pipe in (student_pipe, teacher_pipe):
+        assert pipe.known_actions is not None and pipe.length_estimator is not None
+    assert main(["export", "--checkpoint", str(moved), "--out", str(tmp_path / "alone")]) == 0  # no teacher inside
+    assert teacher_folder(tmp_path / "alone") == (tmp_path / "moved" / TEACHER_DIR).resolve()  # still names it
+
+
+def test_export_carries_the_checkpoints_own_text_side(tmp_path, save_tiny_checkpoint):
+    import shutil
+
+    from stablemofusion.pipeline import default_model_path
+    from stablemofusion.text import LENGTH_CONFIG, LENGTH_WEIGHTS
+
+    src = save_tiny_checkpoint(tmp_path / "ck", np.zeros(263), np.full(263, 0.1))
+    for name in (LENGTH_CONFIG, LENGTH_WEIGHTS):
+        shutil.copy(default_model_path() / name, src / name)
+    assert main(["export", "--checkpoint", str(src), "--out", str(tmp_path / "out")]) == 0
+    for name in (LENGTH_CONFIG, LENGTH_WEIGHTS):
+        assert (tmp_path / "out" / name).read_bytes() == (src / name).read_bytes()
+
+
+def test_export_of_a_pair_refuses_what_cannot_be_one(tmp_path, capsys, save_tiny_checkpoint, save_tiny_student):
+    teacher = save_tiny_checkpoint(tmp_path / "teacher", np.zeros(263), np.full(263, 0.1))
+    student = save_tiny_student(tmp_path / "student", teacher)
+    other = save_tiny_checkpoint(tmp_path / "other", np.zeros(263), np.full(263, 0.2))  # another normalisation
+    out = str(tmp_path / "out")
+    cases = [(["--checkpoint", str(teacher), "--teacher-folder", str(teacher)], "only a student ships its teacher"),
+             (["--checkpoint", str(student), "--teacher-folder", str(other)], "cannot be the teacher of .*Mean/Std"),
+             (["--checkpoint", str(student), "--teacher-folder", str(student)], "itself a distilled student"),
+             (["--checkpoint", str(student), "--text-side", str(teacher)], "has none of the text-side files")]
+    for argv, message in cases:
+        capsys.readouterr()
+        assert main(["export", *argv, "--out", out]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("smf: error:"), err
+        assert re.search(message, err), err
+    assert not (tmp_path / "out").exists()

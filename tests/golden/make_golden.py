@@ -1,5 +1,11 @@
-"""Store the outputs of the shipped default model for fixed seeds (run once, at commit 54506c9, before the
-pipeline redesign of issue 26): tests/golden/test_golden.py compares the current code's outputs to them.
+"""Store the outputs of the shipped default pair for fixed seeds: tests/golden/test_golden.py compares the current
+code's outputs to them. Made with the code of commit cdb32c3 (branch wip-student), when the 1-step student became
+the default model: the teacher (``default_model/teacher``, selected explicitly with ``teacher=True``: SDE-DPM-Solver++
+2M Karras, 10 steps) on every task (text to motion, footskate post, a timeline, every edit mode, x_t imputation,
+the HTTP response), and the student (``default_model``: lcm, 1 step; edits at STUDENT_EDIT_STEPS) on a few,
+the HTTP response's joints included (keys ``student/...``; that key was added later on the same branch, every
+other array regenerated bit for bit the same). Both with the default rigid stage. (Earlier files were made from
+the previous default model, a 10-step model of session 5, at 54506c9.)
 
     OMP_NUM_THREADS=1 python tests/golden/make_golden.py   # writes tests/golden/golden.npz
 """
@@ -41,7 +47,7 @@ def source_motion():
 
 
 def outputs(pipe) -> dict[str, np.ndarray]:
-    """Every stored output, named, in float32 (features and joints of each motion)."""
+    """Every stored output of the teacher, named, in float32 (features and joints of each motion)."""
     out = {}
 
     def put(name, r):
@@ -58,6 +64,21 @@ def outputs(pipe) -> dict[str, np.ndarray]:
         put(f"edit_{mode}", pipe.edit("a person waves", src, mode, seed=9, **kw))
     put("edit_prefix_xt", pipe.edit("a person waves", src, "prefix", seed=9, impose="xt", keep_start=1.0,
                                     seconds=4.0))
+    return out
+
+
+def student_outputs(pipe) -> dict[str, np.ndarray]:
+    """A few outputs of the student (keys ``student/...``): text to motion, a timeline, a prefix edit."""
+    out = {}
+
+    def put(name, r):
+        out["student/" + name + "/features"] = project(r.features)
+        out["student/" + name + "/joints"] = np.asarray(r.joints, dtype=np.float32)
+
+    put("t2m_a", pipe(PROMPTS, seconds=[2.0, 3.0], seed=[3, 7])[0])
+    put("t2m_post", pipe(PROMPTS[0], seconds=2.0, seed=5, footskate="post")[0])
+    put("timeline", pipe.timeline(TIMELINE, seed=4))
+    put("edit_prefix", pipe.edit("a person waves", source_motion(), "prefix", seed=9, keep_start=1.0, seconds=4.0))
     return out
 
 
@@ -80,11 +101,12 @@ def main() -> None:
     from stablemofusion.pipeline import MotionPipeline
 
     torch.set_num_threads(1)
-    pipe = MotionPipeline.from_pretrained(device="cpu")
-    arrays = outputs(pipe)
-    body = http_body()
+    arrays = outputs(MotionPipeline.from_pretrained(teacher=True, device="cpu"))
+    arrays.update(student_outputs(MotionPipeline.from_pretrained(device="cpu")))
+    body = http_body(teacher=True)
     arrays["http/joints"] = np.asarray(body.pop("joints"), dtype=np.float32)
     arrays["http/meta"] = np.frombuffer(json.dumps(body, sort_keys=True).encode(), dtype=np.uint8)
+    arrays["student/http/joints"] = np.asarray(http_body()["joints"], dtype=np.float32)
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     (HERE / "golden.npz").write_bytes(buf.getvalue())

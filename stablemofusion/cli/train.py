@@ -25,6 +25,7 @@ _FLAGS = {  # TrainConfig field -> help
     "warmup": "steps of linear learning-rate warm-up", "min_lr": "final learning rate of cosine / wsd",
     "decay_steps": "wsd: length of the final decay", "balance": "label balancing power (0 = off, 0.5 = items of a "
     "rare (dataset, content) label drawn sqrt(n_max / n) times per epoch; needs clips.csv)",
+    "short_crops": "probability that a training item is cropped to a random 50-100%% of its clip (0 = whole clips)",
 }
 _TYPES = {"init_from": str}
 

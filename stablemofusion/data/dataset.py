@@ -37,6 +37,9 @@ def biased_std(std: np.ndarray, skeleton: str | Skeleton, feat_bias: float) -> n
     return out
 
 
+SHORT_CROP_MIN_FRACTION = 0.5  # a short crop keeps at least this fraction of the clip's training length
+
+
 class MotionTextDataset(Dataset):
     """(normalised motion, caption) pairs from ``<root>/<split>.txt``, all held in memory as float32.
 
@@ -53,7 +56,7 @@ class MotionTextDataset(Dataset):
     def __init__(self, root: str | os.PathLike | MotionLayout, split: str = "train", *,
                  skeleton: str | Skeleton | None = None, min_frames: int | None = None, max_frames: int | None = None,
                  unit_length: int = 4, feat_bias: float = 5.0, seed: int | None = None,
-                 ids: Sequence[str] | None = None):
+                 ids: Sequence[str] | None = None, short_crops: float = 0.0):
         self.layout = root if isinstance(root, MotionLayout) else MotionLayout(root, skeleton)
         self.layout.validate()
         sk = self.skeleton = self.layout.skeleton
@@ -66,6 +69,9 @@ class MotionTextDataset(Dataset):
                            f"<= max_frames ({max_frames})")
         if not feat_bias > 0:
             raise SMFError(f"feat_bias must be positive, got {feat_bias}")
+        if not 0.0 <= short_crops <= 1.0:
+            raise SMFError(f"short_crops is a probability in [0, 1], got {short_crops}")
+        self.short_crops = float(short_crops)
         self.seed = seed
         self.epoch, self.copy = 0, 0
         self.mean = np.asarray(self.layout.mean, dtype=np.float32)
@@ -118,12 +124,20 @@ class MotionTextDataset(Dataset):
         return np.random.default_rng([self.seed, self.epoch, i] + ([self.copy] if self.copy else []))
 
     def crop_length(self, n: int, rng: np.random.Generator) -> int:
-        """Training length for a clip of ``n`` frames: a multiple of unit_length in [unit_length, max_frames]."""
+        """Training length for a clip of ``n`` frames: a multiple of unit_length in [unit_length, max_frames].
+        With ``short_crops`` p: with probability p a length drawn uniformly between SHORT_CROP_MIN_FRACTION of
+        that (at least min_frames) and all of it, so that an action whose clips are all long (waves: 6-8 s) is
+        also seen at shorter lengths (a motion of 4 s is not only what short clips do: raising a hand)."""
         u = self.unit_length
         units = n // u
         if u < 10 and units > 1 and rng.random() < 1 / 3:  # official coin: 'single', 'single', 'double'
             units -= 1
-        return min(units, self.max_frames // u) * u
+        units = min(units, self.max_frames // u)
+        if self.short_crops > 0 and rng.random() < self.short_crops:
+            low = max(-(-self.min_frames // u), int(np.ceil(SHORT_CROP_MIN_FRACTION * units)))
+            if low < units:
+                units = int(rng.integers(low, units + 1))
+        return units * u
 
     def __getitem__(self, i: int) -> dict[str, Any]:
         """dict: motion (max_frames, D) float32 normalised and zero-padded, mask (max_frames,) bool,

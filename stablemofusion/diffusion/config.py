@@ -48,6 +48,7 @@ class TrainConfig:
     decay_steps: int = 0  # wsd: the last `decay_steps` steps decay to min_lr (cosine); before them lr is constant
     balance: float = 0.0  # label balancing: an item of a (dataset, content) group of n items is drawn
     #                       round((n_max / n) ** balance) times per epoch (capped); 0 = off (needs clips.csv)
+    short_crops: float = 0.0  # probability that an item is cropped to a random 50-100% of its clip (data/dataset.py)
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
 
     def to_dict(self) -> dict:

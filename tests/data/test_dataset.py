@@ -122,6 +122,25 @@ def test_max_frames_min_frames_and_ids(root: Path):
     assert len(MotionTextDataset(root, "test")) == 1
 
 
+def test_short_crops_draw_lengths_from_half_to_all_of_the_clip(root: Path):
+    """short_crops=1: every item a random 50-100% of what it would be (at least min_frames, a multiple of 4);
+    short_crops=0 (the default) draws exactly what it drew before the option existed."""
+    whole, short = MotionTextDataset(root, seed=5), MotionTextDataset(root, seed=5, short_crops=1.0)
+    seen = []
+    for epoch in range(12):
+        whole.set_epoch(epoch)
+        short.set_epoch(epoch)
+        for a, b in zip(items(whole), items(short)):  # the same coin, so `a` is the length `b` was cut from
+            low = min(a["length"], max(40, 4 * -(-a["length"] // 8)))  # half, rounded up to a unit of 4
+            assert b["length"] % 4 == 0 and low <= b["length"] <= a["length"]
+            seen.append(b["length"] < a["length"])
+    assert any(seen)  # some items are cut short
+    again = MotionTextDataset(root, seed=5, short_crops=0.0)
+    assert [it["frames"] for it in items(again)] == [it["frames"] for it in items(MotionTextDataset(root, seed=5))]
+    with pytest.raises(SMFError, match="short_crops"):
+        MotionTextDataset(root, short_crops=1.5)
+
+
 def test_dataloader_collate(root: Path):
     loader = DataLoader(MotionTextDataset(root, seed=0), batch_size=3, shuffle=False, collate_fn=collate)
     batches = list(loader)

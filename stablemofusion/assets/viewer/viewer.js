@@ -375,6 +375,7 @@ function liveStart() {
   const ws = new WebSocket(`${proto}//${location.host}/v1/stream`);
   state.live = { ws, start: null, offset: 0, received: 0, index: -1, prompts: [] };
   ws.addEventListener('message', (ev) => {
+    if (!state.live || state.live.ws !== ws) return;  // frames already in flight when the stream was stopped
     const m = JSON.parse(ev.data);
     if (m.type === 'frames') liveAppend(m);
     else if (m.type === 'error') status(m.error, true);

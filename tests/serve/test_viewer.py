@@ -193,8 +193,12 @@ def test_live_mode_keeps_moving_and_a_new_prompt_changes_it(page, tmp_path):
     page.wait_for_timeout(1500)  # the new prompt's frames on screen
     assert 'live: "a person waves both hands"' in page.inner_text("#status")
     page.screenshot(path=str(tmp_path / "live.png"))
+    page.evaluate("window.liveSocket = window.smf.live.ws")
     page.uncheck("#live")
     page.wait_for_function("window.smf.live === null && !document.getElementById('scrub').disabled", timeout=10_000)
+    # frames still in flight when the stream stopped are dropped, not appended to a stream that is gone
+    page.evaluate("window.liveSocket.dispatchEvent(new MessageEvent('message', {data: JSON.stringify("
+                  "{type: 'frames', start: 0, fps: 20, prompt_index: 0, joints: [[[0, 0, 0]]]})}))")
     assert "live stream ended" in page.inner_text("#status")
     assert page.inner_text("#generate") == "Generate"
     assert page.logs[logs:] == []  # no error or warning while streaming

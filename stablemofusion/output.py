@@ -98,7 +98,7 @@ def json_payload(result: MotionResult, **meta) -> dict:
     with actions.json) and the joints (T, J, 3) rounded to :data:`JSON_DECIMALS`; the HTTP response body."""
     return {"prompt": result.prompt, "fps": result.fps, "frames": result.frames, "seed": result.seed, **meta,
             **(result.domain.to_dict(result.prompt) if result.domain else {}),
-            "joints": np.round(np.asarray(result.joints, dtype=np.float64), JSON_DECIMALS)}
+            "joints": _rounded(result.joints)}
 
 
 def json_bytes(result: MotionResult, **meta) -> bytes:
@@ -107,7 +107,12 @@ def json_bytes(result: MotionResult, **meta) -> bytes:
 
 def joints_json_bytes(joints: np.ndarray, fps: float) -> bytes:
     """Joints (T, J, 3) of a motion read from a file, as the viewer reads them: fps, frames, joints."""
-    return _dumps({"fps": fps, "frames": len(joints), "joints": np.round(np.asarray(joints, dtype=np.float64), JSON_DECIMALS)})
+    return _dumps({"fps": fps, "frames": len(joints), "joints": _rounded(joints)})
+
+
+def _rounded(joints: np.ndarray) -> np.ndarray:
+    """Joints rounded to :data:`JSON_DECIMALS`, in float64 as the standard library's encoder wrote them."""
+    return np.round(np.asarray(joints, dtype=np.float64), JSON_DECIMALS)
 
 
 def _dumps(body: dict) -> bytes:

@@ -66,14 +66,13 @@ def run(args: argparse.Namespace) -> None:
 def text_side_files(folder: Path, *, required: bool) -> dict[str, Path]:
     """The text-side files (:data:`~stablemofusion.text.TEXT_SIDE_FILES`) that go with the model in ``folder``
     (name -> file); ``required``: SMFError when it has none."""
-    from ..diffusion.checkpoint import companion_file, resolve
+    from ..diffusion.checkpoint import companion_files, resolve
     from ..errors import SMFError
     from ..text import TEXT_SIDE_FILES
 
     if required and not resolve(folder).is_dir():
         raise SMFError(f"no such model folder: {folder}")
-    found = {name: companion_file(folder, name) for name in TEXT_SIDE_FILES}
-    found = {name: f for name, f in found.items() if f is not None}
+    found = companion_files(folder, TEXT_SIDE_FILES)
     if required and not found:
         raise SMFError(f"{folder} has none of the text-side files ({', '.join(TEXT_SIDE_FILES)})")
     return found

@@ -129,6 +129,12 @@ def companion_file(path: str | Path, name: str) -> Path | None:
     return parent / name if named.resolve() == path.resolve() else None
 
 
+def companion_files(path: str | Path, names) -> dict[str, Path]:
+    """:func:`companion_file` for each of ``names``: those found (name -> file)."""
+    found = {name: companion_file(path, name) for name in names}
+    return {name: f for name, f in found.items() if f is not None}
+
+
 def load_weights(path: str | Path, *, ema: bool = True) -> dict[str, torch.Tensor]:
     """The (EMA) weights of a checkpoint, run or exported folder as float32 tensors."""
     path = resolve(path)

@@ -37,7 +37,7 @@ from tqdm import tqdm
 from ..data.batches import get_batch
 from ..data.dataset import MotionTextDataset
 from ..errors import SMFError
-from .checkpoint import CHECKPOINT_DIR, CONFIG, EMA, MODEL, STATE, companion_file, load_checkpoint, \
+from .checkpoint import CHECKPOINT_DIR, CONFIG, EMA, MODEL, STATE, companion_files, load_checkpoint, \
     load_training_state, read_config, resolve, save_checkpoint
 from .config import DistilConfig
 from .samplers import CONSISTENCY_GRID, TIMESTEP_SCALING
@@ -240,12 +240,8 @@ def teacher_extras(teacher: str | Path) -> dict[str, Path]:
     from ..text import TEXT_SIDE_FILES
 
     folder = resolve(teacher)
-    extra = {p.name: p for p in sorted(folder.iterdir()) if p.is_file() and p.name not in _OWN_FILES}
-    for name in TEXT_SIDE_FILES:
-        found = companion_file(folder, name)
-        if found is not None:
-            extra.setdefault(name, found)
-    return extra
+    own = {p.name: p for p in sorted(folder.iterdir()) if p.is_file() and p.name not in _OWN_FILES}
+    return {**companion_files(folder, TEXT_SIDE_FILES), **own}
 
 
 def _q(x0: torch.Tensor, noise: torch.Tensor, ab: torch.Tensor) -> torch.Tensor:

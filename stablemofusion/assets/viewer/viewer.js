@@ -374,14 +374,15 @@ function liveStart() {
   const proto = location.protocol === 'https:' ? 'wss:' : 'ws:';
   const ws = new WebSocket(`${proto}//${location.host}/v1/stream`);
   state.live = { ws, start: null, offset: 0, received: 0, index: -1, prompts: [] };
+  const current = () => state.live !== null && state.live.ws === ws;  // not stopped or replaced since
   ws.addEventListener('message', (ev) => {
-    if (!state.live || state.live.ws !== ws) return;  // frames already in flight when the stream was stopped
+    if (!current()) return;  // frames already in flight when the stream was stopped
     const m = JSON.parse(ev.data);
     if (m.type === 'frames') liveAppend(m);
     else if (m.type === 'error') status(m.error, true);
   });
   ws.addEventListener('close', () => {
-    if (state.live && state.live.ws === ws) liveStop(false);
+    if (current()) liveStop(false);
   });
   status('live: connecting...');
 }

@@ -22,6 +22,7 @@ _FLAGS = {  # DistilConfig field -> help
     "max_frames": "longest training crop (frames; default the teacher's)",
     "min_frames": "shortest motion used (frames; default the teacher's)",
     "sample_steps": "the student's default sampling step count (recorded in its checkpoint)",
+    "guidance_lr_scale": "learning rate of the guidance-scale embedding, as a multiple of --lr",
 }
 
 

@@ -97,6 +97,9 @@ class DistilConfig:
     max_frames: int | None = None  # None: the teacher's
     min_frames: int | None = None  # None: the teacher's
     sample_steps: int = 4  # the student's default sampling step count (pipelines, smf generate)
+    # learning rate of the zero-initialised guidance embedding, as a multiple of ``lr``: at 1 its last layer
+    # stays near zero over a short run and the student ignores the scale (docs/inference.md)
+    guidance_lr_scale: float = 1.0
 
     def to_dict(self) -> dict:
         return asdict(self)

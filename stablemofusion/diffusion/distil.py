@@ -66,6 +66,8 @@ def check_distil_config(cfg: DistilConfig) -> None:
         raise SMFError(f"need 0 <= --guidance-min <= --guidance-max, got {cfg.guidance_min}, {cfg.guidance_max}")
     if cfg.grid != CONSISTENCY_GRID:
         raise SMFError(f"--grid must be {CONSISTENCY_GRID}, the lcm sampler's skip schedule")
+    if not cfg.guidance_lr_scale > 0:
+        raise SMFError(f"--guidance-lr-scale must be > 0, got {cfg.guidance_lr_scale}")
     if not 1 <= cfg.sample_steps <= cfg.grid:
         raise SMFError(f"--sample-steps must be in [1, {cfg.grid}], got {cfg.sample_steps}")
     if cfg.warmup < 0 or cfg.lr <= 0 or not 0 <= cfg.cond_drop <= 1:
@@ -75,6 +77,13 @@ def check_distil_config(cfg: DistilConfig) -> None:
 def distil_lr(cfg: DistilConfig, step: int) -> float:
     """Linear warm-up over ``cfg.warmup`` steps, then constant (as LCM)."""
     return cfg.lr * min(1.0, (step + 1) / cfg.warmup) if cfg.warmup else cfg.lr
+
+
+def param_groups(student: torch.nn.Module, guidance_lr_scale: float) -> list[dict]:
+    """AdamW groups: the guidance embedding (``lr_scale`` = guidance_lr_scale) and everything else (1)."""
+    guidance = [p for n, p in student.named_parameters() if n.startswith("guidance_embed.")]
+    rest = [p for n, p in student.named_parameters() if not n.startswith("guidance_embed.")]
+    return [{"params": rest, "lr_scale": 1.0}, {"params": guidance, "lr_scale": float(guidance_lr_scale)}]
 
 
 def skip_grid(T: int, grid: int) -> torch.Tensor:
@@ -134,8 +143,8 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
     student = student_from_teacher(teacher)
     config = replace(tcfg, model=replace(tcfg.model, guidance=True), step=None, export=None,
                      distil=replace(cfg, teacher=str(resolve(cfg.teacher).resolve())))
-    optimizer = torch.optim.AdamW(student.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
-                                  fused=device.type == "cuda")
+    optimizer = torch.optim.AdamW(param_groups(student, cfg.guidance_lr_scale), lr=cfg.lr,
+                                  weight_decay=cfg.weight_decay, fused=device.type == "cuda")
     start = 0
     if resume:
         state = load_training_state(out / CHECKPOINT_DIR)
@@ -203,7 +212,7 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
             accelerator.clip_grad_norm_(student.parameters(), cfg.grad_clip)
             lr = distil_lr(cfg, step)
             for group in optimizer.param_groups:
-                group["lr"] = lr
+                group["lr"] = lr * group["lr_scale"]
             optimizer.step()
             optimizer.zero_grad(set_to_none=True)
             with torch.no_grad():  # the target network follows the student

@@ -154,10 +154,26 @@ def test_a_killed_distillation_resumes_exactly(teacher, corpus, text_cache, stud
         assert all(torch.equal(a[k], b[k]) for k in a)
 
 
+def test_guidance_lr_scale_speeds_up_only_the_guidance_embedding(teacher, corpus, text_cache, student, tmp_path):
+    """--guidance-lr-scale multiplies the learning rate of the zero-initialised guidance embedding alone (its own
+    AdamW group): its last layer moves much further from zero in the same steps."""
+    fast = tmp_path / "fast"
+    assert main(_distil_args(teacher, corpus, text_cache, fast, "--guidance-lr-scale", "20", "--stop-after", "2")) == 0
+    assert read_config(fast).distil.guidance_lr_scale == 20.0
+    base = tmp_path / "base"
+    assert main(_distil_args(teacher, corpus, text_cache, base, "--stop-after", "2")) == 0
+    a, b = (load_checkpoint(r, ema=False).model for r in (fast, base))
+    size = (lambda m: sum(p.abs().sum() for p in m.guidance_embed.mlp[2].parameters()).item())
+    assert size(a) > 5 * size(b) > 0
+    state = torch.load(fast / "checkpoint" / "training_state.pt", weights_only=False)
+    assert [g["lr_scale"] for g in state["optimizer"]["param_groups"]] == [1.0, 20.0]
+
+
 def test_distil_refuses_bad_inputs(teacher, student, corpus, text_cache, tmp_path, capsys):
     assert main(_distil_args(student, corpus, text_cache, tmp_path / "a")) == 2  # a student is no teacher
     assert "already a distilled student" in capsys.readouterr().err
     assert main(_distil_args(teacher, corpus, text_cache, tmp_path / "b", "--loss", "l1")) == 2
+    assert main(_distil_args(teacher, corpus, text_cache, tmp_path / "e", "--guidance-lr-scale", "0")) == 2
     assert main(_distil_args(teacher, corpus, text_cache, tmp_path / "c", "--resume")) == 2  # nothing to resume
     with pytest.raises(SMFError, match="teacher"):
         distil(corpus, tmp_path / "d", DistilConfig(teacher=""))

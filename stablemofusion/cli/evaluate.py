@@ -202,7 +202,8 @@ def run(args: argparse.Namespace) -> None:
 
         prompt_result = prompt_accuracy(pipe, load_classifier(args.classifier), load_prompts(args.prompts),
                                         corpus_labels(args.data), samples=args.prompt_samples,
-                                        seconds=seconds, seed=args.seed)
+                                        seconds=seconds, seed=args.seed, guidance_scale=cfg.guidance_scale,
+                                        steps=cfg.steps, sampler=cfg.sampler, footskate=cfg.footskate)
         prompt_result["file"] = str(args.prompts)
     if args.prompts_only:
         if prompt_result is None:

@@ -78,11 +78,12 @@ def check_known(items: Sequence[PromptItem], classifier: MotionClassifier) -> No
 
 
 def prompt_accuracy(pipe, classifier: MotionClassifier, items: Sequence[PromptItem], labels: dict[str, LabelInfo],
-                    *, samples: int = 3, seconds: float | None = 4.0, seed: int = 0, batch: int = 32) -> dict:
+                    *, samples: int = 3, seconds: float | None = 4.0, seed: int = 0, batch: int = 32,
+                    **sampling) -> dict:
     """Generate ``samples`` motions per in-domain prompt (seeds ``seed + k``; ``seconds`` None: the length the
-    pipeline predicts from the prompt) and classify them; accuracy per
-    dataset and overall. With a pipeline that knows its actions, also the out-of-domain check: how many
-    in-domain and out-of-domain prompts it flags."""
+    pipeline predicts from the prompt; ``sampling``: keyword arguments of the pipeline call, e.g. guidance_scale,
+    steps, sampler, footskate) and classify them; accuracy per dataset and overall. With a pipeline that knows
+    its actions, also the out-of-domain check: how many in-domain and out-of-domain prompts it flags."""
     inside = [it for it in items if not it.ood]
     check_known(inside, classifier)
     rep = [it for it in inside for _ in range(samples)]
@@ -90,7 +91,7 @@ def prompt_accuracy(pipe, classifier: MotionClassifier, items: Sequence[PromptIt
     seeds = [seed + k for _ in inside for k in range(samples)]
     feats = []
     for a in range(0, len(prompts), batch):
-        res = pipe(prompts[a:a + batch], seconds=seconds, seed=seeds[a:a + batch])
+        res = pipe(prompts[a:a + batch], seconds=seconds, seed=seeds[a:a + batch], **sampling)
         feats.extend(r.features for r in res)
     by_dataset = {d: dataset_labels(labels, d) for d in {it.dataset for it in rep} if d is not None}
     allowed = [by_dataset.get(it.dataset, ((), ())) for it in rep]

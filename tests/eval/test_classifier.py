@@ -59,8 +59,8 @@ class _Replay:
     def __init__(self, table):
         self.table, self.calls = table, []
 
-    def __call__(self, prompts, seconds, seed):
-        self.calls.append((list(prompts), seconds, list(seed)))
+    def __call__(self, prompts, seconds, seed, **sampling):
+        self.calls.append((list(prompts), seconds, list(seed), sampling))
         return [_Result(self.table[p]) for p in prompts]
 
 
@@ -82,8 +82,9 @@ def test_prompt_accuracy_counts_what_the_classifier_sees(classifier_dir, eval_co
     table = {"stroll ahead": by_content["walk"], "jog": by_content["walk"],
              "wave your left hand": by_content["wave-left-hand"], "wrong on purpose": by_content["wave-left-hand"]}
     gen = _Replay(table)
-    res = prompt_accuracy(gen, model, items, labels, samples=2, seconds=3.0, seed=4)
+    res = prompt_accuracy(gen, model, items, labels, samples=2, seconds=3.0, seed=4, guidance_scale=4.0, steps=2)
     assert gen.calls[0][1] == 3.0 and gen.calls[0][2] == [4, 5, 4, 5, 4, 5, 4, 5]  # the OOD line is not generated
+    assert gen.calls[0][3] == {"guidance_scale": 4.0, "steps": 2}  # the sampling settings reach the pipeline
     pred = model.predict([table[it.prompt] for it in items[:4] for _ in range(2)],
                          [dataset_labels(labels, it.dataset) for it in items[:4] for _ in range(2)])
     want = [(it.contents, it.styles) for it in items[:4] for _ in range(2)]
@@ -106,7 +107,11 @@ def test_bad_prompt_files(tmp_path, line, msg):
         load_prompts(tmp_path / "p.jsonl")
 
 
-def test_evaluate_prompts_cli(classifier_dir, eval_corpus, tiny_checkpoint, tmp_path, capsys):
+def test_evaluate_prompts_cli(classifier_dir, eval_corpus, tiny_checkpoint, tmp_path, capsys, monkeypatch):
+    from stablemofusion.pipeline import MotionPipeline
+
+    calls, call = [], MotionPipeline.__call__
+    monkeypatch.setattr(MotionPipeline, "__call__", lambda self, *a, **kw: calls.append(kw) or call(self, *a, **kw))
     path = tmp_path / "p.jsonl"
     path.write_text(json.dumps({"prompt": "a man walks", "content": "walk", "style": None, "dataset": 1}) + "\n")
     out = tmp_path / "r.json"
@@ -116,6 +121,7 @@ def test_evaluate_prompts_cli(classifier_dir, eval_corpus, tiny_checkpoint, tmp_
     assert code == 0
     res = json.loads(out.read_text())["prompts"]
     assert res["all"]["n"] == 2 and "Prompt following" in capsys.readouterr().out
+    assert calls and all(kw["steps"] == 2 and kw["guidance_scale"] == 2.5 for kw in calls)  # --steps is used
     code = main(["evaluate", "--checkpoint", str(tiny_checkpoint), "--data", str(eval_corpus), "--classifier",
                  str(classifier_dir), "--prompts", str(path), "--prompts-only", "--prompt-samples", "1",
                  "--prompt-seconds", "auto", "--steps", "2", "--out", str(out)])

@@ -48,6 +48,7 @@ LOSSES = ("l2", "huber")
 # teacher-folder files that are not the teacher's own weights/config: carried into the student's checkpoints
 # (length estimator, known actions, ...), so the student's pipeline behaves like the teacher's around sampling
 _OWN_FILES = {CONFIG, MODEL, EMA, STATE, "Mean.npy", "Std.npy", "MODEL_CARD.md"}
+_GUIDANCE = "guidance_embed."  # parameter names of the student's guidance-scale embedding (Denoiser.guidance_embed)
 
 
 def check_distil_config(cfg: DistilConfig) -> None:
@@ -81,9 +82,10 @@ def distil_lr(cfg: DistilConfig, step: int) -> float:
 
 def param_groups(student: torch.nn.Module, guidance_lr_scale: float) -> list[dict]:
     """AdamW groups: the guidance embedding (``lr_scale`` = guidance_lr_scale) and everything else (1)."""
-    guidance = [p for n, p in student.named_parameters() if n.startswith("guidance_embed.")]
-    rest = [p for n, p in student.named_parameters() if not n.startswith("guidance_embed.")]
-    return [{"params": rest, "lr_scale": 1.0}, {"params": guidance, "lr_scale": float(guidance_lr_scale)}]
+    parts: dict[bool, list] = {False: [], True: []}
+    for name, p in student.named_parameters():
+        parts[name.startswith(_GUIDANCE)].append(p)
+    return [{"params": parts[False], "lr_scale": 1.0}, {"params": parts[True], "lr_scale": float(guidance_lr_scale)}]
 
 
 def skip_grid(T: int, grid: int) -> torch.Tensor:
@@ -105,7 +107,7 @@ def student_from_teacher(teacher) -> torch.nn.Module:
 
     student = build_denoiser(replace(teacher.config.model, guidance=True))
     missing, unexpected = student.load_state_dict(teacher.model.state_dict(), strict=False)
-    if unexpected or any(not k.startswith("guidance_embed.") for k in missing):
+    if unexpected or any(not k.startswith(_GUIDANCE) for k in missing):
         raise SMFError(f"the teacher's weights do not fit its student (missing {missing[:3]}, "
                        f"unexpected {unexpected[:3]})")
     return student

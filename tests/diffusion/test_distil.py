@@ -154,7 +154,7 @@ def test_a_killed_distillation_resumes_exactly(teacher, corpus, text_cache, stud
         assert all(torch.equal(a[k], b[k]) for k in a)
 
 
-def test_guidance_lr_scale_speeds_up_only_the_guidance_embedding(teacher, corpus, text_cache, student, tmp_path):
+def test_guidance_lr_scale_speeds_up_only_the_guidance_embedding(teacher, corpus, text_cache, tmp_path):
     """--guidance-lr-scale multiplies the learning rate of the zero-initialised guidance embedding alone (its own
     AdamW group): its last layer moves much further from zero in the same steps."""
     fast = tmp_path / "fast"

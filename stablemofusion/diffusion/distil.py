@@ -157,6 +157,9 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
         from safetensors.torch import load_file
 
         student.load_state_dict(load_file(out / CHECKPOINT_DIR / MODEL))
+        if len(state["optimizer"]["param_groups"]) != len(optimizer.param_groups):
+            raise SMFError(f"cannot resume {out}: it was saved by an older `smf distil` (one optimizer group, before "
+                           "--guidance-lr-scale); start a new run")
         optimizer.load_state_dict(state["optimizer"])
         start = int(state["step"])
         for group in optimizer.param_groups:

@@ -169,6 +169,23 @@ def test_guidance_lr_scale_speeds_up_only_the_guidance_embedding(teacher, corpus
     assert [g["lr_scale"] for g in state["optimizer"]["param_groups"]] == [1.0, 20.0]
 
 
+def test_a_run_saved_with_one_optimizer_group_is_refused_on_resume(teacher, corpus, text_cache, tmp_path, capsys):
+    """A run saved before the guidance embedding had its own AdamW group: a one-line error, not torch's ValueError."""
+    run = tmp_path / "old"
+    assert main(_distil_args(teacher, corpus, text_cache, run, "--stop-after", "2")) == 0
+    path = run / "checkpoint" / "training_state.pt"
+    state = torch.load(path, weights_only=False)
+    groups = state["optimizer"]["param_groups"]
+    merged = {**groups[0], "params": groups[0]["params"] + groups[1]["params"]}
+    merged.pop("lr_scale")
+    state["optimizer"]["param_groups"] = [merged]
+    torch.save(state, path)
+    capsys.readouterr()
+    assert main(_distil_args(teacher, corpus, text_cache, run, "--resume")) == 2
+    err = capsys.readouterr().err.strip()
+    assert "saved by an older `smf distil`" in err and "\n" not in err
+
+
 def test_distil_refuses_bad_inputs(teacher, student, corpus, text_cache, tmp_path, capsys):
     assert main(_distil_args(student, corpus, text_cache, tmp_path / "a")) == 2  # a student is no teacher
     assert "already a distilled student" in capsys.readouterr().err

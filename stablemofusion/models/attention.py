@@ -13,6 +13,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..dropout import Dropout
 from ..errors import SMFError
 
 
@@ -44,7 +45,7 @@ class CrossAttention(nn.Module):
         self.query = nn.Linear(dim, dim)
         self.key = nn.Linear(text_dim, dim)
         self.value = nn.Linear(text_dim, dim)
-        self.dropout = nn.Dropout(dropout)
+        self.dropout = Dropout(dropout)
         # The branch is linear in the values, so zero values make a fresh layer output exactly zero; like the
         # StableMoFusion layer there is no separate output projection (it would add dim^2 per layer).
         nn.init.zeros_(self.value.weight)
@@ -122,7 +123,7 @@ class Attention(nn.Module):
 
 
 def feed_forward(dim: int, mult: int, dropout: float) -> nn.Sequential:
-    return nn.Sequential(nn.Linear(dim, mult * dim), nn.GELU(approximate="tanh"), nn.Dropout(dropout),
+    return nn.Sequential(nn.Linear(dim, mult * dim), nn.GELU(approximate="tanh"), Dropout(dropout),
                          nn.Linear(mult * dim, dim))
 
 

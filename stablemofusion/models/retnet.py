@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..dropout import Dropout
 from ..errors import SMFError
 from .base import Denoiser, TextCondition, TextConfig, register
 from .attention import Attention
@@ -80,9 +81,9 @@ class RetNetBlock(nn.Module):
         self.xnorm = nn.LayerNorm(d) if cfg.cross_attention else None
         self.xattn = Attention(d, cfg.heads, cfg.dropout) if cfg.cross_attention else None
         self.norm2 = nn.LayerNorm(d)
-        self.ffn = nn.Sequential(nn.Linear(d, cfg.ff_mult * d), nn.GELU(), nn.Dropout(cfg.dropout),
+        self.ffn = nn.Sequential(nn.Linear(d, cfg.ff_mult * d), nn.GELU(), Dropout(cfg.dropout),
                                  nn.Linear(cfg.ff_mult * d, d))
-        self.drop = nn.Dropout(cfg.dropout)
+        self.drop = Dropout(cfg.dropout)
 
     def forward(self, x: torch.Tensor, pos: torch.Tensor, decay: torch.Tensor, text: torch.Tensor,
                 text_mask: torch.Tensor) -> torch.Tensor:

@@ -30,6 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..dropout import Dropout
 from .attention import ResidualCrossAttention
 from .base import Denoiser, TextCondition, TextConfig, register
 from .embeddings import TimestepEmbedding, sinusoidal_embedding
@@ -132,7 +133,7 @@ class ResidualBlock(nn.Module):
         self.time = nn.Sequential(nn.Mish(), nn.Linear(time_dim, 2 * cout if adagn else cout))
         nn.init.zeros_(self.time[1].weight)
         nn.init.zeros_(self.time[1].bias)
-        self.dropout = nn.Dropout(dropout)
+        self.dropout = Dropout(dropout)
         self.conv2 = nn.Conv1d(cout, cout, kernel, padding=kernel // 2)
         self.norm2 = _norm(groups, cout, tweak)
         self.skip = nn.Conv1d(cin, cout, 1) if cin != cout else nn.Identity()

@@ -5,6 +5,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ..dropout import Dropout
+
 
 class TextTransformer(nn.Module):
     """Frozen token embeddings (B, L, in_dim) -> contextual tokens (B, L, latent), padding masked.
@@ -21,6 +23,8 @@ class TextTransformer(nn.Module):
         layer = nn.TransformerEncoderLayer(latent, heads, ff, dropout, activation="gelu", batch_first=True,
                                            norm_first=True)
         self.encoder = nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
+        for block in self.encoder.layers:  # the cheaper CPU mask (weights and checkpoints unchanged)
+            block.dropout, block.dropout1, block.dropout2 = Dropout(dropout), Dropout(dropout), Dropout(dropout)
         self.norm = nn.LayerNorm(latent)
         self.max_tokens = max_tokens
 

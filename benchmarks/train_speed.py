@@ -7,9 +7,12 @@ Random normalised features and text tokens (the data pipeline is timed separatel
 With ``--data CORPUS`` it runs the real training loop (`smf train`'s own code: batches, text cache, caption
 augmentation, EMA) for each ``--recipe`` in turn, ``--rounds`` times interleaved (so a busy machine slows
 each alike), and prints the median of `smf train`'s own samples/s (log.csv) over the steps after the first
-few. Recipes: ``session5`` (the shipped model's: fp32, captions perturbed with probability 0.5) and
-``v2`` (bf16 autocast, captions perturbed with probability 0.1, label balancing). The text cache is warmed
-first, so neither pays for encoding the corpus's captions.
+few. Recipes: ``session5`` (the session-5 model's: fp32, captions perturbed with probability 0.5), ``v2``
+(bf16 autocast, captions perturbed with probability 0.1, label balancing), ``v3`` (the shipped teacher's: bf16,
+captions perturbed with probability 0.5, short crops 0.5) and ``v3-lean`` (v3 with captions perturbed with
+probability 0.1). ``--recipe NAME@CHECKOUT`` runs that recipe with the code of another checkout (e.g. ``git
+worktree add --detach /tmp/old COMMIT``), so a speed-up in the code is measured against the code before it.
+The text cache is warmed first, so no run pays for encoding the corpus's captions.
 """
 
 import argparse
@@ -35,7 +38,8 @@ p.add_argument("--bf16", action="store_true", help="autocast to bfloat16 (GPU)")
 p.add_argument("--compile", action="store_true", help="torch.compile the forward")
 p.add_argument("--fused", action="store_true", help="fused AdamW (CUDA)")
 p.add_argument("--data", default=None, help="a corpus: time the real training loop for each --recipe")
-p.add_argument("--recipe", action="append", default=None, help="session5 | v2 (repeatable)")
+p.add_argument("--recipe", action="append", default=None,
+               help="session5 | v2 | v3 | v3-lean, optionally @CHECKOUT (repeatable)")
 p.add_argument("--rounds", type=int, default=2)
 p.add_argument("--text-cache", default=None, help="text cache folder (default: a temporary one)")
 p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
@@ -44,7 +48,15 @@ if a.threads:
     torch.set_num_threads(a.threads)
 
 RECIPES = {"session5": ["--mixed-precision", "no", "--text-augment", "0.5", "--bucket", "16"],
-           "v2": ["--mixed-precision", "bf16", "--text-augment", "0.1", "--bucket", "16", "--balance", "0.5"]}
+           "v2": ["--mixed-precision", "bf16", "--text-augment", "0.1", "--bucket", "16", "--balance", "0.5"],
+           "v3": ["--mixed-precision", "bf16", "--text-augment", "0.5", "--bucket", "16", "--balance", "0",
+                  "--short-crops", "0.5"],
+           "v3-lean": ["--mixed-precision", "bf16", "--text-augment", "0.1", "--bucket", "16", "--balance", "0",
+                       "--short-crops", "0.5"]}
+# run `smf` from another checkout: an editable install's import hook would win over PYTHONPATH, so drop it first
+LAUNCH_FROM = ("import sys; sys.meta_path[:] = [f for f in sys.meta_path if 'editable' not in "
+               "(getattr(f, '__module__', '') + repr(f)).lower()]; sys.path.insert(0, sys.argv.pop(1)); "
+               "from stablemofusion.cli.main import main; sys.exit(main())")
 
 
 def real_loop() -> None:
@@ -58,13 +70,18 @@ def real_loop() -> None:
     skip = 3
     cache = a.text_cache or tempfile.mkdtemp(prefix="smf-text-")
     rates: dict[str, list[float]] = {r: [] for r in a.recipe or ["session5", "v2"]}
+    for name in rates:
+        if name.split("@")[0] not in RECIPES:
+            raise SystemExit(f"unknown recipe {name!r}: one of {', '.join(RECIPES)} (optionally @CHECKOUT)")
     for rnd in range(a.rounds):
         for name in rates:
+            recipe, _, code = name.partition("@")
+            entry = ["-c", LAUNCH_FROM, str(Path(code).resolve())] if code else ["-m", "stablemofusion.cli.main"]
             with tempfile.TemporaryDirectory() as out:
-                cmd = [sys.executable, "-m", "stablemofusion.cli.main", "train", "--data", a.data, "--out", out,
+                cmd = [sys.executable, *entry, "train", "--data", a.data, "--out", out,
                        "--preset", a.preset, "--steps", str(a.steps + skip), "--batch-size", str(a.batch_size),
                        "--seed", str(rnd), "--checkpoint-every", str(10**9), "--text-cache", cache, "--no-progress",
-                       *(["--threads", str(a.threads)] if a.threads else []), *RECIPES[name]]
+                       *(["--threads", str(a.threads)] if a.threads else []), *RECIPES[recipe]]
                 subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=os.environ)
                 rows = (Path(out) / "log.csv").read_text().splitlines()[1 + skip:]
                 rates[name] += [float(r.split(",")[4]) for r in rows]

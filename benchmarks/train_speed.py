@@ -70,12 +70,12 @@ def real_loop() -> None:
     skip = 3
     cache = a.text_cache or tempfile.mkdtemp(prefix="smf-text-")
     rates: dict[str, list[float]] = {r: [] for r in a.recipe or ["session5", "v2"]}
-    for name in rates:
-        if name.split("@")[0] not in RECIPES:
+    runs = {name: name.partition("@")[::2] for name in rates}  # name -> (recipe, checkout or "")
+    for name, (recipe, _) in runs.items():
+        if recipe not in RECIPES:
             raise SystemExit(f"unknown recipe {name!r}: one of {', '.join(RECIPES)} (optionally @CHECKOUT)")
     for rnd in range(a.rounds):
-        for name in rates:
-            recipe, _, code = name.partition("@")
+        for name, (recipe, code) in runs.items():
             entry = ["-c", LAUNCH_FROM, str(Path(code).resolve())] if code else ["-m", "stablemofusion.cli.main"]
             with tempfile.TemporaryDirectory() as out:
                 cmd = [sys.executable, *entry, "train", "--data", a.data, "--out", out,

@@ -7,7 +7,8 @@ The four inference tricks of the paper: text embedded once per prompt (LRU cache
 and unconditional passes in one batched forward; half precision on GPU; an efficient sampler (SDE
 DPM-Solver++ 2M with Karras sigmas, 10 steps, by default). A distilled student (``smf distil``) samples by
 default with consistency sampling at its distilled step count, one forward per step (guidance as input);
-``steps``/``sampler`` None mean the model's defaults (:meth:`Components.settings`).
+``guidance_scale``/``steps``/``sampler`` None mean the model's defaults (:meth:`Components.settings`: the guidance
+scale its config names, else GUIDANCE of :mod:`stablemofusion.pipelines.settings`).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from .pipelines.components import Components, default_model_path
 from .pipelines.edit import EditPipeline
 from .pipelines.result import MotionResult
 from .pipelines.sample import sample as sample_raw
-from .pipelines.settings import (BATCH_SIZE, DEFAULT_SECONDS, FOOTSKATE_MODES, GUIDANCE, LengthClampedWarning,
+from .pipelines.settings import (BATCH_SIZE, DEFAULT_SECONDS, FOOTSKATE_MODES, LengthClampedWarning,
                                  OutOfDomainWarning, Settings, resolve_engine)
 from .pipelines.stream import STREAM_CHUNK, STREAM_REWIND, MotionStream, StreamPipeline
 from .pipelines.text_to_motion import TextToMotionPipeline
@@ -35,7 +36,7 @@ class MotionPipeline(Components):
     """Generate motions from text with a denoiser checkpoint. Build with :meth:`from_pretrained`."""
 
     def __call__(self, prompts: str | list[str], *, seconds: float | list[float] | None = None,
-                 frames: int | list[int] | None = None, guidance_scale: float = GUIDANCE, steps: int | None = None,
+                 frames: int | list[int] | None = None, guidance_scale: float | None = None, steps: int | None = None,
                  sampler: str | None = None, seed: int | list[int] | None = None, batch_size: int = BATCH_SIZE,
                  progress: bool = False, footskate: str = "off", footskate_options=None,
                  engine: str | None = None) -> list[MotionResult]:
@@ -48,7 +49,7 @@ class MotionPipeline(Components):
                                           progress=progress)
 
     def timeline(self, segments: list[tuple[str, float]], *, overlap: float = DEFAULT_OVERLAP,
-                 guidance_scale: float = GUIDANCE, steps: int | None = None, sampler: str | None = None,
+                 guidance_scale: float | None = None, steps: int | None = None, sampler: str | None = None,
                  seed: int | None = None, impose: str = "x0", footskate: str = "off", footskate_options=None,
                  engine: str | None = None, progress: bool | None = False) -> MotionResult:
         """One continuous motion from (prompt, seconds) segments, of any total length
@@ -59,7 +60,7 @@ class MotionPipeline(Components):
                                       progress=progress)
 
     def edit(self, prompt: str, source: np.ndarray, mode: str, *, keep_start: float = 0.0, keep_end: float = 0.0,
-             seconds: float | None = None, path: np.ndarray | None = None, guidance_scale: float = GUIDANCE,
+             seconds: float | None = None, path: np.ndarray | None = None, guidance_scale: float | None = None,
              steps: int | None = None, sampler: str | None = None, seed: int | None = None, impose: str = "x0",
              footskate: str = "off", footskate_options=None, engine: str | None = None,
              progress: bool | None = None) -> MotionResult:
@@ -70,7 +71,7 @@ class MotionPipeline(Components):
         return EditPipeline(self)(prompt, source, mode, keep_start=keep_start, keep_end=keep_end, seconds=seconds,
                                   path=path, seed=seed, settings=settings, impose=impose, progress=progress)
 
-    def stream(self, prompt: str, *, guidance_scale: float = GUIDANCE, steps: int | None = None,
+    def stream(self, prompt: str, *, guidance_scale: float | None = None, steps: int | None = None,
                sampler: str | None = None, seed: int | None = None, chunk: int = STREAM_CHUNK,
                engine: str | None = None, rewind: int = STREAM_REWIND) -> MotionStream:
         """An endless motion following ``prompt`` (:class:`~stablemofusion.pipelines.stream.StreamPipeline`): an
@@ -83,7 +84,7 @@ class MotionPipeline(Components):
         return StreamPipeline(self)(prompt, seed=seed, settings=settings, chunk=chunk, rewind=rewind)
 
     @torch.no_grad()
-    def sample(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = GUIDANCE,
+    def sample(self, prompts: list[str], lengths: list[int], *, guidance_scale: float | None = None,
                steps: int | None = None, sampler: str | None = None, seed: int | list[int] | None = None,
                batched_cfg: bool = True,
                footskate: str = "off", footskate_options=None, engine: str | None = None) -> torch.Tensor:
@@ -98,7 +99,7 @@ class MotionPipeline(Components):
         return out
 
     @torch.no_grad()
-    def denoise(self, prompts: list[str], lengths: list[int], *, guidance_scale: float = GUIDANCE,
+    def denoise(self, prompts: list[str], lengths: list[int], *, guidance_scale: float | None = None,
                 steps: int | None = None, sampler: str | None = None, seed: int | list[int] | None = None,
                 batched_cfg: bool = True,
                 footskate: str = "off", footskate_options=None, engine: str | None = None,

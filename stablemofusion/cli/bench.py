@@ -31,7 +31,7 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--frames", type=int, default=None, help="motion length (default: the model's longest, 196)")
     p.add_argument("--batch-sizes", default="1,32")
     p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--guidance", type=float, default=2.5)
+    p.add_argument("--guidance", type=float, default=None, help="classifier-free guidance scale (default: the model's)")
     p.add_argument("--footskate", default="off", help="cleanup in the end-to-end time: off, post or loop")
     p.add_argument("--device", default=None)
     p.add_argument("--out", type=Path, default=None, help="write the JSON here too")
@@ -92,7 +92,9 @@ def run(args: argparse.Namespace) -> None:
 
     pipe = _pipeline(args)
     args.frames = args.frames or pipe.max_frames
-    defaults = pipe.settings()  # the model's steps and sampler (a distilled student's own)
+    from ..pipelines.settings import Settings
+
+    defaults = pipe.settings(Settings(args.guidance))  # the model's guidance, steps and sampler (a student's own)
     samplers = args.sampler or [defaults.sampler]
     steps_list = args.steps or [defaults.steps]
     try:
@@ -143,7 +145,7 @@ def run(args: argparse.Namespace) -> None:
     report = {"device": str(pipe.device), "frames": args.frames, "dtype": str(pipe.dtype).replace("torch.", ""),
               "device_name": torch.cuda.get_device_name() if pipe.device.type == "cuda" else platform.processor()
               or platform.machine(), "threads": torch.get_num_threads(),
-              "parameters": pipe.model.num_parameters(), "guidance": args.guidance, "student": pipe.student,
+              "parameters": pipe.model.num_parameters(), "guidance": defaults.guidance_scale, "student": pipe.student,
               "results": rows}
     text = json.dumps(report, indent=2)
     print(text)

@@ -19,7 +19,8 @@ def add_eval_args(p: argparse.ArgumentParser) -> None:
                                                    f"{STUDENT})")
     p.add_argument("--steps", type=int, default=None,
                    help=f"sampling steps (default: the model's: {STEPS}, a distilled student its own count)")
-    p.add_argument("--guidance", type=float, default=2.5, help="classifier-free guidance scale (default 2.5)")
+    p.add_argument("--guidance", type=float, default=None,
+                   help="classifier-free guidance scale (default: the model's, as `smf generate`)")
     p.add_argument("--replications", type=int, default=None, help="repetitions of the protocol (default 20, --quick 3)")
     p.add_argument("--quick", action="store_true", help="3 replications, 12 samples per multimodality caption")
     p.add_argument("--max-items", type=int, default=None, help="test items per replication (default all)")
@@ -182,6 +183,8 @@ def run(args: argparse.Namespace) -> None:
         raise SMFError("--teacher needs a model: not with --checkpoint none")
     pipe = None if real_only else MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher,
                                                                  device=args.device, rigid=rigid_config(args))
+    if pipe is not None:
+        cfg = cfg.for_pipeline(pipe)  # the model's guidance, steps and sampler where the flags leave them
     from ..motion.skeleton import get_skeleton
 
     sk = pipe.skeleton if pipe else get_skeleton("humanml3d")

@@ -1,5 +1,6 @@
-"""`smf export --checkpoint RUN --out DIR [--card MODEL_CARD.md] [--teacher-folder TEACHER] [--text-side MODEL]`: a
-small release folder (EMA weights, fp16); a distilled student's with its teacher inside (docs/models.md)."""
+"""`smf export --checkpoint RUN --out DIR [--card MODEL_CARD.md] [--teacher-folder TEACHER] [--text-side MODEL]
+[--guidance G]`: a small release folder (EMA weights, fp16); a distilled student's with its teacher inside; its
+default guidance scale (docs/models.md)."""
 
 from __future__ import annotations
 
@@ -17,6 +18,9 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--teacher-folder", type=Path, default=None, metavar="TEACHER",
                    help="for a distilled student: its teacher (checkpoint, run or exported folder), exported too into "
                         "OUT/teacher/, which the student's config then names (`--teacher` of generate, edit, serve, ...)")
+    p.add_argument("--guidance", type=float, default=None,
+                   help="the guidance scale the model samples with by default, recorded in its config (default: the "
+                        "checkpoint's, else the package's); choose it on held-out data (docs/models.md)")
     p.add_argument("--text-side", type=Path, default=None, metavar="MODEL",
                    help="copy the length estimator, known actions and out-of-domain detector of this model folder "
                         "(default: the checkpoint's own, if it has them)")
@@ -56,7 +60,7 @@ def run(args: argparse.Namespace) -> None:
         known = build_known_actions(args.lexicon, load_checkpoint(args.checkpoint).config.text_encoder,
                                     corpus=args.corpus, text_cache=args.text_cache, flag_rate=args.ood_flag_rate)
     out = export_checkpoint(args.checkpoint, args.out, dtype=getattr(torch, args.dtype), extra_files=extra,
-                            teacher=args.teacher_folder, copy_files=copies)
+                            teacher=args.teacher_folder, copy_files=copies, guidance=args.guidance)
     if known is not None:
         known.save(out, about=ABOUT)
     size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())

@@ -19,7 +19,9 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--format", default="npy,mp4,bvh", help=f"comma list of {','.join(FORMATS)} (default npy,mp4,bvh)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace files of the same name (default: a free name, NAME-2, NAME-3, ...)")
-    p.add_argument("--guidance", type=float, default=GUIDANCE, help=f"classifier-free guidance scale (default {GUIDANCE})")
+    p.add_argument("--guidance", type=float, default=None,
+                   help=f"classifier-free guidance scale (default: the model's: the scale its config names, else "
+                        f"{GUIDANCE}; `smf info` shows it)")
     p.add_argument("--steps", type=int, default=None,
                    help=f"sampling steps (default: the model's: {STEPS}, a distilled student its own count; editing "
                         f"with a student at least {STUDENT_EDIT_STEPS})")
@@ -104,9 +106,9 @@ def load_pipeline(args):
 
 
 def output_meta(args, pipe, *, edit: bool = False) -> dict:
-    """What the JSON output records of how a motion was made (the steps and sampler ``pipe`` used; ``edit``:
-    for an edit)."""
+    """What the JSON output records of how a motion was made (the guidance, steps and sampler ``pipe`` used;
+    ``edit``: for an edit)."""
     from ..pipelines.settings import Settings
 
     s = pipe.settings(Settings(args.guidance, args.steps, args.sampler), edit=edit)
-    return {"sampler": s.sampler, "steps": s.steps, "guidance": args.guidance, "student": pipe.student}
+    return {"sampler": s.sampler, "steps": s.steps, "guidance": s.guidance_scale, "student": pipe.student}

@@ -12,6 +12,7 @@ inside the student's folder (``teacher/``, :func:`export_checkpoint`), where it 
 from __future__ import annotations
 
 import json
+import math
 import shutil
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -171,16 +172,22 @@ def load_training_state(path: str | Path) -> dict:
 
 def export_checkpoint(src: str | Path, dst: str | Path, *, dtype: torch.dtype = torch.float16,
                       extra_files: dict[str, str] | None = None, teacher: str | Path | None = None,
-                      copy_files: dict[str, Path] | None = None) -> Path:
+                      copy_files: dict[str, Path] | None = None, guidance: float | None = None) -> Path:
     """Write a release folder from a checkpoint: the EMA weights only (as ``model.safetensors`` in ``dtype``),
     config.json, Mean/Std, ``extra_files`` (name -> text, e.g. a model card) and ``copy_files`` (name -> a file
     copied in, e.g. the length estimator). No optimiser state. ``teacher``: for a distilled student, its teacher
     folder, exported the same way into ``TEACHER_DIR`` inside the release, which the student's
-    ``distil.teacher`` then names (relative, so the release can move). One atomic folder."""
+    ``distil.teacher`` then names (relative, so the release can move); it keeps its own default guidance.
+    ``guidance``: the model's default guidance scale recorded in its config (None: the source's). One atomic
+    folder."""
     from ..io import atomic_dir
 
     ck = load_checkpoint(src, ema=True)
     config = _exported(ck.config, dtype)
+    if guidance is not None:
+        if not (math.isfinite(guidance) and guidance >= 0):
+            raise SMFError(f"the default guidance scale must be a finite number >= 0, got {guidance}")
+        config = replace(config, guidance=float(guidance))
     shipped = None
     if teacher is not None:
         if not ck.config.student:

@@ -8,6 +8,7 @@ skeleton). ``from_dict(to_dict(c)) == c``.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
@@ -124,7 +125,8 @@ class CheckpointConfig:
 
     ``fps`` is the motion frame rate; ``min_frames``/``max_frames`` the length range (feature frames) the
     model was trained on; ``train`` the run's optimisation settings (None for a model built outside training);
-    ``distil`` the distillation settings of a few-step student (None for an ordinary model).
+    ``distil`` the distillation settings of a few-step student (None for an ordinary model); ``guidance`` the
+    guidance scale it samples with by default (None: the package's).
     """
 
     model: ModelConfig
@@ -138,6 +140,9 @@ class CheckpointConfig:
     step: int | None = None
     export: ExportInfo | None = None
     distil: DistilConfig | None = None
+    # the classifier-free guidance scale the model samples with by default (None: the package's, GUIDANCE of
+    # stablemofusion.pipelines.settings); chosen per model on held-out data and set by ``smf export --guidance``
+    guidance: float | None = None
 
     @property
     def student(self) -> bool:
@@ -156,7 +161,8 @@ class CheckpointConfig:
                 "skeleton": self.skeleton, "fps": self.fps, "min_frames": self.min_frames,
                 "max_frames": self.max_frames, "train": None if self.train is None else self.train.to_dict(),
                 "step": self.step, "export": None if self.export is None else asdict(self.export),
-                **({} if self.distil is None else {"distil": self.distil.to_dict()})}
+                **({} if self.distil is None else {"distil": self.distil.to_dict()}),
+                **({} if self.guidance is None else {"guidance": self.guidance})}
 
     @staticmethod
     def from_dict(d: dict[str, Any], where: str = "config") -> "CheckpointConfig":
@@ -183,7 +189,7 @@ class CheckpointConfig:
                 model=ModelConfig.from_dict(model), schedule=schedule, text_encoder=str(d.get("text_encoder", "minilm")),
                 skeleton=sk.name, fps=float(given("fps", sk.fps)), min_frames=int(given("min_frames", sk.min_frames)),
                 max_frames=int(given("max_frames", sk.max_frames)), train=train, step=d.get("step"), export=export,
-                distil=distil)
+                distil=distil, guidance=_guidance(d.get("guidance"), where))
         except (TypeError, ValueError) as e:
             raise SMFError(f"{where}: bad checkpoint config ({e})") from None
         if not (cfg.fps > 0 and 0 < cfg.min_frames <= cfg.max_frames):
@@ -204,6 +210,15 @@ class CheckpointConfig:
         if self.train and other.train and self.train.feat_bias != other.train.feat_bias:
             out.append("feat_bias")
         return out
+
+
+def _guidance(value: Any, where: str) -> float | None:
+    """A config's default guidance scale: None, or a finite number >= 0 (SMFError naming ``where`` otherwise)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise SMFError(f"{where}: 'guidance' must be a finite number >= 0, got {value!r}")
+    return float(value)
 
 
 def _json(d: dict) -> dict:

@@ -143,7 +143,8 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
     cache = TextEmbeddingCache(text_cache or (out / "text-cache"), encoder)
     torch.manual_seed(cfg.seed)  # the guidance embedding's initial weights
     student = student_from_teacher(teacher)
-    config = replace(tcfg, model=replace(tcfg.model, guidance=True), step=None, export=None,
+    # the teacher's default guidance is not the student's (it takes the scale as input): the student starts at None
+    config = replace(tcfg, model=replace(tcfg.model, guidance=True), step=None, export=None, guidance=None,
                      distil=replace(cfg, teacher=str(resolve(cfg.teacher).resolve())))
     optimizer = torch.optim.AdamW(param_groups(student, cfg.guidance_lr_scale), lr=cfg.lr,
                                   weight_decay=cfg.weight_decay, fused=device.type == "cuda")

@@ -41,7 +41,7 @@ class EvalConfig:
     mm_times: int = 10
     sampler: str | None = None  # None: the model's (a distilled student's own)
     steps: int | None = None  # None: the model's
-    guidance_scale: float = 2.5
+    guidance_scale: float | None = None  # None: the model's
     footskate: str = "off"
     gen_batch: int = 32
     max_items: int | None = None  # use only this many test items per replication (ablations)
@@ -53,6 +53,13 @@ class EvalConfig:
     def quick(cls, **kw) -> "EvalConfig":
         """3 replications and 10 samples per multimodality caption: minutes, not hours, on a CPU."""
         return cls(**{"replications": 3, "mm_repeats": 12, **kw})
+
+    def for_pipeline(self, pipe) -> "EvalConfig":
+        """This config with ``pipe``'s model's guidance, steps and sampler where it leaves them None."""
+        from ..pipelines.settings import Settings
+
+        s = pipe.settings(Settings(self.guidance_scale, self.steps, self.sampler))
+        return replace(self, guidance_scale=s.guidance_scale, steps=s.steps, sampler=s.sampler)
 
 
 @dataclass
@@ -200,11 +207,8 @@ def evaluate(pipe, embedder: EmbeddingModel, data: str | Path, cfg: EvalConfig, 
     ``skate_metrics`` (list of joints (n, J, 3) -> dict) adds footskate figures to both rows when given; with
     ``body`` both rows also get :func:`body_metrics` (bone lengths, joints .npy vs BVH); ``label_metrics``
     (motion ids, features -> dict) adds the label accuracy of a motion classifier to both rows."""
-    if pipe is not None:  # record the steps and sampler the model samples with (a student's own by default)
-        from ..pipelines.settings import Settings
-
-        s = pipe.settings(Settings(cfg.guidance_scale, cfg.steps, cfg.sampler))
-        cfg = replace(cfg, steps=s.steps, sampler=s.sampler)
+    if pipe is not None:  # record the guidance, steps and sampler the model samples with (its own by default)
+        cfg = cfg.for_pipeline(pipe)
     if pipe is not None and cfg.mm_repeats <= cfg.mm_times:
         raise SMFError(f"mm_repeats ({cfg.mm_repeats}) must exceed mm_times ({cfg.mm_times})")
     ds = MotionTextDataset(data, cfg.split, seed=cfg.seed, max_frames=pipe.max_frames if pipe else None,

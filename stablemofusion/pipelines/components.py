@@ -102,11 +102,12 @@ class Components:
         return self.config.student
 
     def settings(self, settings: Settings | None = None, *, edit: bool = False) -> Settings:
-        """``settings`` (default: all defaults) with this model's steps and sampler where they are None (a
-        student: its distilled step count and consistency sampling; for an ``edit`` at least
-        STUDENT_EDIT_STEPS), checked."""
+        """``settings`` (default: all defaults) with this model's guidance, steps and sampler where they are None
+        (its config's guidance scale or GUIDANCE; a student: its distilled step count and consistency sampling,
+        for an ``edit`` at least STUDENT_EDIT_STEPS), checked."""
         student_steps = self.config.distil.sample_steps if self.student else None
-        return (settings or Settings()).for_model(student_steps, edit=edit).check(rigid=self.rigid is not None)
+        return (settings or Settings()).for_model(student_steps, self.config.guidance, edit=edit).check(
+            rigid=self.rigid is not None)
 
     @property
     def window_seconds(self) -> float:
@@ -117,11 +118,11 @@ class Components:
         """Frozen token embeddings for ``prompts`` through the LRU cache: (B, L, C), (B, L)."""
         return self.text_cache.get_or_compute(list(prompts), device=self.device)
 
-    def text_condition(self, prompts: list[str],
-                       guidance: float | None = None) -> tuple[TextCondition, TextCondition | None]:
-        """The model's text condition for ``prompts`` and for the dropped text (classifier-free guidance), in
-        the model's dtype on its device. A distilled student takes ``guidance`` as input: its condition holds
-        the scale and there is no dropped-text condition (None)."""
+    def text_condition(self, prompts: list[str], guidance: float | None = None, *,
+                       uncond: bool = True) -> tuple[TextCondition, TextCondition | None]:
+        """The model's text condition for ``prompts`` and for the dropped text (classifier-free guidance; None
+        unless ``uncond``), in the model's dtype on its device. A distilled student takes ``guidance`` as
+        input: its condition holds the scale and there is no dropped-text condition (None)."""
         tokens, tmask = self.encode_text(prompts)
         tokens = tokens.to(self.dtype)
         B = len(prompts)
@@ -131,8 +132,9 @@ class Components:
                 raise SMFError("a distilled student needs the guidance scale")
             return self.model.condition(tokens, tmask, keep, guidance), None
         cond = self.model.condition(tokens, tmask, keep)
-        uncond = self.model.condition(tokens, tmask, torch.ones(B, dtype=torch.bool, device=self.device))
-        return cond, uncond
+        if not uncond:
+            return cond, None
+        return cond, self.model.condition(tokens, tmask, torch.ones(B, dtype=torch.bool, device=self.device))
 
     def predict_seconds(self, prompts: str | list[str]) -> list[float]:
         """The length each prompt's motion is expected to have (seconds), from the model's length estimator

@@ -36,8 +36,8 @@ def sample(c: Components, prompts: list[str], lengths: list[int], settings: Sett
     B, T, D = len(prompts), max(lengths), int(c.mean.shape[0])
     noise = Noise(seed, lengths, D, c.device)
     mask = (torch.arange(T)[None] < torch.tensor(lengths)[:, None]).to(c.device)
-    cond, uncond = c.text_condition(prompts, settings.guidance_scale)  # a student: uncond None, one forward a step
-    uncond = uncond if settings.guided else None
+    # a student, or guidance 1: uncond None, one forward a step
+    cond, uncond = c.text_condition(prompts, settings.guidance_scale, uncond=settings.guided)
     if engine in COMPILED_ENGINES + GRAPH_ENGINES and batched_cfg:
         table = c.solver(settings.sampler, settings.steps)
         x = noise.draw() * table.init_sigma

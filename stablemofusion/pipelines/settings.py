@@ -12,7 +12,9 @@ from ..diffusion.engine import check_engine, default_engine
 from ..diffusion.samplers import DEFAULT_SAMPLER, STUDENT_SAMPLER, sampler_spec
 from ..errors import SMFError
 
-GUIDANCE = 2.5  # classifier-free guidance scale (a distilled student takes it as input)
+# classifier-free guidance scale of a model whose config names none (a model's own: its config's ``guidance``, set by
+# `smf export --guidance`; a distilled student takes the scale as input)
+GUIDANCE = 2.5
 STEPS = 10  # sampling steps of an ordinary model (a distilled student: its checkpoint's distil.sample_steps)
 SAMPLER = DEFAULT_SAMPLER  # sampler of an ordinary model
 STUDENT = STUDENT_SAMPLER  # sampler of a distilled student (multistep consistency sampling)
@@ -40,7 +42,7 @@ class Settings:
     footskate mode ('off', 'post' or 'loop') and its :class:`~stablemofusion.footskate.FootskateOptions`,
     engine (None: the pipeline's) and batch size."""
 
-    guidance_scale: float = GUIDANCE
+    guidance_scale: float | None = None
     steps: int | None = None
     sampler: str | None = None
     footskate: str = "off"
@@ -49,9 +51,9 @@ class Settings:
     batch_size: int = BATCH_SIZE
 
     def check(self, *, rigid: bool = True) -> "Settings":
-        """SMFError on a bad value (``rigid``: whether the pipeline has its rigid stage); returns self. Steps
-        and sampler left None (the model's) are not checked here."""
-        if not np.isfinite(self.guidance_scale):
+        """SMFError on a bad value (``rigid``: whether the pipeline has its rigid stage); returns self. Guidance,
+        steps and sampler left None (the model's) are not checked here."""
+        if self.guidance_scale is not None and not np.isfinite(self.guidance_scale):
             raise SMFError(f"guidance must be a finite number, got {self.guidance_scale}")
         if self.steps is not None and self.steps < 1:
             raise SMFError(f"steps must be at least 1, got {self.steps}")
@@ -64,11 +66,14 @@ class Settings:
             raise SMFError("the footskate cleanup works on the rigid body: it needs the rigid stage")
         return self
 
-    def for_model(self, student_steps: int | None, *, edit: bool = False) -> "Settings":
-        """These settings with the model's defaults where they leave steps or sampler None: ``student_steps``
-        is a distilled student's step count (None for an ordinary model); ``edit``: for an edit."""
-        steps, sampler = model_defaults(student_steps, edit=edit)
-        return replace(self, steps=steps if self.steps is None else self.steps,
+    def for_model(self, student_steps: int | None, guidance: float | None = None, *,
+                  edit: bool = False) -> "Settings":
+        """These settings with the model's defaults where they leave guidance, steps or sampler None:
+        ``student_steps`` is a distilled student's step count (None for an ordinary model), ``guidance`` the
+        model's default scale (its config's; None: GUIDANCE); ``edit``: for an edit."""
+        scale, steps, sampler = model_defaults(student_steps, guidance, edit=edit)
+        return replace(self, guidance_scale=scale if self.guidance_scale is None else self.guidance_scale,
+                       steps=steps if self.steps is None else self.steps,
                        sampler=sampler if self.sampler is None else self.sampler)
 
     def with_engine(self, engine: str) -> "Settings":
@@ -76,17 +81,22 @@ class Settings:
 
     @property
     def guided(self) -> bool:
-        """Whether sampling runs the unconditional pass too (classifier-free guidance)."""
+        """Whether sampling runs the unconditional pass too (classifier-free guidance); settings resolved for
+        the model (:meth:`for_model`)."""
+        if self.guidance_scale is None:
+            raise ValueError("settings not resolved for a model: guidance_scale is None")
         return self.guidance_scale != 1.0
 
 
-def model_defaults(student_steps: int | None, *, edit: bool = False) -> tuple[int, str]:
-    """(steps, sampler) a model samples with by default: a distilled student (``student_steps``, from its
-    checkpoint) its step count with consistency sampling (for an ``edit`` at least STUDENT_EDIT_STEPS), any
-    other model STEPS with SAMPLER."""
+def model_defaults(student_steps: int | None, guidance: float | None = None, *,
+                   edit: bool = False) -> tuple[float, int, str]:
+    """(guidance, steps, sampler) a model samples with by default: its own guidance scale (``guidance``, from
+    its config) or GUIDANCE; a distilled student (``student_steps``, from its checkpoint) its step count with
+    consistency sampling (for an ``edit`` at least STUDENT_EDIT_STEPS), any other model STEPS with SAMPLER."""
+    scale = GUIDANCE if guidance is None else float(guidance)
     if student_steps is None:
-        return STEPS, SAMPLER
-    return (max(int(student_steps), STUDENT_EDIT_STEPS) if edit else int(student_steps)), STUDENT
+        return scale, STEPS, SAMPLER
+    return scale, (max(int(student_steps), STUDENT_EDIT_STEPS) if edit else int(student_steps)), STUDENT
 
 
 def check_footskate(mode: str) -> None:

@@ -26,7 +26,7 @@ class GenerateRequest(BaseModel):
     prompt: str
     seconds: float | None = None  # None: predicted from the text (models with a length estimator), else 4 s
     seed: int | None = Field(default=None, ge=0, lt=MAX_SEED)
-    guidance: float = Field(default=2.5, ge=0.0, le=MAX_GUIDANCE)
+    guidance: float | None = Field(default=None, ge=0.0, le=MAX_GUIDANCE)  # None: the model's
     steps: int | None = Field(default=None, ge=1, le=MAX_STEPS)  # None: the model's
     footskate: Literal["off", "post", "loop"] = "off"
 
@@ -47,7 +47,7 @@ class TimelineRequest(BaseModel):
 
     segments: list[Segment] = Field(min_length=1, max_length=MAX_SEGMENTS)
     seed: int | None = Field(default=None, ge=0, lt=MAX_SEED)
-    guidance: float = Field(default=2.5, ge=0.0, le=MAX_GUIDANCE)
+    guidance: float | None = Field(default=None, ge=0.0, le=MAX_GUIDANCE)  # None: the model's
     steps: int | None = Field(default=None, ge=1, le=MAX_STEPS)  # None: the model's
     footskate: Literal["off", "post", "loop"] = "off"
 

@@ -91,7 +91,7 @@ def run_stream_jobs(pipe, streams: dict, jobs: list[StreamJob]) -> list:
             if job.close:
                 streams.pop(job.sid, None)
             elif job.new:
-                streams[job.sid] = pipe.stream(job.prompt, seed=job.seed, guidance_scale=_guidance(job.guidance))
+                streams[job.sid] = pipe.stream(job.prompt, seed=job.seed, guidance_scale=job.guidance)
                 live.append(i)
             elif job.sid not in streams:
                 raise ServeError(500, "the stream is gone (its worker restarted); start a new one")
@@ -124,12 +124,6 @@ def _advance_isolated(pipe, streams: dict, jobs: list[StreamJob], live: list[int
             out[i] = StreamFrames(chunk.start, chunk.joints)
         if group is live:
             return
-
-
-def _guidance(value: float | None) -> float:
-    from ..pipelines.settings import GUIDANCE
-
-    return GUIDANCE if value is None else value
 
 
 def _failure(e: Exception) -> Failure:

@@ -33,7 +33,7 @@ class Job:
     prompt: str
     seconds: float | None
     seed: int
-    guidance: float = 2.5
+    guidance: float | None = None  # None: the model's
     steps: int | None = None  # None: the model's (a distilled student's own count)
     footskate: str = "off"
     segments: tuple[tuple[str, float], ...] | None = None

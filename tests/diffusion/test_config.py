@@ -17,6 +17,9 @@ def test_round_trips_through_json():
     back = CheckpointConfig.from_dict(json.loads(json.dumps(cfg.to_dict())))
     assert back.to_dict() == json.loads(json.dumps(cfg.to_dict()))
     assert back.train.lr == 1e-3 and back.schedule.num_train_timesteps == 500 and back.step == 7
+    assert back.guidance is None and "guidance" not in cfg.to_dict()  # configs without one stay as they were
+    tuned = CheckpointConfig.from_dict({**cfg.to_dict(), "guidance": 1})
+    assert tuned.guidance == 1.0 and CheckpointConfig.from_dict(json.loads(json.dumps(tuned.to_dict()))).guidance == 1.0
 
 
 def test_frame_rate_and_length_range_come_from_the_skeleton():
@@ -47,6 +50,9 @@ def test_reads_the_shipped_model_config():
     ({"model": {"arch": "unet"}, "train": "x"}, "'train' must be an object"),
     ({"model": {"arch": "unet"}, "fps": "abc"}, "bad checkpoint config"),
     ({"model": {"arch": "unet"}, "max_frames": 0}, "min_frames <= max_frames"),
+    ({"model": {"arch": "unet"}, "guidance": -1}, "'guidance' must be a finite number >= 0"),
+    ({"model": {"arch": "unet"}, "guidance": "2.5"}, "'guidance' must be a finite number >= 0"),
+    ({"model": {"arch": "unet"}, "guidance": True}, "'guidance' must be a finite number >= 0"),
 ])
 def test_bad_configs_are_one_line_errors(bad, msg):
     with pytest.raises(SMFError, match=msg):

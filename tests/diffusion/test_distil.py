@@ -142,6 +142,17 @@ def test_distil_writes_a_student_checkpoint(student, teacher):
     assert moved and any(p.abs().sum() > 0 for p in s.model.guidance_embed.mlp[2].parameters())
 
 
+def test_a_student_does_not_take_its_teachers_default_guidance(teacher, corpus, text_cache, tmp_path):
+    """A teacher's default scale is for its two-pass guidance; the student takes the scale as input and starts
+    with the package's default."""
+    tuned = tmp_path / "tuned"
+    assert main(["export", "--checkpoint", str(teacher), "--out", str(tuned), "--guidance", "1.0",
+                 "--dtype", "float32"]) == 0
+    out = tmp_path / "student"
+    assert main(_distil_args(tuned, corpus, text_cache, out, "--steps", "1", "--checkpoint-every", "1")) == 0
+    assert read_config(tuned).guidance == 1.0 and read_config(out).guidance is None
+
+
 def test_a_killed_distillation_resumes_exactly(teacher, corpus, text_cache, student, tmp_path):
     part = tmp_path / "part"
     assert main(_distil_args(teacher, corpus, text_cache, part, "--stop-after", "4")) == 0

@@ -108,3 +108,48 @@ def test_export_of_a_pair_refuses_what_cannot_be_one(tmp_path, capsys, save_tiny
         assert err.count("\n") == 1 and err.startswith("smf: error:"), err
         assert re.search(message, err), err
     assert not (tmp_path / "out").exists()
+
+
+def test_export_records_the_models_default_guidance(tmp_path, capsys, save_tiny_checkpoint, save_tiny_student):
+    """`smf export --guidance G`: the release samples with G where a call names no scale (at 1: the
+    conditional pass alone), `smf generate` records it, `smf info` shows it; an explicit scale still wins; a
+    student shipped with that teacher keeps its own default; a bad value is a one-line error."""
+    import json
+
+    from stablemofusion.diffusion.checkpoint import TEACHER_DIR
+    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.settings import GUIDANCE
+
+    src = save_tiny_checkpoint(tmp_path / "ck", np.zeros(263), np.full(263, 0.1))
+    out = tmp_path / "release"
+    assert main(["export", "--checkpoint", str(src), "--out", str(out), "--guidance", "1", "--dtype", "float32"]) == 0
+    assert load_checkpoint(out).config.guidance == 1.0
+    pipe = MotionPipeline.from_pretrained(out, device="cpu")
+    base = MotionPipeline.from_pretrained(src, device="cpu")
+    assert pipe.settings().guidance_scale == 1.0 and base.settings().guidance_scale == GUIDANCE
+    batches, denoise = [], pipe.model.denoise
+    pipe.model.denoise = lambda x, *a, **kw: batches.append(int(x.shape[0])) or denoise(x, *a, **kw)
+    default = pipe.denoise(["a person walks"], [40], steps=2, seed=0)
+    assert batches == [1, 1]  # guidance 1: no unconditional pass
+    batches.clear()
+    strong = pipe.denoise(["a person walks"], [40], steps=2, seed=0, guidance_scale=GUIDANCE)
+    assert batches == [2, 2] and not torch.allclose(default, strong)
+    torch.testing.assert_close(default, pipe.denoise(["a person walks"], [40], steps=2, seed=0, guidance_scale=1.0))
+    torch.testing.assert_close(strong, base.denoise(["a person walks"], [40], steps=2, seed=0))  # same weights
+    gen = tmp_path / "gen"
+    assert main(["generate", "a person walks", "--checkpoint", str(out), "--out", str(gen), "--format", "json",
+                 "--seconds", "2", "--steps", "2", "--device", "cpu"]) == 0
+    assert json.loads(next(gen.glob("*.json")).read_text())["guidance"] == 1.0
+    capsys.readouterr()
+    assert main(["info", "--checkpoint", str(out)]) == 0
+    assert "default guidance scale 1 (its config)" in capsys.readouterr().out
+    student = save_tiny_student(tmp_path / "student", src)
+    pair = tmp_path / "pair"
+    assert main(["export", "--checkpoint", str(student), "--teacher-folder", str(out), "--out", str(pair)]) == 0
+    assert load_checkpoint(pair / TEACHER_DIR).config.guidance == 1.0 and load_checkpoint(pair).config.guidance is None
+    capsys.readouterr()
+    for bad in ("-1", "nan", "inf"):
+        assert main(["export", "--checkpoint", str(src), "--out", str(tmp_path / "bad"), "--guidance", bad]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "guidance" in err, err
+    assert not (tmp_path / "bad").exists()

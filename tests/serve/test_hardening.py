@@ -344,6 +344,20 @@ def test_the_app_passes_seconds_to_the_pipeline(pipe):
     assert r.status_code == 200 and seen[-1] == [2.5] and r.json()["frames"] == 48
 
 
+def test_the_app_leaves_the_guidance_to_the_model(pipe):
+    """A request without a guidance scale gets the model's default (its config's), not one of the server's."""
+    seen = []
+
+    class Spy(Poisoned):
+        def __call__(self, prompts, **kw):
+            seen.append(kw.get("guidance_scale"))
+            return self._pipe(prompts, **kw)
+    app = create_app(Spy(pipe))
+    r, s = call(app, ("POST", "/v1/generate", {"prompt": "walk", "seconds": 2.0, "steps": 1}),
+                ("POST", "/v1/generate", {"prompt": "run", "seconds": 2.0, "steps": 1, "guidance": 1.5}))
+    assert r.status_code == s.status_code == 200 and set(seen) == {1.5, None}  # (a warm-up call too)
+
+
 def test_no_module_global_pipeline():
     import stablemofusion.serve.batcher as batcher
     import stablemofusion.serve.worker as worker

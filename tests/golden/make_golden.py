@@ -1,8 +1,9 @@
 """Store the outputs of the shipped default pair for fixed seeds: tests/golden/test_golden.py compares the current
 code's outputs to them. The shipped pair is the v3 pair of session 11 (teacher: issue 22's run b2 at step 8,000; its
-1-step student), regenerated with unchanged code at the commit that shipped it, with edits at STUDENT_EDIT_STEPS = 4.
+1-step student), with edits at STUDENT_EDIT_STEPS = 4; regenerated in session 13 when the teacher's config got its
+own default guidance scale 1.0 (the student's outputs unchanged; with guidance 2.5 the teacher's were too).
 The teacher (``default_model/teacher``, selected explicitly with ``teacher=True``: SDE-DPM-Solver++ 2M Karras, 10
-steps) on every task (text to motion, footskate post, a timeline, every edit mode, x_t imputation, the HTTP
+steps, its default guidance) on every task (text to motion, footskate post, a timeline, every edit mode, x_t imputation, the HTTP
 response), and the student (``default_model``: lcm, 1 step; edits at STUDENT_EDIT_STEPS) on a few, the HTTP
 response's joints included (keys ``student/...``). Both with the default rigid stage. (Earlier files: the v2 pair
 made at cdb32c3 in session 9; before that a 10-step model of session 5, at 54506c9.)

@@ -84,7 +84,8 @@ def main() -> None:
             rows.append(row)
             print(json.dumps(row), flush=True)
     print(json.dumps({"real_acc_p99": float(np.percentile(real_acc, 99)), "real_acc_max": float(real_acc.max()),
-                      "real_acc_median": float(np.median(real_acc))}))
+                      "real_acc_median": float(np.median(real_acc)),
+                      "guidance": pipe.settings(edit=True).guidance_scale}))
 
 
 if __name__ == "__main__":

@@ -89,6 +89,7 @@ def main() -> None:
     report = {
         "checkpoint": str(args.checkpoint), "teacher": args.teacher, "motions": len(ids),
         "steps": pipe.settings().steps if args.steps is None else args.steps,
+        "guidance": pipe.settings().guidance_scale,
         "loop_steps": args.loop_steps, "loop_skip_last": args.loop_skip_last,
         "mean_frames": float(np.mean(lengths)),
         "metrics": {m: mean_metrics(j) for m, j in joints.items()},

@@ -17,15 +17,17 @@ import time
 import torch
 
 from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.settings import GUIDANCE
 
 
 def aits(pipe: MotionPipeline, prompts, frames: int, *, sampler: str, steps: int, batched_cfg: bool, cached: bool,
-         repeats: int) -> float:
+         repeats: int, guidance: float) -> float:
     """Seconds per sentence, mean over ``repeats`` calls after one warm-up."""
     def once(seed):
         if not cached:
             pipe.text_cache.clear()
-        pipe.sample(prompts, [frames] * len(prompts), sampler=sampler, steps=steps, batched_cfg=batched_cfg, seed=seed)
+        pipe.sample(prompts, [frames] * len(prompts), sampler=sampler, steps=steps, batched_cfg=batched_cfg, seed=seed,
+                    guidance_scale=guidance)
 
     once(0)
     times = []
@@ -48,7 +50,11 @@ def main() -> None:
     ap.add_argument("--batch-size", type=int, default=1)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--baseline-steps", type=int, default=1000)
+    ap.add_argument("--guidance", type=float, default=GUIDANCE,
+                    help=f"guidance scale (default {GUIDANCE}, not the model's: at 1.0 there is no second pass to batch)")
     args = ap.parse_args()
+    if args.guidance == 1.0:
+        raise SystemExit("--guidance 1.0 has no unconditional pass: the CFG rows would measure nothing")
     device = "cuda" if torch.cuda.is_available() else "cpu"
     pipe = MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=device, dtype=torch.float32)
     if pipe.student:
@@ -62,13 +68,13 @@ def main() -> None:
              ("+ batched CFG (one pass)", "sde-dpmsolver++-karras", 10, True, True)]
     for label, sampler, n, batched, cached in steps:
         s = aits(pipe, prompts, args.frames, sampler=sampler, steps=n, batched_cfg=batched, cached=cached,
-                 repeats=1 if n > 100 else args.repeats)
+                 repeats=1 if n > 100 else args.repeats, guidance=args.guidance)
         rows.append({"trick": label, "sampler": sampler, "steps": n, "aits_ms": s * 1000})
         print(f"{label:70s} {s * 1000:10.1f} ms", flush=True)
     if device == "cuda":
-        half = MotionPipeline.from_pretrained(args.checkpoint, device=device, dtype=torch.float16)
+        half = MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=device, dtype=torch.float16)
         s = aits(half, prompts, args.frames, sampler="sde-dpmsolver++-karras", steps=10, batched_cfg=True, cached=True,
-                 repeats=args.repeats)
+                 repeats=args.repeats, guidance=args.guidance)
         rows.append({"trick": "+ float16", "sampler": "sde-dpmsolver++-karras", "steps": 10, "aits_ms": s * 1000})
     else:
         rows.append({"trick": "+ float16", "sampler": "sde-dpmsolver++-karras", "steps": 10, "aits_ms": None,
@@ -79,6 +85,7 @@ def main() -> None:
         print(f"| {r['trick']} | {r['sampler']} | {r['steps']} | {ms} |")
     print(json.dumps({"device": device, "cpu": platform.processor() or platform.machine(),
                       "threads": torch.get_num_threads(), "frames": args.frames, "batch_size": args.batch_size,
+                      "guidance": args.guidance,
                       "rows": rows}, indent=2))
 
 

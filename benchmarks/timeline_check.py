@@ -62,7 +62,7 @@ def main() -> None:
                           "join_velocity_change": float(at_join), "inside_max_velocity_change": float(inside),
                           "seconds": took}), flush=True)
     print(json.dumps({"segments_recognised": f"{recognised}/{len(SEGMENTS) * a.seeds}",
-                      "worst_join_over_inside": worst_ratio}))
+                      "worst_join_over_inside": worst_ratio, "guidance": pipe.settings().guidance_scale}))
 
 
 if __name__ == "__main__":

@@ -110,7 +110,7 @@ def _save_tiny_student(path: Path, teacher: Path, name: str | None = None, sampl
     from stablemofusion.diffusion.distil import student_from_teacher
 
     ck = load_checkpoint(teacher)
-    config = replace(ck.config, model=replace(ck.config.model, guidance=True),
+    config = replace(ck.config, model=replace(ck.config.model, guidance=True), guidance=None,
                      distil=DistilConfig(teacher=str(teacher) if name is None else name, sample_steps=sample_steps))
     save_checkpoint(path, model=student_from_teacher(ck), config=config, mean=ck.mean, std=ck.std)
     return path

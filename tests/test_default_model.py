@@ -13,7 +13,7 @@ from stablemofusion.motion.skeleton import HUMANML3D
 from stablemofusion.motion.features import joints_from_features
 from stablemofusion.motion.files import load_motion
 from stablemofusion.pipeline import MotionPipeline, default_model_path
-from stablemofusion.pipelines.settings import SAMPLER, STEPS, STUDENT
+from stablemofusion.pipelines.settings import GUIDANCE, SAMPLER, STEPS, STUDENT
 from stablemofusion.text import TEXT_SIDE_FILES
 
 
@@ -60,6 +60,8 @@ def test_the_default_model_is_a_one_step_student_with_its_teacher_inside():
 def test_teacher_true_selects_the_teacher_with_the_students_text_side(pipe, teacher):
     assert pipe.student and (pipe.settings().sampler, pipe.settings().steps) == (STUDENT, 1)
     assert not teacher.student and (teacher.settings().sampler, teacher.settings().steps) == (SAMPLER, STEPS)
+    # each model's own default guidance: the teacher's chosen on the validation split (docs/inference.md)
+    assert teacher.config.guidance == 1.0 and pipe.config.guidance is None and pipe.settings().guidance_scale == GUIDANCE
     assert teacher.known_actions is not None and teacher.length_estimator is not None
     assert teacher.predict_seconds("a person walks forward") == pipe.predict_seconds("a person walks forward")
 
@@ -75,12 +77,13 @@ def test_default_model_generates_plausible_motion(pipe, teacher, which):
 
 
 def test_generate_with_teacher_flag_samples_with_the_teacher(tmp_path):
-    for flags, (sampler, steps, student) in (([], (STUDENT, 1, True)), (["--teacher"], (SAMPLER, STEPS, False))):
+    for flags, (sampler, steps, student, guidance) in (([], (STUDENT, 1, True, GUIDANCE)),
+                                                       (["--teacher"], (SAMPLER, STEPS, False, 1.0))):
         out = tmp_path / ("t" if flags else "s")
         assert main(["generate", "a person walks forward", "--seconds", "2", "--format", "json", "--out", str(out),
                      *flags]) == 0
         meta = json.loads(next(out.glob("*.json")).read_text())
-        assert (meta["sampler"], meta["steps"], meta["student"]) == (sampler, steps, student)
+        assert (meta["sampler"], meta["steps"], meta["student"], meta["guidance"]) == (sampler, steps, student, guidance)
 
 
 def test_main_command_writes_video_joints_and_bvh(tmp_path, capsys):

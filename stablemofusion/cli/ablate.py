@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 from .evaluate import add_eval_args
@@ -65,6 +65,7 @@ def run_samplers(args: argparse.Namespace) -> None:
     from ..errors import SMFError
     from ..eval.ablation import ablate_samplers, sampler_markdown
     from ..pipeline import MotionPipeline
+    from ..pipelines.settings import Settings
     from .evaluate import eval_config, load_embedder, rigid_config
 
     if not args.data.is_dir():
@@ -79,6 +80,8 @@ def run_samplers(args: argparse.Namespace) -> None:
     for s in samplers:
         make_sampler(s, pipe.schedule)  # unknown names fail before any work
     cfg = eval_config(args, mm_captions=0 if args.mm_captions is None else args.mm_captions)
+    # the model's guidance where --guidance leaves it (the samplers and steps are what this ablation varies)
+    cfg = replace(cfg, guidance_scale=pipe.settings(Settings(cfg.guidance_scale)).guidance_scale)
     embedder = load_embedder(args, pipe)
     full = {s: sorted(set(grid + (extra if s == "ddpm" else []))) for s in samplers}
     result = ablate_samplers(pipe, embedder, args.data, cfg, full, progress=not args.no_progress)
@@ -93,6 +96,7 @@ def run_arch(args: argparse.Namespace) -> None:
     from ..errors import SMFError
     from ..eval.ablation import ARCH_PRESETS, ablate_arch, arch_markdown
     from ..models.presets import get_preset
+    from ..pipelines.settings import model_defaults
     from .evaluate import eval_config, load_embedder, rigid_config
 
     if not args.data.is_dir():
@@ -103,6 +107,8 @@ def run_arch(args: argparse.Namespace) -> None:
     if args.train_steps < 1 or args.batch_size < 1:
         raise SMFError("--train-steps and --batch-size must be positive")
     cfg = eval_config(args, mm_captions=0 if args.mm_captions is None else args.mm_captions)
+    # freshly trained presets name no guidance: the package's default where --guidance leaves it
+    cfg = replace(cfg, guidance_scale=model_defaults(None, cfg.guidance_scale)[0])
     embedder = load_embedder(args)
     tcfg = TrainConfig(steps=args.train_steps, batch_size=args.batch_size, bucket=args.bucket,
                        checkpoint_every=max(args.train_steps // 4, 1), seed=args.seed)

@@ -211,7 +211,9 @@ def run(args: argparse.Namespace) -> None:
     if args.prompts_only:
         if prompt_result is None:
             raise SMFError("--prompts-only needs --prompts FILE")
-        result = {"checkpoint": name, "prompts": prompt_result}
+        result = {"checkpoint": name, "prompts": prompt_result,
+                  "sampling": {"guidance_scale": cfg.guidance_scale, "steps": cfg.steps, "sampler": cfg.sampler,
+                               "footskate": cfg.footskate}}
     else:
         embedder = load_embedder(args, pipe)
         result = evaluate(pipe, embedder, args.data, cfg, progress=not args.no_progress, skate_metrics=skate_fn(sk),

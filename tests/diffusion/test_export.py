@@ -136,6 +136,10 @@ def test_export_records_the_models_default_guidance(tmp_path, capsys, save_tiny_
     assert batches == [2, 2] and not torch.allclose(default, strong)
     torch.testing.assert_close(default, pipe.denoise(["a person walks"], [40], steps=2, seed=0, guidance_scale=1.0))
     torch.testing.assert_close(strong, base.denoise(["a person walks"], [40], steps=2, seed=0))  # same weights
+    assert pipe.stream("a person walks", seed=0).settings.guidance_scale == 1.0  # every task takes the default
+    line = [("a person walks", 2.0), ("a person runs", 2.0)]
+    np.testing.assert_allclose(pipe.timeline(line, seed=0, steps=2).joints,
+                               pipe.timeline(line, seed=0, steps=2, guidance_scale=1.0).joints)
     gen = tmp_path / "gen"
     assert main(["generate", "a person walks", "--checkpoint", str(out), "--out", str(gen), "--format", "json",
                  "--seconds", "2", "--steps", "2", "--device", "cpu"]) == 0

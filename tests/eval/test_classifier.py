@@ -119,8 +119,10 @@ def test_evaluate_prompts_cli(classifier_dir, eval_corpus, tiny_checkpoint, tmp_
                  str(classifier_dir), "--prompts", str(path), "--prompts-only", "--prompt-samples", "2",
                  "--steps", "2", "--out", str(out)])
     assert code == 0
-    res = json.loads(out.read_text())["prompts"]
+    full = json.loads(out.read_text())
+    res = full["prompts"]
     assert res["all"]["n"] == 2 and "Prompt following" in capsys.readouterr().out
+    assert full["sampling"] == {"guidance_scale": 2.5, "steps": 2, "sampler": "sde-dpmsolver++-karras", "footskate": "off"}
     assert calls and all(kw["steps"] == 2 and kw["guidance_scale"] == 2.5 for kw in calls)  # --steps is used; the model's guidance
     code = main(["evaluate", "--checkpoint", str(tiny_checkpoint), "--data", str(eval_corpus), "--classifier",
                  str(classifier_dir), "--prompts", str(path), "--prompts-only", "--prompt-samples", "1",

@@ -1,7 +1,8 @@
 """Store the outputs of the shipped default pair for fixed seeds: tests/golden/test_golden.py compares the current
 code's outputs to them. The shipped pair is the v3 pair of session 11 (teacher: issue 22's run b2 at step 8,000; its
 1-step student), with edits at STUDENT_EDIT_STEPS = 4; regenerated in session 13 when the teacher's config got its
-own default guidance scale 1.0 (the student's outputs unchanged; with guidance 2.5 the teacher's were too).
+own default guidance scale 1.0 (the student's outputs unchanged; with guidance 2.5 the teacher's were too: keys
+``t2m_cfg_*`` are the earlier file's ``t2m_*``).
 The teacher (``default_model/teacher``, selected explicitly with ``teacher=True``: SDE-DPM-Solver++ 2M Karras, 10
 steps, its default guidance) on every task (text to motion, footskate post, a timeline, every edit mode, x_t imputation, the HTTP
 response), and the student (``default_model``: lcm, 1 step; edits at STUDENT_EDIT_STEPS) on a few, the HTTP
@@ -65,6 +66,10 @@ def outputs(pipe) -> dict[str, np.ndarray]:
         put(f"edit_{mode}", pipe.edit("a person waves", src, mode, seed=9, **kw))
     put("edit_prefix_xt", pipe.edit("a person waves", src, "prefix", seed=9, impose="xt", keep_start=1.0,
                                     seconds=4.0))
+    # classifier-free guidance on the real weights (the teacher's default 1.0 has no unconditional pass): the
+    # stored t2m_a of the files before session 13
+    for r, name in zip(pipe(PROMPTS, seconds=[2.0, 3.0], seed=[3, 7], guidance_scale=2.5), ("t2m_cfg_a", "t2m_cfg_b")):
+        put(name, r)
     return out
 
 

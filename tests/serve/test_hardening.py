@@ -332,30 +332,32 @@ def test_convert_runs_off_the_event_loop(pipe, monkeypatch):
     assert health.status_code == 200 and waited < 0.5
 
 
+class Spy(Poisoned):
+    """The tiny pipeline, recording the keyword arguments of every call."""
+
+    def __init__(self, pipe):
+        super().__init__(pipe)
+        self.kwargs = []
+
+    def __call__(self, prompts, **kw):
+        self.kwargs.append(kw)
+        return self._pipe(prompts, **kw)
+
+
 def test_the_app_passes_seconds_to_the_pipeline(pipe):
     """The server converts no seconds to frames itself: the pipeline gets the seconds."""
-    seen = []
-
-    class Spy(Poisoned):
-        def __call__(self, prompts, **kw):
-            seen.append(kw.get("seconds"))
-            return self._pipe(prompts, **kw)
-    (r,) = call(create_app(Spy(pipe)), ("POST", "/v1/generate", {"prompt": "walk", "seconds": 2.5, "steps": 1}))
-    assert r.status_code == 200 and seen[-1] == [2.5] and r.json()["frames"] == 48
+    spy = Spy(pipe)
+    (r,) = call(create_app(spy), ("POST", "/v1/generate", {"prompt": "walk", "seconds": 2.5, "steps": 1}))
+    assert r.status_code == 200 and spy.kwargs[-1]["seconds"] == [2.5] and r.json()["frames"] == 48
 
 
 def test_the_app_leaves_the_guidance_to_the_model(pipe):
     """A request without a guidance scale gets the model's default (its config's), not one of the server's."""
-    seen = []
-
-    class Spy(Poisoned):
-        def __call__(self, prompts, **kw):
-            seen.append(kw.get("guidance_scale"))
-            return self._pipe(prompts, **kw)
-    app = create_app(Spy(pipe))
-    r, s = call(app, ("POST", "/v1/generate", {"prompt": "walk", "seconds": 2.0, "steps": 1}),
+    spy = Spy(pipe)
+    r, s = call(create_app(spy), ("POST", "/v1/generate", {"prompt": "walk", "seconds": 2.0, "steps": 1}),
                 ("POST", "/v1/generate", {"prompt": "run", "seconds": 2.0, "steps": 1, "guidance": 1.5}))
-    assert r.status_code == s.status_code == 200 and set(seen) == {1.5, None}  # (a warm-up call too)
+    seen = {kw.get("guidance_scale") for kw in spy.kwargs}
+    assert r.status_code == s.status_code == 200 and seen == {1.5, None}  # (a warm-up call too)
 
 
 def test_no_module_global_pipeline():

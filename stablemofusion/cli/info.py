@@ -19,7 +19,7 @@ def run(args: argparse.Namespace) -> None:
 
     if args.checkpoint is not None:
         from ..diffusion.checkpoint import load_checkpoint
-        from ..pipelines.settings import GUIDANCE
+        from ..pipelines.settings import model_defaults
 
         ck = load_checkpoint(args.checkpoint)
         c = ck.config
@@ -28,7 +28,7 @@ def run(args: argparse.Namespace) -> None:
         if c.student:
             print(f"distilled few-step student of {c.distil.teacher}: samples with lcm in {c.distil.sample_steps} "
                   f"step{'s' * (c.distil.sample_steps != 1)} by default, guidance as input (trained on {c.distil.guidance_min:g}-{c.distil.guidance_max:g})")
-        print(f"default guidance scale {GUIDANCE if c.guidance is None else c.guidance:g} "
+        print(f"default guidance scale {model_defaults(None, c.guidance)[0]:g} "
               f"({'the package default' if c.guidance is None else 'its config'})")
         return
     names = args.preset or list(PRESETS)

@@ -12,7 +12,6 @@ inside the student's folder (``teacher/``, :func:`export_checkpoint`), where it 
 from __future__ import annotations
 
 import json
-import math
 import shutil
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -23,7 +22,7 @@ from safetensors.torch import load_file, save_file
 
 from ..errors import SMFError
 from ..models.base import Denoiser, build_denoiser
-from .config import CheckpointConfig, ExportInfo
+from .config import CheckpointConfig, ExportInfo, check_guidance
 
 CONFIG = "config.json"
 MODEL = "model.safetensors"
@@ -185,9 +184,7 @@ def export_checkpoint(src: str | Path, dst: str | Path, *, dtype: torch.dtype = 
     ck = load_checkpoint(src, ema=True)
     config = _exported(ck.config, dtype)
     if guidance is not None:
-        if not (math.isfinite(guidance) and guidance >= 0):
-            raise SMFError(f"the default guidance scale must be a finite number >= 0, got {guidance}")
-        config = replace(config, guidance=float(guidance))
+        config = replace(config, guidance=check_guidance(guidance, "the exported config"))
     shipped = None
     if teacher is not None:
         if not ck.config.student:

@@ -189,7 +189,7 @@ class CheckpointConfig:
                 model=ModelConfig.from_dict(model), schedule=schedule, text_encoder=str(d.get("text_encoder", "minilm")),
                 skeleton=sk.name, fps=float(given("fps", sk.fps)), min_frames=int(given("min_frames", sk.min_frames)),
                 max_frames=int(given("max_frames", sk.max_frames)), train=train, step=d.get("step"), export=export,
-                distil=distil, guidance=_guidance(d.get("guidance"), where))
+                distil=distil, guidance=check_guidance(d.get("guidance"), where))
         except (TypeError, ValueError) as e:
             raise SMFError(f"{where}: bad checkpoint config ({e})") from None
         if not (cfg.fps > 0 and 0 < cfg.min_frames <= cfg.max_frames):
@@ -212,7 +212,7 @@ class CheckpointConfig:
         return out
 
 
-def _guidance(value: Any, where: str) -> float | None:
+def check_guidance(value: Any, where: str) -> float | None:
     """A config's default guidance scale: None, or a finite number >= 0 (SMFError naming ``where`` otherwise)."""
     if value is None:
         return None

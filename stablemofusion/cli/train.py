@@ -48,6 +48,8 @@ def add_parser(sub, name: str) -> None:
     ev.add_argument("--classifier", type=Path, default=None, help="`smf train-classifier` folder")
     ev.add_argument("--evaluator", type=Path, default=None, help="`smf train-evaluator` folder (FID; optional)")
     ev.add_argument("--fid-items", type=int, default=256, help="validation items for FID (default 256)")
+    ev.add_argument("--eval-guidance", type=float, default=None,
+                    help="guidance scale of the evaluation samples (default: the model's, 2.5 for a model that names none)")
     add_config_flags(p, TrainConfig, _FLAGS, _TYPES)
     p.add_argument("--stop-after", type=int, default=None, help=argparse.SUPPRESS)  # simulate a kill (tests)
     p.set_defaults(func=run)
@@ -64,10 +66,12 @@ def run(args: argparse.Namespace) -> None:
     if args.eval_every:
         if args.eval_every < 0 or args.probe is None or args.classifier is None:
             raise SMFError("--eval-every N needs N > 0, --probe FILE and --classifier DIR")
+        from ..diffusion.config import check_guidance
         from ..eval.monitor import MonitorConfig, TrainingMonitor
 
+        check_guidance(args.eval_guidance, "--eval-guidance")
         monitor = TrainingMonitor(args.data, MonitorConfig(args.probe, args.classifier, args.evaluator,
-                                                           fid_items=args.fid_items))
+                                                           fid_items=args.fid_items, guidance=args.eval_guidance))
     losses = train(args.data, args.out, cfg, resume=args.resume, stop_after=args.stop_after,
                    progress=not args.no_progress, text_cache=args.text_cache, eval_every=args.eval_every,
                    on_eval=monitor)

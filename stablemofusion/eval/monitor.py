@@ -1,7 +1,8 @@
 """A training run's self-evaluation: prompt following on a held-out probe and FID on a fixed validation subset.
 
 ``smf train --eval-every N --probe FILE --classifier CL --evaluator EV`` calls :meth:`TrainingMonitor.__call__`
-on the run's checkpoint every N steps (its EMA weights, default sampler and guidance); the figures go into
+on the run's checkpoint every N steps (its EMA weights and default sampler; guidance ``--eval-guidance``, else the
+model's default); the figures, with the guidance they were measured at, go into
 the run's ``eval.jsonl`` and `smf curve` draws them. Probe: one motion per prompt at a fixed length, judged by
 the motion classifier (never the free-form dev set, which stays a test set). FID: our evaluator on the first
 ``fid_items`` items of one fixed draw of the validation split, one replication.
@@ -26,6 +27,7 @@ class MonitorConfig:
     batch_size: int = 32  # R-precision batch (the protocol's 32)
     split: str = "val"
     seed: int = 0
+    guidance: float | None = None  # classifier-free guidance scale of the probe and FID samples; None: the model's
 
 
 class TrainingMonitor:
@@ -57,22 +59,25 @@ class TrainingMonitor:
         """Figures of the checkpoint in ``run``: probe content/style accuracy overall and per dataset, and
         FID / top-3 on the validation subset."""
         from ..pipeline import MotionPipeline
+        from ..pipelines.settings import Settings
         from .prompts import prompt_accuracy
 
         pipe = MotionPipeline.from_pretrained(run)
+        guidance = pipe.settings(Settings(guidance_scale=self.cfg.guidance)).guidance_scale
         acc = prompt_accuracy(pipe, self.classifier, self.items, self.labels, samples=1, seconds=PROBE_SECONDS,
-                              seed=self.cfg.seed)
-        out = {f"probe_{k}_{m}": round(v[m], 4) for k, v in acc.items()
-               if isinstance(v, dict) and "content_acc" in v for m in ("content_acc", "style_acc")}
+                              seed=self.cfg.seed, guidance_scale=guidance)
+        out = {"guidance": guidance}
+        out.update({f"probe_{k}_{m}": round(v[m], 4) for k, v in acc.items()
+                    if isinstance(v, dict) and "content_acc" in v for m in ("content_acc", "style_acc")})
         if self.evaluator is not None:
-            out.update(self._fid(pipe))
+            out.update(self._fid(pipe, guidance))
         return out
 
-    def _fid(self, pipe) -> dict:
+    def _fid(self, pipe, guidance: float) -> dict:
         from .protocol import EmbeddingModel, EvalConfig, evaluate
 
         cfg = EvalConfig(replications=1, mm_captions=0, max_items=self.cfg.fid_items, split=self.cfg.split,
-                         seed=self.cfg.seed, batch_size=self.cfg.batch_size)
+                         seed=self.cfg.seed, batch_size=self.cfg.batch_size, guidance_scale=guidance)
         res = evaluate(pipe, EmbeddingModel(self.evaluator, pipe.text_cache), self.data, cfg, progress=False)
         gen = res["rows"]["Generated"]
         return {"val_fid": round(float(gen["fid"][0]), 4), "val_top3": round(float(gen["top3"][0]), 4)}

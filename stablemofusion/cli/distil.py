@@ -10,6 +10,10 @@ from .flags import add_config_flags, apply_threads, config_from_args
 
 _FLAGS = {  # DistilConfig field -> help
     "teacher": "the teacher: a checkpoint, run or exported model folder (e.g. the shipped default model)",
+    "method": "consistency (LCM consistency distillation) | regression (the student's sample pulled towards the "
+              "teacher's deterministic sample from the same noise; start it from a consistency student)",
+    "init_from": "a student folder to start from (default: the teacher's weights)",
+    "teacher_sampler": "regression: the teacher's deterministic sampler", "teacher_steps": "regression: its steps",
     "steps": "total distillation steps", "batch_size": "batch", "lr": "AdamW learning rate (constant after warm-up)",
     "weight_decay": "AdamW weight decay", "warmup": "steps of linear learning-rate warm-up",
     "grad_clip": "gradient norm clip", "target_decay": "EMA decay of the target network (the saved weights)",
@@ -27,17 +31,19 @@ _FLAGS = {  # DistilConfig field -> help
 
 
 def add_parser(sub, name: str) -> None:
-    p = sub.add_parser(name, help="distil a few-step student (consistency distillation, guidance as input)",
+    p = sub.add_parser(name, help="distil a few-step student (consistency or regression distillation, guidance as "
+                                  "input)",
                        description="Consistency distillation (LCM) of a teacher into a student that samples in a few "
-                                   "steps with one forward per step (the guidance scale is an input); "
-                                   "docs/inference.md, 'Few-step student'. Resumable with --resume.")
+                                   "steps with one forward per step (the guidance scale is an input), or regression "
+                                   "on the teacher's samples (--method regression); docs/inference.md, 'Few-step "
+                                   "student'. Resumable with --resume.")
     p.add_argument("--data", type=Path, required=True, help="corpus folder (the teacher's training corpus)")
     p.add_argument("--out", type=Path, required=True, help="run folder: checkpoint/, log.csv, text-cache/")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     p.add_argument("--text-cache", type=Path, default=None, help="text embedding cache folder (default OUT/text-cache)")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--threads", type=int, default=None, help="CPU threads for torch (default: torch's choice)")
-    add_config_flags(p, DistilConfig, _FLAGS, {"teacher": str})
+    add_config_flags(p, DistilConfig, _FLAGS, {"teacher": str, "init_from": str})
     p.add_argument("--stop-after", type=int, default=None, help=argparse.SUPPRESS)  # simulate a kill (tests)
     p.set_defaults(func=run)
 

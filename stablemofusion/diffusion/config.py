@@ -65,15 +65,23 @@ class TrainConfig:
 
 @dataclass
 class DistilConfig:
-    """Settings of a consistency-distillation run (``smf distil``), saved in the student's checkpoints: that
-    record makes the folder a student (guidance as input, its own sampler and step count by default).
+    """Settings of a distillation run (``smf distil``), saved in the student's checkpoints: that record makes
+    the folder a student (guidance as input, its own sampler and step count by default).
 
-    Each step draws a grid point t_{n+1} of the ``grid``-point skip schedule (the ``lcm`` sampler's), noises a
-    training motion to it, runs the teacher's guided ODE step (DDIM, guidance w ~ U[guidance_min,
-    guidance_max]) to the previous grid point t_n, and pulls the student's consistency function at
-    (x_{t_{n+1}}, w) towards the target network's (EMA of the student, ``target_decay``) at (x_{t_n}, w)."""
+    ``method`` "consistency": each step draws a grid point t_{n+1} of the ``grid``-point skip schedule (the
+    ``lcm`` sampler's), noises a training motion to it, runs the teacher's guided ODE step (DDIM, guidance
+    w ~ U[guidance_min, guidance_max]) to the previous grid point t_n, and pulls the student's consistency
+    function at (x_{t_{n+1}}, w) towards the target network's (EMA of the student, ``target_decay``) at
+    (x_{t_n}, w). "regression": each step draws noise for a training batch's captions and lengths, runs the
+    teacher's whole deterministic sampler from it (``teacher_sampler``, ``teacher_steps``, guidance w) and
+    pulls the student's ``sample_steps``-step sample from the same noise towards it; the saved weights are
+    the EMA of the student (``target_decay``). Usually from a consistency student (``init_from``)."""
 
     teacher: str = ""  # the teacher folder (checkpoint, run or exported model)
+    method: str = "consistency"  # consistency | regression
+    init_from: str | None = None  # a student folder to start from (None: the teacher's weights)
+    teacher_sampler: str = "dpmsolver++-karras"  # regression: the teacher's sampler (deterministic, precomputed)
+    teacher_steps: int = 10  # regression: the teacher's sampling steps
     steps: int = 4_000
     batch_size: int = 64
     lr: float = 1e-4
@@ -204,9 +212,9 @@ class CheckpointConfig:
         mine, theirs = _json(self.to_dict()), _json(other.to_dict())
         out = [k for k in ("model", "schedule", "text_encoder", "skeleton") if mine[k] != theirs[k]]
         if (self.distil is None) != (other.distil is None) or (
-                self.distil and other.distil and (self.distil.teacher, self.distil.grid) != (other.distil.teacher,
-                                                                                             other.distil.grid)):
-            out.append("distil (teacher, grid)")
+                self.distil and other.distil and (self.distil.teacher, self.distil.grid, self.distil.method)
+                != (other.distil.teacher, other.distil.grid, other.distil.method)):
+            out.append("distil (teacher, grid, method)")
         if self.train and other.train and self.train.feat_bias != other.train.feat_bias:
             out.append("feat_bias")
         return out

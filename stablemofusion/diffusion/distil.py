@@ -1,4 +1,4 @@
-"""Consistency distillation of a few-step student from a trained teacher, with the guidance scale as input.
+"""Distillation of a few-step student from a trained teacher, with the guidance scale as input.
 
 Latent-consistency-model distillation (Luo et al. 2023; MotionLCM, Dai et al. 2024) on our features: the
 student is a copy of the teacher plus a zero-initialised guidance-scale embedding (``ModelConfig.guidance``),
@@ -14,6 +14,14 @@ so it starts as the teacher's conditional branch and runs one forward per step. 
    f(x_{t_n}, t_n, w) (no gradient), masked to valid frames; f = c_skip x + c_out D, the LCM boundary
    scalings (f(x, 0) = x);
 5. AdamW on the student, then the target network (EMA of the student, ``target_decay``) follows it.
+
+``--method regression`` (Luhman & Luhman 2021, "knowledge distillation" of the sampler) replaces 2-4: per
+item noise eps and a guidance scale w; the target is the teacher's whole deterministic sample from eps
+(``teacher_sampler``, ``teacher_steps``, guidance w: one pass at w = 1); the loss is between it and the
+student's ``sample_steps``-step sample from the same eps (the inference path, gradients through it). A
+consistency student at one step draws something like the average of the motions its text allows (a wave
+over random phases looks like a raised hand); regressing on the teacher's noise-to-motion map teaches it
+which motion each noise gives. Start it from a consistency student (``init_from``).
 
 Checkpoints hold the student (``model.safetensors``) and the target network (``ema.safetensors``: what the
 pipeline loads), the optimiser and the step; every random draw of step ``s`` is seeded from (seed, s), so a
@@ -40,11 +48,13 @@ from ..errors import SMFError
 from .checkpoint import CHECKPOINT_DIR, CONFIG, EMA, MODEL, STATE, companion_files, load_checkpoint, \
     load_training_state, read_config, resolve, save_checkpoint
 from .config import DistilConfig
-from .samplers import CONSISTENCY_GRID, TIMESTEP_SCALING
-from .solvers import consistency_scalings
+from .samplers import CONSISTENCY_GRID, STUDENT_SAMPLER, TIMESTEP_SCALING
+from .sampling import guided, model_denoiser, run_solver
+from .solvers import consistency_scalings, solver_table
 from .train import _mix, masked_mse, open_log
 
 LOSSES = ("l2", "huber")
+METHODS = ("consistency", "regression")
 # teacher-folder files that are not the teacher's own weights/config: carried into the student's checkpoints
 # (length estimator, known actions, ...), so the student's pipeline behaves like the teacher's around sampling
 _OWN_FILES = {CONFIG, MODEL, EMA, STATE, "Mean.npy", "Std.npy", "MODEL_CARD.md"}
@@ -73,6 +83,17 @@ def check_distil_config(cfg: DistilConfig) -> None:
         raise SMFError(f"--sample-steps must be in [1, {cfg.grid}], got {cfg.sample_steps}")
     if cfg.warmup < 0 or cfg.lr <= 0 or not 0 <= cfg.cond_drop <= 1:
         raise SMFError("--warmup must not be negative, --lr must be positive and --cond-drop in [0, 1]")
+    if cfg.method not in METHODS:
+        raise SMFError(f"--method must be one of {', '.join(METHODS)}, not {cfg.method!r}")
+    if cfg.method == "regression":
+        from .samplers import parse_sampler
+
+        _, spec, _ = parse_sampler(cfg.teacher_sampler)
+        if spec.stochastic or not spec.fast:
+            raise SMFError(f"--teacher-sampler must be deterministic with a precomputed form (e.g. dpmsolver++-karras, "
+                           f"ddim), not {cfg.teacher_sampler!r}: the target must be a function of the noise")
+        if cfg.teacher_steps < 1:
+            raise SMFError(f"--teacher-steps must be at least 1, got {cfg.teacher_steps}")
 
 
 def distil_lr(cfg: DistilConfig, step: int) -> float:
@@ -100,17 +121,29 @@ def masked_huber(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, c
     return (per * m).sum() / (m.sum() * pred.shape[-1]).clamp_min(1.0)
 
 
-def student_from_teacher(teacher) -> torch.nn.Module:
-    """A student: the teacher's architecture with the guidance input, the teacher's weights (the guidance
-    embedding zero-initialised, so it starts as the teacher's conditional branch)."""
+def student_from_teacher(teacher, init_from: str | Path | None = None) -> torch.nn.Module:
+    """A student: the teacher's architecture with the guidance input and the teacher's weights (the guidance
+    embedding zero-initialised, so it starts as the teacher's conditional branch), or the (EMA) weights of the
+    student folder ``init_from``."""
     from ..models.base import build_denoiser
 
     student = build_denoiser(replace(teacher.config.model, guidance=True))
+    if init_from is not None:
+        start = load_checkpoint(init_from)
+        if not start.config.student or start.config.to_dict()["model"] != student_config_dict(teacher):
+            raise SMFError(f"--init-from {init_from}: not a distilled student of this teacher's architecture")
+        student.load_state_dict(start.model.state_dict())
+        return student
     missing, unexpected = student.load_state_dict(teacher.model.state_dict(), strict=False)
     if unexpected or any(not k.startswith(_GUIDANCE) for k in missing):
         raise SMFError(f"the teacher's weights do not fit its student (missing {missing[:3]}, "
                        f"unexpected {unexpected[:3]})")
     return student
+
+
+def student_config_dict(teacher) -> dict:
+    """The ``model`` block of the teacher's students' config (its own, with the guidance input)."""
+    return replace(teacher.config, model=replace(teacher.config.model, guidance=True)).to_dict()["model"]
 
 
 def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool = False,
@@ -142,9 +175,12 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
     encoder = load_text_encoder(tcfg.text_encoder).to(device)
     cache = TextEmbeddingCache(text_cache or (out / "text-cache"), encoder)
     torch.manual_seed(cfg.seed)  # the guidance embedding's initial weights
-    student = student_from_teacher(teacher)
-    # the teacher's default guidance is not the student's (it takes the scale as input): the student starts at None
-    config = replace(tcfg, model=replace(tcfg.model, guidance=True), step=None, export=None, guidance=None,
+    student = student_from_teacher(teacher, cfg.init_from)
+    # the teacher's default guidance is not the student's (it takes the scale as input): the student starts at
+    # None, or, regressed on the teacher at one scale, that scale
+    fixed = cfg.method == "regression" and cfg.guidance_min == cfg.guidance_max
+    config = replace(tcfg, model=replace(tcfg.model, guidance=True), step=None, export=None,
+                     guidance=cfg.guidance_min if fixed else None,
                      distil=replace(cfg, teacher=str(resolve(cfg.teacher).resolve())))
     optimizer = torch.optim.AdamW(param_groups(student, cfg.guidance_lr_scale), lr=cfg.lr,
                                   weight_decay=cfg.weight_decay, fused=device.type == "cuda")
@@ -178,6 +214,9 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
     from .schedule import make_train_scheduler
 
     ab = make_train_scheduler(tcfg.schedule).alphas_cumprod.double()
+    if cfg.method == "regression":
+        teacher_table = solver_table(cfg.teacher_sampler, cfg.teacher_steps, tcfg.schedule).to(device)
+        student_table = solver_table(STUDENT_SAMPLER, cfg.sample_steps, tcfg.schedule).to(device)
     log_path, seconds_before = open_log(out, resume, start)
     end = cfg.steps if stop_after is None else min(cfg.steps, stop_after)
     losses: list[float] = []
@@ -200,16 +239,26 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
             drop = torch.rand(B, generator=g) < cfg.cond_drop
             w = cfg.guidance_min + (cfg.guidance_max - cfg.guidance_min) * torch.rand(B, generator=g)
             torch.manual_seed(_mix(cfg.seed, step, 1))  # dropout inside the student (--dropout)
-            t_hi = grid[index]
-            t_lo = (t_hi - T // cfg.grid).clamp_min(0)
-            x_hi = _q(x0, noise.to(device), ab[t_hi].to(device))
-            drop, w, t_hi, t_lo = drop.to(device), w.to(device), t_hi.to(device), t_lo.to(device)
-            with torch.no_grad(), accelerator.autocast():
-                x_lo = _teacher_ddim(teacher_model, x_hi, t_hi, t_lo, ab.to(device), tokens, tmask, drop, mask, w)
-                target_f = _consistency(target, x_lo, t_lo, tokens, tmask, drop, mask, w).float()
-            student.train(cfg.dropout)
-            with accelerator.autocast():
-                pred_f = _consistency(student, x_hi, t_hi, tokens, tmask, drop, mask, w)
+            drop, w = drop.to(device), w.to(device)
+            if cfg.method == "consistency":
+                t_hi = grid[index]
+                t_lo = (t_hi - T // cfg.grid).clamp_min(0)
+                x_hi = _q(x0, noise.to(device), ab[t_hi].to(device))
+                t_hi, t_lo = t_hi.to(device), t_lo.to(device)
+                with torch.no_grad(), accelerator.autocast():
+                    x_lo = _teacher_ddim(teacher_model, x_hi, t_hi, t_lo, ab.to(device), tokens, tmask, drop, mask, w)
+                    target_f = _consistency(target, x_lo, t_lo, tokens, tmask, drop, mask, w).float()
+                student.train(cfg.dropout)
+                with accelerator.autocast():
+                    pred_f = _consistency(student, x_hi, t_hi, tokens, tmask, drop, mask, w)
+            else:  # the same noise through the teacher's whole sampler and the student's
+                eps = (noise * mask.cpu()[..., None]).to(device)
+                step_noise = torch.randn((cfg.sample_steps,) + tuple(x0.shape), generator=g).to(device)
+                with torch.no_grad(), accelerator.autocast():
+                    target_f = _teacher_sample(teacher_model, eps, tokens, tmask, drop, mask, w, teacher_table).float()
+                student.train(cfg.dropout)
+                with accelerator.autocast():
+                    pred_f = _student_sample(student, eps, tokens, tmask, drop, mask, w, student_table, step_noise)
             if cfg.loss == "l2":
                 loss = masked_mse(pred_f.float(), target_f, mask)
             else:
@@ -280,6 +329,22 @@ def _teacher_ddim(teacher, x, t_hi, t_lo, ab, tokens, tmask, drop, mask, w) -> t
     return a_lo.sqrt() * x0 + (1 - a_lo).sqrt() * eps
 
 
+def _teacher_sample(teacher, eps, tokens, tmask, drop, mask, w, table) -> torch.Tensor:
+    """The teacher's sample (B, T, D) from noise ``eps`` by the sampler of ``table``, under classifier-free
+    guidance at scale ``w`` (B,): one pass where every w is 1."""
+    cond = teacher.condition(tokens, tmask, drop)
+    uncond = None if bool((w == 1).all()) else teacher.condition(tokens, tmask, torch.ones_like(drop))
+    denoiser = guided(teacher, cond, uncond, mask, w[:, None, None].to(eps.dtype))
+    return run_solver(denoiser, table, eps * table.init_sigma, None)
+
+
+def _student_sample(student, eps, tokens, tmask, drop, mask, w, table, step_noise) -> torch.Tensor:
+    """The student's sample (B, T, D) from noise ``eps`` at guidance input ``w`` (B,), as the pipeline draws it
+    (``table``: the student's sampler and steps; ``step_noise`` (K, B, T, D) its re-noising), with gradients."""
+    cond = student.condition(tokens, tmask, drop, w)
+    return run_solver(model_denoiser(student, cond, mask), table, eps * table.init_sigma, step_noise)
+
+
 def _consistency(model, x, t, tokens, tmask, drop, mask, w) -> torch.Tensor:
     """f(x, t, w) = c_skip(t) x + c_out(t) D(x, t, w): the consistency function in the x0 parametrisation."""
     c_skip, c_out = consistency_scalings(t.double(), TIMESTEP_SCALING)
@@ -287,5 +352,5 @@ def _consistency(model, x, t, tokens, tmask, drop, mask, w) -> torch.Tensor:
     return c_skip.to(d.dtype)[:, None, None] * x.to(d.dtype) + c_out.to(d.dtype)[:, None, None] * d
 
 
-__all__ = ["DistilConfig", "check_distil_config", "distil", "distil_lr", "masked_huber", "skip_grid",
+__all__ = ["DistilConfig", "METHODS", "check_distil_config", "distil", "distil_lr", "masked_huber", "skip_grid",
            "student_from_teacher"]

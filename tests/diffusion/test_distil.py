@@ -207,6 +207,95 @@ def test_distil_refuses_bad_inputs(teacher, student, corpus, text_cache, tmp_pat
         distil(corpus, tmp_path / "d", DistilConfig(teacher=""))
 
 
+# --- regression on the teacher's samples (--method regression) -------------------------------------------------
+
+
+def _per_item_noise(seeds, lengths, dim, steps):
+    """The pipeline's noise for per-item seeds (diffusion.sampling.Noise): the initial (B, T, D) draw, then the
+    (steps, B, T, D) step noise drawn at once, as its sampling call draws them."""
+    gens = [torch.Generator().manual_seed(s) for s in seeds]
+    eps, step_noise = torch.zeros(len(seeds), max(lengths), dim), torch.zeros(steps, len(seeds), max(lengths), dim)
+    for i, (g, n) in enumerate(zip(gens, lengths)):
+        eps[i, :n] = torch.randn(1, n, dim, generator=g)[0]
+        step_noise[:, i, :n] = torch.randn(steps, n, dim, generator=g)
+    return eps, step_noise
+
+
+def test_regression_targets_and_predictions_are_the_pipelines_samples(teacher, student):
+    """What regression distillation compares is what the pipeline draws: the teacher's deterministic sample and
+    the student's consistency sample from the same noise (so the student learns the teacher's noise-to-motion map)."""
+    from stablemofusion.diffusion.distil import _student_sample, _teacher_sample
+    from stablemofusion.pipeline import MotionPipeline
+
+    prompts, lengths, seeds = ["a person walks", "a person runs"], [40, 48], [3, 4]
+    for folder, w, sampler, steps in ((teacher, 1.0, "dpmsolver++-karras", 3), (teacher, 2.0, "ddim", 2),
+                                      (student, 1.5, "lcm", 2)):
+        pipe = MotionPipeline.from_pretrained(folder, device="cpu")
+        want = pipe.denoise(prompts, lengths, seed=seeds, guidance_scale=w, sampler=sampler, steps=steps)
+        c = pipe
+        tokens, tmask = c.encode_text(prompts)
+        mask = torch.arange(max(lengths))[None] < torch.tensor(lengths)[:, None]
+        table = c.solver(sampler, steps)
+        eps, step_noise = _per_item_noise(seeds, lengths, want.shape[-1], steps)
+        drop, ws = torch.zeros(2, dtype=torch.bool), torch.full((2,), w)
+        with torch.no_grad():
+            if pipe.student:
+                got = _student_sample(c.model, eps, tokens, tmask, drop, mask, ws, table, step_noise)
+            else:
+                got = _teacher_sample(c.model, eps, tokens, tmask, drop, mask, ws, table)
+        got = c.denormalise(got)
+        for i, n in enumerate(lengths):
+            assert torch.allclose(got[i, :n], want[i, :n], atol=1e-4), (folder.name, sampler)
+
+
+def _regression_args(teacher, student, corpus, text_cache, out, *extra):
+    return _distil_args(teacher, corpus, text_cache, out, "--method", "regression", "--init-from", str(student),
+                        "--guidance-min", "1", "--guidance-max", "1", "--sample-steps", "1", "--teacher-steps", "3",
+                        "--target-decay", "0", *extra)
+
+
+def test_regression_distillation_moves_the_student_towards_the_teacher(teacher, student, corpus, text_cache,
+                                                                     tmp_path):
+    from stablemofusion.pipeline import MotionPipeline
+
+    out = tmp_path / "reg"
+    assert main(_regression_args(teacher, student, corpus, text_cache, out, "--steps", "12", "--lr", "3e-3")) == 0
+    cfg = read_config(out)
+    assert cfg.student and cfg.distil.method == "regression" and cfg.distil.init_from == str(student)
+    assert cfg.guidance == 1.0  # regressed on the teacher at one scale: that scale is its default
+    prompts, lengths, seeds = ["a person walks", "a person runs", "a person jumps"], [40, 48, 44], [5, 6, 7]
+    target = MotionPipeline.from_pretrained(teacher, device="cpu").denoise(
+        prompts, lengths, seed=seeds, guidance_scale=1.0, sampler="dpmsolver++-karras", steps=3)
+    gap = {}
+    for name, folder in (("before", student), ("after", out)):
+        got = MotionPipeline.from_pretrained(folder, device="cpu").denoise(prompts, lengths, seed=seeds, steps=1,
+                                                                           guidance_scale=1.0)
+        gap[name] = sum(float(((got[i, :n] - target[i, :n]) ** 2).mean()) for i, n in enumerate(lengths))
+    assert gap["after"] < 0.8 * gap["before"], gap
+
+
+def test_a_killed_regression_run_resumes_exactly(teacher, student, corpus, text_cache, tmp_path):
+    whole, part = tmp_path / "whole", tmp_path / "part"
+    assert main(_regression_args(teacher, student, corpus, text_cache, whole, "--steps", "4")) == 0
+    assert main(_regression_args(teacher, student, corpus, text_cache, part, "--steps", "4", "--stop-after", "2")) == 0
+    assert main(_regression_args(teacher, student, corpus, text_cache, part, "--steps", "4", "--resume")) == 0
+    losses = (lambda run: [r.split(",")[1] for r in (run / "log.csv").read_text().splitlines()[1:]])
+    assert losses(part) == losses(whole) and len(losses(whole)) == 4
+
+
+def test_regression_refuses_bad_inputs(teacher, student, corpus, text_cache, tmp_path, capsys):
+    capsys.readouterr()
+    for extra, says in ((["--teacher-sampler", "sde-dpmsolver++-karras"], "--teacher-sampler must be deterministic"),
+                        (["--teacher-steps", "0"], "--teacher-steps"), (["--method", "progressive"], "--method")):
+        assert main(_regression_args(teacher, student, corpus, text_cache, tmp_path / "x", *extra)) == 2
+        err = capsys.readouterr().err.strip()
+        assert says in err and "\n" not in err
+    assert main(_distil_args(teacher, corpus, text_cache, tmp_path / "y", "--method", "regression",
+                             "--init-from", str(teacher))) == 2  # a teacher is no student to start from
+    assert "not a distilled student" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y" / "checkpoint").exists()
+
+
 # --- the student through the pipeline, smf generate and smf bench ---------------------------------------------
 
 

@@ -13,7 +13,7 @@ from stablemofusion.motion.skeleton import HUMANML3D
 from stablemofusion.motion.features import joints_from_features
 from stablemofusion.motion.files import load_motion
 from stablemofusion.pipeline import MotionPipeline, default_model_path
-from stablemofusion.pipelines.settings import GUIDANCE, SAMPLER, STEPS, STUDENT
+from stablemofusion.pipelines.settings import SAMPLER, STEPS, STUDENT
 from stablemofusion.text import TEXT_SIDE_FILES
 
 
@@ -60,8 +60,10 @@ def test_the_default_model_is_a_one_step_student_with_its_teacher_inside():
 def test_teacher_true_selects_the_teacher_with_the_students_text_side(pipe, teacher):
     assert pipe.student and (pipe.settings().sampler, pipe.settings().steps) == (STUDENT, 1)
     assert not teacher.student and (teacher.settings().sampler, teacher.settings().steps) == (SAMPLER, STEPS)
-    # each model's own default guidance: the teacher's chosen on the validation split (docs/inference.md)
-    assert teacher.config.guidance == 1.0 and pipe.config.guidance is None and pipe.settings().guidance_scale == GUIDANCE
+    # each model's own default guidance: the teacher's chosen on the validation split (docs/inference.md); the
+    # student was regressed on the teacher's samples at that scale (smf distil --method regression), so it is its own
+    assert teacher.config.guidance == 1.0 and pipe.config.guidance == 1.0 and pipe.settings().guidance_scale == 1.0
+    assert pipe.config.distil.method == "regression" and pipe.config.distil.guidance_min == 1.0
     assert teacher.known_actions is not None and teacher.length_estimator is not None
     assert teacher.predict_seconds("a person walks forward") == pipe.predict_seconds("a person walks forward")
 
@@ -77,7 +79,7 @@ def test_default_model_generates_plausible_motion(pipe, teacher, which):
 
 
 def test_generate_with_teacher_flag_samples_with_the_teacher(tmp_path):
-    for flags, (sampler, steps, student, guidance) in (([], (STUDENT, 1, True, GUIDANCE)),
+    for flags, (sampler, steps, student, guidance) in (([], (STUDENT, 1, True, 1.0)),
                                                        (["--teacher"], (SAMPLER, STEPS, False, 1.0))):
         out = tmp_path / ("t" if flags else "s")
         assert main(["generate", "a person walks forward", "--seconds", "2", "--format", "json", "--out", str(out),

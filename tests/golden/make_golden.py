@@ -2,7 +2,8 @@
 code's outputs to them. The shipped pair is the v3 pair of session 11 (teacher: issue 22's run b2 at step 8,000; its
 1-step student), with edits at STUDENT_EDIT_STEPS = 4; regenerated in session 13 when the teacher's config got its
 own default guidance scale 1.0 (the student's outputs unchanged; with guidance 2.5 the teacher's were too: keys
-``t2m_cfg_*`` are the earlier file's ``t2m_*``).
+``t2m_cfg_*`` are the earlier file's ``t2m_*``); regenerated in session 14 for the v4 student (the v3 student
+regressed on the teacher's samples at guidance 1.0, ``smf distil --method regression``; the teacher unchanged).
 The teacher (``default_model/teacher``, selected explicitly with ``teacher=True``: SDE-DPM-Solver++ 2M Karras, 10
 steps, its default guidance) on every task (text to motion, footskate post, a timeline, every edit mode, x_t imputation, the HTTP
 response), and the student (``default_model``: lcm, 1 step; edits at STUDENT_EDIT_STEPS) on a few, the HTTP

@@ -127,10 +127,11 @@ def student_from_teacher(teacher, init_from: str | Path | None = None) -> torch.
     student folder ``init_from``."""
     from ..models.base import build_denoiser
 
-    student = build_denoiser(replace(teacher.config.model, guidance=True))
+    model = replace(teacher.config.model, guidance=True)
+    student = build_denoiser(model)
     if init_from is not None:
         start = load_checkpoint(init_from)
-        if not start.config.student or start.config.to_dict()["model"] != student_config_dict(teacher):
+        if not start.config.student or start.config.model.to_dict() != model.to_dict():
             raise SMFError(f"--init-from {init_from}: not a distilled student of this teacher's architecture")
         student.load_state_dict(start.model.state_dict())
         return student
@@ -139,11 +140,6 @@ def student_from_teacher(teacher, init_from: str | Path | None = None) -> torch.
         raise SMFError(f"the teacher's weights do not fit its student (missing {missing[:3]}, "
                        f"unexpected {unexpected[:3]})")
     return student
-
-
-def student_config_dict(teacher) -> dict:
-    """The ``model`` block of the teacher's students' config (its own, with the guidance input)."""
-    return replace(teacher.config, model=replace(teacher.config.model, guidance=True)).to_dict()["model"]
 
 
 def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool = False,

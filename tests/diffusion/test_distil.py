@@ -210,21 +210,11 @@ def test_distil_refuses_bad_inputs(teacher, student, corpus, text_cache, tmp_pat
 # --- regression on the teacher's samples (--method regression) -------------------------------------------------
 
 
-def _per_item_noise(seeds, lengths, dim, steps):
-    """The pipeline's noise for per-item seeds (diffusion.sampling.Noise): the initial (B, T, D) draw, then the
-    (steps, B, T, D) step noise drawn at once, as its sampling call draws them."""
-    gens = [torch.Generator().manual_seed(s) for s in seeds]
-    eps, step_noise = torch.zeros(len(seeds), max(lengths), dim), torch.zeros(steps, len(seeds), max(lengths), dim)
-    for i, (g, n) in enumerate(zip(gens, lengths)):
-        eps[i, :n] = torch.randn(1, n, dim, generator=g)[0]
-        step_noise[:, i, :n] = torch.randn(steps, n, dim, generator=g)
-    return eps, step_noise
-
-
 def test_regression_targets_and_predictions_are_the_pipelines_samples(teacher, student):
     """What regression distillation compares is what the pipeline draws: the teacher's deterministic sample and
     the student's consistency sample from the same noise (so the student learns the teacher's noise-to-motion map)."""
     from stablemofusion.diffusion.distil import _student_sample, _teacher_sample
+    from stablemofusion.diffusion.sampling import Noise
     from stablemofusion.pipeline import MotionPipeline
 
     prompts, lengths, seeds = ["a person walks", "a person runs"], [40, 48], [3, 4]
@@ -236,7 +226,8 @@ def test_regression_targets_and_predictions_are_the_pipelines_samples(teacher, s
         tokens, tmask = c.encode_text(prompts)
         mask = torch.arange(max(lengths))[None] < torch.tensor(lengths)[:, None]
         table = c.solver(sampler, steps)
-        eps, step_noise = _per_item_noise(seeds, lengths, want.shape[-1], steps)
+        noise = Noise(seeds, lengths, want.shape[-1], "cpu")  # the pipeline's draws, in its order
+        eps, step_noise = noise.draw(), noise.draw(steps)
         drop, ws = torch.zeros(2, dtype=torch.bool), torch.full((2,), w)
         with torch.no_grad():
             if pipe.student:

@@ -14,6 +14,8 @@ _FLAGS = {  # DistilConfig field -> help
               "teacher's deterministic sample from the same noise; start it from a consistency student)",
     "init_from": "a student folder to start from (default: the teacher's weights)",
     "teacher_sampler": "regression: the teacher's deterministic sampler", "teacher_steps": "regression: its steps",
+    "length_mix": "regression: fraction of steps sampled at one length drawn uniformly in [min, max] frames "
+                  "instead of the clips' lengths",
     "steps": "total distillation steps", "batch_size": "batch", "lr": "AdamW learning rate (constant after warm-up)",
     "weight_decay": "AdamW weight decay", "warmup": "steps of linear learning-rate warm-up",
     "grad_clip": "gradient norm clip", "target_decay": "EMA decay of the target network (the saved weights)",

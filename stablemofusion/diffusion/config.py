@@ -17,6 +17,8 @@ from ..models.base import ModelConfig
 from ..motion.skeleton import HUMANML3D, get_skeleton
 from .schedule import ScheduleConfig
 
+LENGTH_MULTIPLE = 4  # generated lengths are whole multiples of this many frames (pipelines, distillation)
+
 
 @dataclass
 class TrainConfig:
@@ -75,13 +77,18 @@ class DistilConfig:
     (x_{t_n}, w). "regression": each step draws noise for a training batch's captions and lengths, runs the
     teacher's whole deterministic sampler from it (``teacher_sampler``, ``teacher_steps``, guidance w) and
     pulls the student's ``sample_steps``-step sample from the same noise towards it; the saved weights are
-    the EMA of the student (``target_decay``). Usually from a consistency student (``init_from``)."""
+    the EMA of the student (``target_decay``). Usually from a consistency student (``init_from``); with
+    ``length_mix`` some steps sample their captions at a length drawn uniformly instead of the clips'."""
 
     teacher: str = ""  # the teacher folder (checkpoint, run or exported model)
     method: str = "consistency"  # consistency | regression
     init_from: str | None = None  # a student folder to start from (None: the teacher's weights)
     teacher_sampler: str = "dpmsolver++-karras"  # regression: the teacher's sampler (deterministic, precomputed)
     teacher_steps: int = 10  # regression: the teacher's sampling steps
+    # regression: the fraction of steps whose whole batch is sampled at one length drawn uniformly (a multiple of
+    # LENGTH_MULTIPLE frames in [min_frames, max_frames]) instead of its clips' lengths: users ask for any length, and a caption
+    # is otherwise only ever distilled at its clip's (a 2 s raise asked for at 4 s was drawn as a wave)
+    length_mix: float = 0.0
     steps: int = 4_000
     batch_size: int = 64
     lr: float = 1e-4

@@ -47,7 +47,7 @@ from ..data.dataset import MotionTextDataset
 from ..errors import SMFError
 from .checkpoint import CHECKPOINT_DIR, CONFIG, EMA, MODEL, STATE, companion_files, load_checkpoint, \
     load_training_state, read_config, resolve, save_checkpoint
-from .config import DistilConfig
+from .config import LENGTH_MULTIPLE, DistilConfig
 from .samplers import CONSISTENCY_GRID, STUDENT_SAMPLER, TIMESTEP_SCALING
 from .sampling import guided, model_denoiser, run_solver
 from .solvers import consistency_scalings, solver_table
@@ -94,6 +94,10 @@ def check_distil_config(cfg: DistilConfig) -> None:
                            f"ddim), not {cfg.teacher_sampler!r}: the target must be a function of the noise")
         if cfg.teacher_steps < 1:
             raise SMFError(f"--teacher-steps must be at least 1, got {cfg.teacher_steps}")
+    if not 0 <= cfg.length_mix <= 1:
+        raise SMFError(f"--length-mix must be in [0, 1], got {cfg.length_mix}")
+    if cfg.length_mix and cfg.method != "regression":
+        raise SMFError("--length-mix needs --method regression (consistency distillation noises the clips themselves)")
 
 
 def distil_lr(cfg: DistilConfig, step: int) -> float:
@@ -107,6 +111,18 @@ def param_groups(student: torch.nn.Module, guidance_lr_scale: float) -> list[dic
     for name, p in student.named_parameters():
         parts[name.startswith(_GUIDANCE)].append(p)
     return [{"params": parts[False], "lr_scale": 1.0}, {"params": parts[True], "lr_scale": float(guidance_lr_scale)}]
+
+
+def drawn_length(cfg: DistilConfig, step: int, min_frames: int, max_frames: int) -> int | None:
+    """The one length (frames, a multiple of LENGTH_MULTIPLE in [min_frames, max_frames]) step ``step`` samples its batch at,
+    or None (the clips' own lengths) for a fraction 1 - ``cfg.length_mix`` of steps; seeded from (seed, step)."""
+    if not cfg.length_mix:
+        return None
+    g = torch.Generator().manual_seed(_mix(cfg.seed, step, 2))
+    if float(torch.rand((), generator=g)) >= cfg.length_mix:
+        return None
+    lo, hi = -(-min_frames // LENGTH_MULTIPLE), max_frames // LENGTH_MULTIPLE
+    return LENGTH_MULTIPLE * int(torch.randint(lo, hi + 1, (), generator=g))
 
 
 def skip_grid(T: int, grid: int) -> torch.Tensor:
@@ -248,6 +264,10 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
                 with accelerator.autocast():
                     pred_f = _consistency(student, x_hi, t_hi, tokens, tmask, drop, mask, w)
             else:  # the same noise through the teacher's whole sampler and the student's
+                frames = drawn_length(cfg, step, ds.min_frames, ds.max_frames)
+                if frames is not None:  # this step samples every caption at one drawn length
+                    mask = torch.ones(B, frames, dtype=mask.dtype, device=device)
+                    noise = torch.randn((B, frames, x0.shape[-1]), generator=g)
                 eps = (noise * mask.cpu()[..., None]).to(device)
                 step_noise = torch.randn((cfg.sample_steps,) + tuple(x0.shape), generator=g).to(device)
                 with torch.no_grad(), accelerator.autocast():

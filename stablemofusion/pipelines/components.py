@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from ..diffusion.checkpoint import companion_file, load_checkpoint, teacher_folder
-from ..diffusion.config import CheckpointConfig
+from ..diffusion.config import LENGTH_MULTIPLE, CheckpointConfig
 from ..diffusion.engine import SolverEngine, check_engine
 from ..diffusion.solvers import SolverTable, solver_table
 from ..errors import SMFError
@@ -149,7 +149,7 @@ class Components:
         return [int(f) / self.fps for f in frames]
 
     def frames_for(self, seconds: float | None, frames: int | None) -> int:
-        """A requested duration in frames, a multiple of 4, at least the model's shortest (warning if changed);
+        """A requested duration in frames, a multiple of ``LENGTH_MULTIPLE``, at least the model's shortest (warning if changed);
         lengths past ``max_frames`` are kept: they are generated window by window (timelines)."""
         if frames is None:
             seconds = DEFAULT_SECONDS if seconds is None else seconds
@@ -158,7 +158,7 @@ class Components:
             frames = int(round(seconds * self.fps))
         if frames <= 0:
             raise SMFError(f"frames must be positive, got {frames}")
-        n = max(frames, self.min_frames) // 4 * 4
+        n = max(frames, self.min_frames) // LENGTH_MULTIPLE * LENGTH_MULTIPLE
         if n != frames:
             warnings.warn(f"length {frames} frames ({frames / self.fps:.2f} s) clamped to {n} frames "
                           f"({n / self.fps:.2f} s), the range this model was trained on", LengthClampedWarning,

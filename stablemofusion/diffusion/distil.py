@@ -269,7 +269,7 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
                     mask = torch.ones(B, frames, dtype=mask.dtype, device=device)
                     noise = torch.randn((B, frames, x0.shape[-1]), generator=g)
                 eps = (noise * mask.cpu()[..., None]).to(device)
-                step_noise = torch.randn((cfg.sample_steps,) + tuple(x0.shape), generator=g).to(device)
+                step_noise = torch.randn((cfg.sample_steps,) + tuple(eps.shape), generator=g).to(device)
                 with torch.no_grad(), accelerator.autocast():
                     target_f = _teacher_sample(teacher_model, eps, tokens, tmask, drop, mask, w, teacher_table).float()
                 student.train(cfg.dropout)

@@ -11,7 +11,7 @@ import torch
 from stablemofusion.cli.main import main
 from stablemofusion.diffusion.checkpoint import load_checkpoint, read_config
 from stablemofusion.diffusion.config import CheckpointConfig, DistilConfig
-from stablemofusion.diffusion.distil import distil, masked_huber, skip_grid, student_from_teacher
+from stablemofusion.diffusion.distil import distil, drawn_length, masked_huber, skip_grid, student_from_teacher
 from stablemofusion.diffusion.samplers import make_sampler
 from stablemofusion.diffusion.solvers import solver_table
 from stablemofusion.diffusion.train import TrainConfig, train
@@ -265,26 +265,78 @@ def test_regression_distillation_moves_the_student_towards_the_teacher(teacher, 
     assert gap["after"] < 0.8 * gap["before"], gap
 
 
-def test_a_killed_regression_run_resumes_exactly(teacher, student, corpus, text_cache, tmp_path):
+@pytest.mark.parametrize("mix", [[], ["--length-mix", "0.5"]])
+def test_a_killed_regression_run_resumes_exactly(teacher, student, corpus, text_cache, tmp_path, mix):
     whole, part = tmp_path / "whole", tmp_path / "part"
-    assert main(_regression_args(teacher, student, corpus, text_cache, whole, "--steps", "4")) == 0
-    assert main(_regression_args(teacher, student, corpus, text_cache, part, "--steps", "4", "--stop-after", "2")) == 0
-    assert main(_regression_args(teacher, student, corpus, text_cache, part, "--steps", "4", "--resume")) == 0
+    assert main(_regression_args(teacher, student, corpus, text_cache, whole, "--steps", "4", *mix)) == 0
+    assert main(_regression_args(teacher, student, corpus, text_cache, part, "--steps", "4", "--stop-after", "2",
+                                 *mix)) == 0
+    assert main(_regression_args(teacher, student, corpus, text_cache, part, "--steps", "4", "--resume", *mix)) == 0
     losses = (lambda run: [r.split(",")[1] for r in (run / "log.csv").read_text().splitlines()[1:]])
     assert losses(part) == losses(whole) and len(losses(whole)) == 4
+
+
+def test_drawn_lengths_are_uniform_multiples_of_4_on_a_fraction_of_steps():
+    """--length-mix P: a fraction P of steps samples at one length, a multiple of 4 frames in [min, max] drawn
+    uniformly; the rest (and every step at P = 0) keep the clips' lengths; the draw is a function of (seed, step)."""
+    cfg = DistilConfig(teacher="t", method="regression", length_mix=0.5)
+    draws = [drawn_length(cfg, s, 39, 196) for s in range(2000)]
+    got = [n for n in draws if n is not None]
+    assert 0.45 < len(got) / len(draws) < 0.55
+    assert all(n % 4 == 0 and 40 <= n <= 196 for n in got) and {40, 196} <= set(got)
+    assert abs(np.mean(got) - 118) < 3  # uniform over 40, 44, ..., 196
+    assert draws == [drawn_length(cfg, s, 39, 196) for s in range(2000)]
+    assert draws != [drawn_length(replace(cfg, seed=1), s, 39, 196) for s in range(2000)]
+    assert all(drawn_length(replace(cfg, length_mix=0.0), s, 39, 196) is None for s in range(100))
+    assert all(drawn_length(replace(cfg, length_mix=1.0), s, 39, 196) is not None for s in range(100))
+
+
+def test_length_mix_samples_teacher_and_student_at_the_drawn_length(teacher, student, corpus, text_cache, tmp_path,
+                                                                     monkeypatch):
+    """The steps drawn by --length-mix run the teacher and the student on noise of that length with every frame
+    valid; the others on the clips' lengths (their padding masked)."""
+    import stablemofusion.diffusion.distil as D
+
+    seen = {"teacher": [], "student": []}
+
+    def spy(name, fn):
+        def wrapped(model, eps, tokens, tmask, drop, mask, *rest):
+            seen[name].append((tuple(eps.shape), mask.shape[1], bool(mask.all())))
+            return fn(model, eps, tokens, tmask, drop, mask, *rest)
+        return wrapped
+
+    monkeypatch.setattr(D, "_teacher_sample", spy("teacher", D._teacher_sample))
+    monkeypatch.setattr(D, "_student_sample", spy("student", D._student_sample))
+    assert main(_regression_args(teacher, student, corpus, text_cache, tmp_path / "mix", "--steps", "8",
+                                 "--length-mix", "0.5")) == 0
+    cfg = read_config(tmp_path / "mix")
+    assert cfg.distil.length_mix == 0.5
+    drawn = [drawn_length(cfg.distil, s, 16, cfg.max_frames) for s in range(8)]
+    assert any(n is None for n in drawn) and any(n is not None for n in drawn)
+    assert seen["teacher"] == seen["student"] and len(seen["teacher"]) == 8
+    for n, (shape, frames, full) in zip(drawn, seen["teacher"]):
+        assert shape[:2] == (4, frames)
+        if n is not None:
+            assert frames == n and full
+        else:
+            assert frames <= 196
 
 
 def test_regression_refuses_bad_inputs(teacher, student, corpus, text_cache, tmp_path, capsys):
     capsys.readouterr()
     for extra, says in ((["--teacher-sampler", "sde-dpmsolver++-karras"], "--teacher-sampler must be deterministic"),
-                        (["--teacher-steps", "0"], "--teacher-steps"), (["--method", "progressive"], "--method")):
+                        (["--teacher-steps", "0"], "--teacher-steps"), (["--method", "progressive"], "--method"),
+                        (["--length-mix", "1.5"], "--length-mix must be in [0, 1]")):
         assert main(_regression_args(teacher, student, corpus, text_cache, tmp_path / "x", *extra)) == 2
         err = capsys.readouterr().err.strip()
         assert says in err and "\n" not in err
     assert main(_distil_args(teacher, corpus, text_cache, tmp_path / "y", "--method", "regression",
                              "--init-from", str(teacher))) == 2  # a teacher is no student to start from
     assert "not a distilled student" in capsys.readouterr().err
+    assert main(_distil_args(teacher, corpus, text_cache, tmp_path / "z", "--length-mix", "0.5")) == 2
+    assert "--length-mix needs --method regression" in capsys.readouterr().err
     assert not (tmp_path / "x").exists() and not (tmp_path / "y" / "checkpoint").exists()
+    assert not (tmp_path / "z").exists()
 
 
 # --- the student through the pipeline, smf generate and smf bench ---------------------------------------------

@@ -194,8 +194,9 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
     config = replace(tcfg, model=replace(tcfg.model, guidance=True), step=None, export=None,
                      guidance=cfg.guidance_min if fixed else None,
                      distil=replace(cfg, teacher=str(resolve(cfg.teacher).resolve())))
+    # the fused kernel on any device, as `smf train` (diffusion/train.py)
     optimizer = torch.optim.AdamW(param_groups(student, cfg.guidance_lr_scale), lr=cfg.lr,
-                                  weight_decay=cfg.weight_decay, fused=device.type == "cuda")
+                                  weight_decay=cfg.weight_decay, fused=True)
     start = 0
     if resume:
         state = load_training_state(out / CHECKPOINT_DIR)

@@ -113,9 +113,9 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     model = build_denoiser(model_cfg)
     if cfg.init_from and not resume:
         _init_weights(model, cfg.init_from)
-    # the fused CUDA kernel on a GPU (one launch for all parameters); the reference loop on a CPU
-    optimizer = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
-                                  fused=accelerator.device.type == "cuda")
+    # the fused kernel (one pass over all parameters) on a GPU and on the CPU: on this 2-core CPU 6 ms per step
+    # for the 5.5M-parameter small-sentence model against 21 ms for the reference loop (session 15)
+    optimizer = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, fused=True)
     ema = EMAModel(model.parameters(), decay=cfg.ema_decay)
     start = 0
     config = CheckpointConfig.for_skeleton(model_cfg, ds.skeleton.name, schedule=cfg.schedule,

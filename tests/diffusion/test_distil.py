@@ -247,21 +247,35 @@ def _regression_args(teacher, student, corpus, text_cache, out, *extra):
 
 def test_regression_distillation_moves_the_student_towards_the_teacher(teacher, student, corpus, text_cache,
                                                                      tmp_path):
+    """A student started away from the teacher (its weights perturbed) ends closer to the teacher's samples for
+    the same noise (the fixture student is already within rounding of this tiny teacher, so a few steps from it
+    would show rounding, not learning)."""
+    import shutil
+
+    from safetensors.torch import load_file, save_file
+
     from stablemofusion.pipeline import MotionPipeline
 
+    far = tmp_path / "far"
+    shutil.copytree(student, far)
+    weights = load_file(far / "checkpoint" / "ema.safetensors")
+    g = torch.Generator().manual_seed(0)
+    save_file({k: v + 0.02 * torch.randn(v.shape, generator=g) if v.is_floating_point() else v
+               for k, v in weights.items()}, far / "checkpoint" / "ema.safetensors")
     out = tmp_path / "reg"
-    assert main(_regression_args(teacher, student, corpus, text_cache, out, "--steps", "12", "--lr", "1e-3")) == 0
+    assert main(_regression_args(teacher, far, corpus, text_cache, out, "--steps", "12", "--lr", "1e-3")) == 0
     cfg = read_config(out)
-    assert cfg.student and cfg.distil.method == "regression" and cfg.distil.init_from == str(student)
+    assert cfg.student and cfg.distil.method == "regression" and cfg.distil.init_from == str(far)
     assert cfg.guidance == 1.0  # regressed on the teacher at one scale: that scale is its default
     prompts, lengths, seeds = ["a person walks", "a person runs", "a person jumps"], [40, 48, 44], [5, 6, 7]
     target = MotionPipeline.from_pretrained(teacher, device="cpu").denoise(
         prompts, lengths, seed=seeds, guidance_scale=1.0, sampler="dpmsolver++-karras", steps=3)
     gap = {}
-    for name, folder in (("before", student), ("after", out)):
+    for name, folder in (("before", far), ("after", out)):
         got = MotionPipeline.from_pretrained(folder, device="cpu").denoise(prompts, lengths, seed=seeds, steps=1,
                                                                            guidance_scale=1.0)
         gap[name] = sum(float(((got[i, :n] - target[i, :n]) ** 2).mean()) for i, n in enumerate(lengths))
+    assert gap["after"] < 0.5 * gap["before"], gap  # 0.24-0.26 with one or two threads
     assert gap["after"] < 0.8 * gap["before"], gap
 
 

@@ -85,9 +85,9 @@ class DistilConfig:
     init_from: str | None = None  # a student folder to start from (None: the teacher's weights)
     teacher_sampler: str = "dpmsolver++-karras"  # regression: the teacher's sampler (deterministic, precomputed)
     teacher_steps: int = 10  # regression: the teacher's sampling steps
-    # regression: the fraction of steps whose whole batch is sampled at one length drawn uniformly (a multiple of
-    # LENGTH_MULTIPLE frames in [min_frames, max_frames]) instead of its clips' lengths: users ask for any length, and a caption
-    # is otherwise only ever distilled at its clip's (a 2 s raise asked for at 4 s was drawn as a wave)
+    # regression: the fraction of steps whose whole batch is sampled at one length drawn uniformly (a multiple
+    # of LENGTH_MULTIPLE frames in [min_frames, max_frames]) instead of its clips' lengths: users ask for any
+    # length, and a caption is otherwise only ever distilled at its clip's
     length_mix: float = 0.0
     steps: int = 4_000
     batch_size: int = 64

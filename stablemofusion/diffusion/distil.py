@@ -114,8 +114,9 @@ def param_groups(student: torch.nn.Module, guidance_lr_scale: float) -> list[dic
 
 
 def drawn_length(cfg: DistilConfig, step: int, min_frames: int, max_frames: int) -> int | None:
-    """The one length (frames, a multiple of LENGTH_MULTIPLE in [min_frames, max_frames]) step ``step`` samples its batch at,
-    or None (the clips' own lengths) for a fraction 1 - ``cfg.length_mix`` of steps; seeded from (seed, step)."""
+    """The one length (frames, a multiple of LENGTH_MULTIPLE in [min_frames, max_frames]) that step ``step``
+    samples its whole batch at, or None (the clips' own lengths) on a fraction 1 - ``cfg.length_mix`` of steps;
+    seeded from (seed, step)."""
     if not cfg.length_mix:
         return None
     g = torch.Generator().manual_seed(_mix(cfg.seed, step, 2))

@@ -149,8 +149,8 @@ class Components:
         return [int(f) / self.fps for f in frames]
 
     def frames_for(self, seconds: float | None, frames: int | None) -> int:
-        """A requested duration in frames, a multiple of ``LENGTH_MULTIPLE``, at least the model's shortest (warning if changed);
-        lengths past ``max_frames`` are kept: they are generated window by window (timelines)."""
+        """A requested duration in frames, a multiple of ``LENGTH_MULTIPLE``, at least the model's shortest
+        (warning if changed); lengths past ``max_frames`` are kept: they are generated window by window (timelines)."""
         if frames is None:
             seconds = DEFAULT_SECONDS if seconds is None else seconds
             if not np.isfinite(seconds) or seconds <= 0:

@@ -48,7 +48,7 @@ from ..errors import SMFError
 from .checkpoint import CHECKPOINT_DIR, CONFIG, EMA, MODEL, STATE, companion_files, load_checkpoint, \
     load_training_state, read_config, resolve, save_checkpoint
 from .config import LENGTH_MULTIPLE, DistilConfig
-from .samplers import CONSISTENCY_GRID, STUDENT_SAMPLER, TIMESTEP_SCALING
+from .samplers import CONSISTENCY_GRID, STUDENT_SAMPLER, TIMESTEP_SCALING, parse_sampler
 from .sampling import guided, model_denoiser, run_solver
 from .solvers import consistency_scalings, solver_table
 from .train import _mix, masked_mse, open_log
@@ -86,8 +86,6 @@ def check_distil_config(cfg: DistilConfig) -> None:
     if cfg.method not in METHODS:
         raise SMFError(f"--method must be one of {', '.join(METHODS)}, not {cfg.method!r}")
     if cfg.method == "regression":
-        from .samplers import parse_sampler
-
         _, spec, _ = parse_sampler(cfg.teacher_sampler)
         if spec.stochastic or not spec.fast:
             raise SMFError(f"--teacher-sampler must be deterministic with a precomputed form (e.g. dpmsolver++-karras, "

@@ -1,4 +1,5 @@
-"""Caption augmentation for training: word dropout, synonym swap, typos and case/punctuation noise.
+"""Training augmentation. Captions: word dropout, synonym swap, typos and case/punctuation noise; motions:
+slowed copies (time warp).
 
 People type fragments, misspell, drop punctuation and pick their own words; template captions do none
 of that. ``augment_caption`` perturbs a caption the way a user's prompt differs from it, seeded by the
@@ -12,6 +13,12 @@ import random
 import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+
+import numpy as np
+
+from ..motion.features import features_from_joints, joints_from_features
+from ..motion.files import resample
+from ..motion.skeleton import Skeleton
 
 _WORD = re.compile(r"[A-Za-z']+")
 _KEEP = frozenset("both not back backward backwards forward".split())  # meaning-bearing small words
@@ -78,4 +85,15 @@ def augment_caption(caption: str, rng: random.Random, synonyms: dict[str, tuple[
     return text
 
 
-__all__ = ["AugmentConfig", "augment_caption", "synonym_groups"]
+def slowed_features(features: np.ndarray, factor: float, skeleton: str | Skeleton = "humanml3d") -> np.ndarray:
+    """Features (T, D) -> features (floor((T-1) * factor), D) of the same motion played ``factor`` >= 1 times
+    slower: decoded to joints (the exact inverse), resampled linearly in time, encoded again (uniform bones,
+    HumanML3D's first-frame convention, foot contacts from the slower feet). Poses and path are kept; every
+    velocity shrinks by ``factor``. A raise that lasts 2 s becomes one of up to 2 s x factor."""
+    if not factor >= 1.0:
+        raise ValueError(f"slowing factor must be >= 1, got {factor}")
+    joints = joints_from_features(np.asarray(features, dtype=np.float64), skeleton)
+    return features_from_joints(resample(joints, 1.0, float(factor)), skeleton)
+
+
+__all__ = ["AugmentConfig", "augment_caption", "slowed_features", "synonym_groups"]

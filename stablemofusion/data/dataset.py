@@ -13,6 +13,7 @@ from torch.utils.data import Dataset
 from ..errors import SMFError
 from ..motion.features import feature_slices
 from ..motion.skeleton import Skeleton
+from .augment import slowed_features
 from .layout import CaptionLine, MotionLayout
 
 MAX_SOURCE_FRAMES = 200  # official upper bound: clips (and sub-clips) with >= 200 frames are dropped
@@ -38,6 +39,7 @@ def biased_std(std: np.ndarray, skeleton: str | Skeleton, feat_bias: float) -> n
 
 
 SHORT_CROP_MIN_FRACTION = 0.5  # a short crop keeps at least this fraction of the clip's training length
+TIME_WARP_MAX = 2.0  # a time-warped item is its motion slowed by a factor drawn uniformly in [1, TIME_WARP_MAX]
 
 
 class MotionTextDataset(Dataset):
@@ -50,13 +52,16 @@ class MotionTextDataset(Dataset):
     multiple of ``unit_length`` (one unit shorter with probability 1/3 when unit_length < 10), at most
     ``max_frames``. With ``seed`` set, item ``i`` of epoch ``e`` is a function of (seed, e, i), so results
     are reproducible and independent of DataLoader workers: call :meth:`set_epoch` each epoch. With
-    ``seed=None`` every call draws fresh randomness.
+    ``seed=None`` every call draws fresh randomness. With ``time_warp`` p, an item is, with probability p,
+    its motion slowed by a factor in [1, TIME_WARP_MAX] before the crop (data/augment.py ``slowed_features``),
+    so that an action whose clips are all short (raising a hand: at most 3 s) is also seen at 4 s and longer.
     """
 
     def __init__(self, root: str | os.PathLike | MotionLayout, split: str = "train", *,
                  skeleton: str | Skeleton | None = None, min_frames: int | None = None, max_frames: int | None = None,
                  unit_length: int = 4, feat_bias: float = 5.0, seed: int | None = None,
-                 ids: Sequence[str] | None = None, short_crops: float = 0.0):
+                 ids: Sequence[str] | None = None, short_crops: float = 0.0,
+                 time_warp: float = 0.0):
         self.layout = root if isinstance(root, MotionLayout) else MotionLayout(root, skeleton)
         self.layout.validate()
         sk = self.skeleton = self.layout.skeleton
@@ -72,6 +77,9 @@ class MotionTextDataset(Dataset):
         if not 0.0 <= short_crops <= 1.0:
             raise SMFError(f"short_crops is a probability in [0, 1], got {short_crops}")
         self.short_crops = float(short_crops)
+        if not 0.0 <= time_warp <= 1.0:
+            raise SMFError(f"time_warp is a probability in [0, 1], got {time_warp}")
+        self.time_warp = float(time_warp)
         self.seed = seed
         self.epoch, self.copy = 0, 0
         self.mean = np.asarray(self.layout.mean, dtype=np.float32)
@@ -141,20 +149,27 @@ class MotionTextDataset(Dataset):
 
     def __getitem__(self, i: int) -> dict[str, Any]:
         """dict: motion (max_frames, D) float32 normalised and zero-padded, mask (max_frames,) bool,
-        length int, caption str, tokens list[str], id str, frames (start, end) of the crop in the source file."""
+        length int, caption str, tokens list[str], id str, frames (start, end) of the source file the crop
+        covers, warp float (the slowing factor, 1.0 when the item is not time-warped)."""
         if not -len(self) <= i < len(self):
             raise IndexError(f"index {i} out of range for {len(self)} items")
         e = self.entries[i]
         rng = self._rng(i % len(self))
         cap = e.captions[int(rng.integers(len(e.captions)))]
-        n = self.crop_length(e.end - e.start, rng)
-        a = e.start + int(rng.integers(0, e.end - e.start - n + 1))
+        source, warp = self.motions[e.index][e.start:e.end], 1.0
+        if self.time_warp > 0 and rng.random() < self.time_warp:  # no draw at all when off: streams unchanged
+            warp = float(rng.uniform(1.0, TIME_WARP_MAX))
+            source = self.normalize(slowed_features(self.denormalize(source), warp, self.skeleton)).astype(np.float32)
+        n = self.crop_length(len(source), rng)
+        a = int(rng.integers(0, len(source) - n + 1))
         motion = torch.zeros(self.max_frames, self.mean.shape[0], dtype=torch.float32)
-        motion[:n] = torch.from_numpy(self.motions[e.index][a:a + n])
+        motion[:n] = torch.from_numpy(source[a:a + n])
         mask = torch.zeros(self.max_frames, dtype=torch.bool)
         mask[:n] = True
+        frames = (e.start + a, e.start + a + n) if warp == 1.0 else \
+            (e.start + int(a / warp), min(e.end, e.start + int(np.ceil((a + n - 1) / warp)) + 1))
         return {"motion": motion, "mask": mask, "length": n, "caption": cap.caption, "tokens": list(cap.tokens),
-                "id": self.ids[e.index], "frames": (a, a + n)}
+                "id": self.ids[e.index], "frames": frames, "warp": warp}
 
     def _stats_like(self, x):
         if isinstance(x, torch.Tensor):
@@ -174,7 +189,7 @@ class MotionTextDataset(Dataset):
 
 
 def collate(batch: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """DataLoader collate: motion (B, T, D), mask (B, T), length (B,) long, frames (B, 2) long; lists of
+    """DataLoader collate: motion (B, T, D), mask (B, T), length (B,) long, frames (B, 2) long, warp (B,); lists of
     caption / tokens / id."""
     if not batch:
         raise SMFError("collate: empty batch")
@@ -183,6 +198,7 @@ def collate(batch: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "mask": torch.stack([b["mask"] for b in batch]),
         "length": torch.tensor([b["length"] for b in batch], dtype=torch.long),
         "frames": torch.tensor([b["frames"] for b in batch], dtype=torch.long),
+        "warp": torch.tensor([b["warp"] for b in batch], dtype=torch.float32),
         "caption": [b["caption"] for b in batch],
         "tokens": [b["tokens"] for b in batch],
         "id": [b["id"] for b in batch],

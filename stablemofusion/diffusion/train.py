@@ -72,6 +72,8 @@ def check_train_config(cfg: TrainConfig) -> None:
         raise SMFError("--warmup, --decay-steps, --min-lr and --balance must not be negative")
     if not 0.0 <= cfg.short_crops <= 1.0:
         raise SMFError(f"--short-crops is a probability in [0, 1], got {cfg.short_crops}")
+    if not 0.0 <= cfg.time_warp <= 1.0:
+        raise SMFError(f"--time-warp is a probability in [0, 1], got {cfg.time_warp}")
 
 
 def label_balance(data: str | Path, ds: MotionTextDataset, power: float) -> tuple[int, ...] | None:
@@ -105,7 +107,8 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     out = Path(out)
     accelerator = Accelerator(mixed_precision=cfg.mixed_precision, cpu=not torch.cuda.is_available())
     ds = MotionTextDataset(data, "train", seed=cfg.seed, max_frames=cfg.max_frames, min_frames=cfg.min_frames,
-                           feat_bias=cfg.feat_bias, short_crops=cfg.short_crops)
+                           feat_bias=cfg.feat_bias, short_crops=cfg.short_crops,
+                           time_warp=cfg.time_warp)
     encoder = load_text_encoder(cfg.text_encoder).to(accelerator.device)
     cache = TextEmbeddingCache(text_cache or (out / "text-cache"), encoder)
     model_cfg = get_preset(cfg.preset, motion_dim=int(ds.mean.shape[0]), text_dim=encoder.dim)

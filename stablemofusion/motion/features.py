@@ -189,7 +189,12 @@ def features_from_joints(joints: np.ndarray, skeleton: str | Skeleton = "humanml
     quats = inverse_kinematics(pos, sk, smooth_forward=True)
     r_rot = quats[:, 0]
     root_vel = qrot(r_rot[1:], pos[1:, 0] - pos[:-1, 0])
-    yaw_vel = np.arcsin(np.clip(qmul(r_rot[1:], qinv(r_rot[:-1]))[:, 2:3], -1.0, 1.0))
+    # The yaw step as a quaternion with w >= 0: the IK's facing quaternions change sign when the facing passes
+    # 180 degrees, and arcsin of the raw y component then gives the step with the wrong sign (HumanML3D's
+    # encoder has that flaw; the decoded root path turns the wrong way from that frame on).
+    step_q = qmul(r_rot[1:], qinv(r_rot[:-1]))
+    step_q = np.where(step_q[:, :1] < 0, -step_q, step_q)
+    yaw_vel = np.arcsin(np.clip(step_q[:, 2:3], -1.0, 1.0))
     local = pos.copy()
     local[..., 0] -= pos[:, :1, 0]
     local[..., 2] -= pos[:, :1, 2]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..data.dataset import TIME_WARP_MAX
+from ..data.batches import TIME_WARP_MAX
 from ..diffusion.train import TrainConfig
 from .flags import add_config_flags, apply_threads, config_from_args
 
@@ -27,7 +27,7 @@ _FLAGS = {  # TrainConfig field -> help
     "decay_steps": "wsd: length of the final decay", "balance": "label balancing power (0 = off, 0.5 = items of a "
     "rare (dataset, content) label drawn sqrt(n_max / n) times per epoch; needs clips.csv)",
     "short_crops": "probability that a training item is cropped to a random 50-100%% of its clip (0 = whole clips)",
-    "time_warp": f"probability that a training item is its motion slowed by a random factor in [1, {TIME_WARP_MAX:g}] "
+    "time_warp": f"probability that a training batch is its motions slowed by a random factor in [1, {TIME_WARP_MAX:g}] "
                  "(0 = never)",
 }
 _TYPES = {"init_from": str}

@@ -3,7 +3,8 @@
 Each epoch is a seeded permutation of the items (optionally sorted by length within runs of
 ``bucket * batch_size`` items, so a batch holds similar lengths and pads less; optionally with item ``i``
 repeated ``repeats[i]`` times, so rare labels are seen more often); step ``s`` takes the ``s``-th slice of
-``batch_size`` items of the endless sequence of epochs.
+``batch_size`` items of the endless sequence of epochs. With time warp p, a fraction p of the steps plays
+its whole batch slower by one factor (so the batch's lengths stay alike and padding does not grow).
 """
 
 from __future__ import annotations
@@ -13,6 +14,9 @@ import functools
 import numpy as np
 
 from .dataset import MotionTextDataset, collate
+
+TIME_WARP_MAX = 2.0  # a time-warped batch is slowed by a factor drawn uniformly in [1, TIME_WARP_MAX]
+_WARP_STREAM = 7  # seeds the warp draws apart from the epoch permutations ([seed, epoch])
 
 
 @functools.lru_cache(maxsize=4)
@@ -69,14 +73,25 @@ def label_repeats(groups: list, power: float, cap: int) -> tuple[int, ...]:
     return tuple(int(min(max(round((n_max / counts[g]) ** power), 1), cap)) for g in groups)
 
 
+def batch_warp(step: int, seed: int, time_warp: float) -> float:
+    """Slowing factor of step ``step``'s batch: with probability ``time_warp`` one drawn uniformly in
+    [1, TIME_WARP_MAX], else 1.0; a function of (seed, step)."""
+    if time_warp <= 0:
+        return 1.0
+    rng = np.random.default_rng([seed, _WARP_STREAM, step])
+    return float(rng.uniform(1.0, TIME_WARP_MAX)) if rng.random() < time_warp else 1.0
+
+
 def get_batch(ds: MotionTextDataset, step: int, batch_size: int, seed: int, bucket: int = 0,
-              repeats: tuple[int, ...] | None = None) -> dict:
-    """Batch of step ``step``, trimmed to its longest item (padding beyond it is never needed)."""
+              repeats: tuple[int, ...] | None = None, time_warp: float = 0.0) -> dict:
+    """Batch of step ``step``, trimmed to its longest item (padding beyond it is never needed); its items
+    played slower by :func:`batch_warp` (``time_warp`` the probability of a slowed batch)."""
     lengths = tuple(e.end - e.start for e in ds.entries) if bucket > 0 else None
+    warp = batch_warp(step, seed, time_warp)
     items = []
     for epoch, i, copy in _draws(step, batch_size, len(ds), seed, lengths, bucket, repeats):
         ds.set_epoch(epoch, copy)
-        items.append(ds[i])
+        items.append(ds.item(i, warp))
     batch = collate(items)
     T = int(batch["length"].max())
     batch["motion"], batch["mask"] = batch["motion"][:, :T], batch["mask"][:, :T]

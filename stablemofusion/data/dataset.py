@@ -39,7 +39,6 @@ def biased_std(std: np.ndarray, skeleton: str | Skeleton, feat_bias: float) -> n
 
 
 SHORT_CROP_MIN_FRACTION = 0.5  # a short crop keeps at least this fraction of the clip's training length
-TIME_WARP_MAX = 2.0  # a time-warped item is its motion slowed by a factor drawn uniformly in [1, TIME_WARP_MAX]
 
 
 class MotionTextDataset(Dataset):
@@ -52,16 +51,14 @@ class MotionTextDataset(Dataset):
     multiple of ``unit_length`` (one unit shorter with probability 1/3 when unit_length < 10), at most
     ``max_frames``. With ``seed`` set, item ``i`` of epoch ``e`` is a function of (seed, e, i), so results
     are reproducible and independent of DataLoader workers: call :meth:`set_epoch` each epoch. With
-    ``seed=None`` every call draws fresh randomness. With ``time_warp`` p, an item is, with probability p,
-    its motion slowed by a factor in [1, TIME_WARP_MAX] before the crop (data/augment.py ``slowed_features``),
-    so that an action whose clips are all short (raising a hand: at most 3 s) is also seen at 4 s and longer.
+    ``seed=None`` every call draws fresh randomness. :meth:`item` with ``warp`` > 1 gives the item's motion
+    played that many times slower (data/augment.py ``slowed_features``; data/batches.py draws it per batch).
     """
 
     def __init__(self, root: str | os.PathLike | MotionLayout, split: str = "train", *,
                  skeleton: str | Skeleton | None = None, min_frames: int | None = None, max_frames: int | None = None,
                  unit_length: int = 4, feat_bias: float = 5.0, seed: int | None = None,
-                 ids: Sequence[str] | None = None, short_crops: float = 0.0,
-                 time_warp: float = 0.0):
+                 ids: Sequence[str] | None = None, short_crops: float = 0.0):
         self.layout = root if isinstance(root, MotionLayout) else MotionLayout(root, skeleton)
         self.layout.validate()
         sk = self.skeleton = self.layout.skeleton
@@ -77,9 +74,6 @@ class MotionTextDataset(Dataset):
         if not 0.0 <= short_crops <= 1.0:
             raise SMFError(f"short_crops is a probability in [0, 1], got {short_crops}")
         self.short_crops = float(short_crops)
-        if not 0.0 <= time_warp <= 1.0:
-            raise SMFError(f"time_warp is a probability in [0, 1], got {time_warp}")
-        self.time_warp = float(time_warp)
         self.seed = seed
         self.epoch, self.copy = 0, 0
         self.mean = np.asarray(self.layout.mean, dtype=np.float32)
@@ -148,17 +142,22 @@ class MotionTextDataset(Dataset):
         return units * u
 
     def __getitem__(self, i: int) -> dict[str, Any]:
+        return self.item(i)
+
+    def item(self, i: int, warp: float = 1.0) -> dict[str, Any]:
         """dict: motion (max_frames, D) float32 normalised and zero-padded, mask (max_frames,) bool,
         length int, caption str, tokens list[str], id str, frames (start, end) of the source file the crop
-        covers, warp float (the slowing factor, 1.0 when the item is not time-warped)."""
+        covers, warp float. With ``warp`` > 1 the crop is taken from the motion played ``warp`` times slower
+        (the same random draws otherwise: same caption, crop length from the slower motion's length)."""
+        if not warp >= 1.0:
+            raise SMFError(f"warp is a slowing factor >= 1, got {warp}")
         if not -len(self) <= i < len(self):
             raise IndexError(f"index {i} out of range for {len(self)} items")
         e = self.entries[i]
         rng = self._rng(i % len(self))
         cap = e.captions[int(rng.integers(len(e.captions)))]
-        source, warp = self.motions[e.index][e.start:e.end], 1.0
-        if self.time_warp > 0 and rng.random() < self.time_warp:  # no draw at all when off: streams unchanged
-            warp = float(rng.uniform(1.0, TIME_WARP_MAX))
+        source, warp = self.motions[e.index][e.start:e.end], float(warp)
+        if warp != 1.0:
             source = self.normalize(slowed_features(self.denormalize(source), warp, self.skeleton)).astype(np.float32)
         n = self.crop_length(len(source), rng)
         a = int(rng.integers(0, len(source) - n + 1))

@@ -52,7 +52,7 @@ class TrainConfig:
     balance: float = 0.0  # label balancing: an item of a (dataset, content) group of n items is drawn
     #                       round((n_max / n) ** balance) times per epoch (capped); 0 = off (needs clips.csv)
     short_crops: float = 0.0  # probability that an item is cropped to a random 50-100% of its clip (data/dataset.py)
-    time_warp: float = 0.0  # probability that an item is its motion slowed by a factor in [1, TIME_WARP_MAX] (dataset.py)
+    time_warp: float = 0.0  # probability that a batch is played slower by a factor in [1, TIME_WARP_MAX] (batches.py)
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
 
     def to_dict(self) -> dict:

@@ -107,8 +107,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     out = Path(out)
     accelerator = Accelerator(mixed_precision=cfg.mixed_precision, cpu=not torch.cuda.is_available())
     ds = MotionTextDataset(data, "train", seed=cfg.seed, max_frames=cfg.max_frames, min_frames=cfg.min_frames,
-                           feat_bias=cfg.feat_bias, short_crops=cfg.short_crops,
-                           time_warp=cfg.time_warp)
+                           feat_bias=cfg.feat_bias, short_crops=cfg.short_crops)
     encoder = load_text_encoder(cfg.text_encoder).to(accelerator.device)
     cache = TextEmbeddingCache(text_cache or (out / "text-cache"), encoder)
     model_cfg = get_preset(cfg.preset, motion_dim=int(ds.mean.shape[0]), text_dim=encoder.dim)
@@ -159,7 +158,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     with open(log_path, "a", newline="") as log_file:
         log = csv.writer(log_file)
         for step in bar:
-            batch = get_batch(ds, step, cfg.batch_size * world, cfg.seed, cfg.bucket, repeats)
+            batch = get_batch(ds, step, cfg.batch_size * world, cfg.seed, cfg.bucket, repeats, cfg.time_warp)
             sl = slice(rank * cfg.batch_size, (rank + 1) * cfg.batch_size)
             x0 = batch["motion"][sl].to(accelerator.device)
             mask = batch["mask"][sl].to(accelerator.device)

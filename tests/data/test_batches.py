@@ -31,3 +31,22 @@ def test_get_batch_is_trimmed_to_its_longest_item(corpus):
     ds = MotionTextDataset(corpus, "train", seed=0, min_frames=16)
     batch = get_batch(ds, 0, 4, 0, bucket=1)
     assert batch["motion"].shape[1] == int(batch["length"].max()) == batch["mask"].shape[1]
+
+
+def test_time_warp_slows_a_fraction_of_the_batches_by_one_factor(corpus):
+    """batch_warp: 1.0 on about 1 - p of the steps, else one factor in [1, 2] for the whole batch, a function of
+    (seed, step); get_batch hands it to every item; p = 0 draws exactly the batches it drew before."""
+    from stablemofusion.data.batches import TIME_WARP_MAX, batch_warp
+
+    warps = [batch_warp(s, 0, 0.3) for s in range(2000)]
+    slowed = [w for w in warps if w != 1.0]
+    assert 0.25 < len(slowed) / len(warps) < 0.35 and 1.0 < min(slowed) and max(slowed) < TIME_WARP_MAX == 2.0
+    assert warps == [batch_warp(s, 0, 0.3) for s in range(2000)] and warps != [batch_warp(s, 1, 0.3) for s in range(2000)]
+    assert {batch_warp(s, 0, 0.0) for s in range(100)} == {1.0} and {batch_warp(s, 0, 1.0) for s in range(100)} != {1.0}
+    ds = MotionTextDataset(corpus, "train", seed=0, min_frames=16)
+    step = next(s for s in range(50) if batch_warp(s, 0, 0.5) > 1.5)
+    batch = get_batch(ds, step, 4, 0, bucket=1, time_warp=0.5)
+    assert batch["warp"].tolist() == pytest.approx([batch_warp(step, 0, 0.5)] * 4)
+    plain, off = get_batch(ds, step, 4, 0, bucket=1), get_batch(ds, step, 4, 0, bucket=1, time_warp=0.0)
+    assert plain["caption"] == batch["caption"] and plain["motion"].equal(off["motion"])
+    assert int(batch["length"].max()) > int(plain["length"].max())

@@ -141,31 +141,30 @@ def test_short_crops_draw_lengths_from_half_to_all_of_the_clip(root: Path):
         MotionTextDataset(root, short_crops=1.5)
 
 
-def test_time_warp_slows_items_down_by_up_to_twice(root: Path):
-    """time_warp=1: every item is its motion slowed by a factor in [1, 2] (so longer crops of short entries),
-    finite, a multiple of 4, covering source frames consistent with the factor; time_warp=0 (the default)
-    draws exactly what it drew before the option existed; the items are a function of (seed, epoch, index)."""
-    plain, warped = MotionTextDataset(root, seed=3), MotionTextDataset(root, seed=3, time_warp=1.0)
-    factors, longer = [], []
-    for epoch in range(6):
+def test_item_with_warp_is_the_motion_played_slower(root: Path):
+    """item(i, warp): the same caption and crop coin as item(i), cut from the motion played ``warp`` times slower
+    (longer crops of short entries), finite, a multiple of 4, covering source frames consistent with the factor;
+    warp 1 is exactly __getitem__; the items are a function of (seed, epoch, index, warp)."""
+    plain, warped = MotionTextDataset(root, seed=3), MotionTextDataset(root, seed=3)
+    longer = []
+    for epoch, w in zip(range(6), (1.2, 1.5, 1.8, 2.0, 1.3, 1.9)):
         plain.set_epoch(epoch)
         warped.set_epoch(epoch)
-        for e, a, b in zip(plain.entries, items(plain), items(warped)):
-            n, w = b["length"], b["warp"]
-            assert a["warp"] == 1.0 and 1.0 <= w <= 2.0 and n % 4 == 0 and 4 <= n <= 196
+        for i, e in enumerate(plain.entries):
+            a, b = plain[i], warped.item(i, w)
+            n = b["length"]
+            assert a["warp"] == 1.0 and b["warp"] == w and b["caption"] == a["caption"] and n % 4 == 0 and n <= 196
             assert torch.isfinite(b["motion"]).all() and b["mask"].sum() == n
             start, end = b["frames"]
             assert e.start <= start < end <= e.end and (n - 1) / w <= end - start <= (n - 1) / w + 3
-            factors.append(w)
             longer.append(n > e.end - e.start)
-    assert max(factors) > 1.5 and min(factors) < 1.5 and any(longer)
-    again = MotionTextDataset(root, seed=3, time_warp=1.0)
+            assert torch.equal(warped.item(i, 1.0)["motion"], a["motion"])
+    assert any(longer)
+    again = MotionTextDataset(root, seed=3)
     again.set_epoch(5)
-    assert all(torch.equal(x["motion"], y["motion"]) for x, y in zip(items(again), items(warped)))
-    assert [it["frames"] for it in items(MotionTextDataset(root, seed=5, time_warp=0.0))] == \
-        [it["frames"] for it in items(MotionTextDataset(root, seed=5))]
-    with pytest.raises(SMFError, match="time_warp"):
-        MotionTextDataset(root, time_warp=-0.1)
+    assert all(torch.equal(again.item(i, 1.9)["motion"], warped.item(i, 1.9)["motion"]) for i in range(len(again)))
+    with pytest.raises(SMFError, match="warp"):
+        again.item(0, 0.5)
 
 
 def test_dataloader_collate(root: Path):

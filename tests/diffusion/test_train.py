@@ -138,6 +138,8 @@ def test_learning_rate_schedules():
         from stablemofusion.diffusion.train import check_train_config
 
         check_train_config(TrainConfig(lr_schedule="linear"))
+    with pytest.raises(SMFError, match="time-warp"):
+        check_train_config(TrainConfig(time_warp=1.5))
 
 
 def test_label_balance_repeats_rare_labels_with_distinct_crops(corpus):

@@ -29,6 +29,8 @@ _FLAGS = {  # TrainConfig field -> help
     "short_crops": "probability that a training item is cropped to a random 50-100%% of its clip (0 = whole clips)",
     "time_warp": f"probability that a training batch is its motions slowed by a random factor in [1, {TIME_WARP_MAX:g}] "
                  "(0 = never)",
+    "time_warp_contents": "which items a slowed batch slows: all, or tempo-free (the contents the corpus's lexicon "
+                          "lists as meaning the same when slower: gestures, not run or walk)",
 }
 _TYPES = {"init_from": str}
 

@@ -16,6 +16,7 @@ import numpy as np
 from .dataset import MotionTextDataset, collate
 
 TIME_WARP_MAX = 2.0  # a time-warped batch is slowed by a factor drawn uniformly in [1, TIME_WARP_MAX]
+TIME_WARP_CONTENTS = ("all", "tempo-free")  # which items a slowed batch slows (tempo-free: the lexicon's list)
 _WARP_STREAM = 7  # seeds the warp draws apart from the epoch permutations ([seed, epoch])
 
 
@@ -83,15 +84,17 @@ def batch_warp(step: int, seed: int, time_warp: float) -> float:
 
 
 def get_batch(ds: MotionTextDataset, step: int, batch_size: int, seed: int, bucket: int = 0,
-              repeats: tuple[int, ...] | None = None, time_warp: float = 0.0) -> dict:
+              repeats: tuple[int, ...] | None = None, time_warp: float = 0.0,
+              warpable: tuple[bool, ...] | None = None) -> dict:
     """Batch of step ``step``, trimmed to its longest item (padding beyond it is never needed); its items
-    played slower by :func:`batch_warp` (``time_warp`` the probability of a slowed batch)."""
+    played slower by :func:`batch_warp` (``time_warp`` the probability of a slowed batch), only those whose
+    entry is True in ``warpable`` when given (one per dataset item)."""
     lengths = tuple(e.end - e.start for e in ds.entries) if bucket > 0 else None
     warp = batch_warp(step, seed, time_warp)
     items = []
     for epoch, i, copy in _draws(step, batch_size, len(ds), seed, lengths, bucket, repeats):
         ds.set_epoch(epoch, copy)
-        items.append(ds.item(i, warp))
+        items.append(ds.item(i, warp if warpable is None or warpable[i] else 1.0))
     batch = collate(items)
     T = int(batch["length"].max())
     batch["motion"], batch["mask"] = batch["motion"][:, :T], batch["mask"][:, :T]

@@ -5,7 +5,9 @@ verbs (``<walk> forward``, ``<swing|swings|swinging> {pos} arm``) and, per style
 adverbs, manner phrases and personas; each list is split into ``train`` (used for training captions) and
 ``heldout`` (never used in training: a probe of generalisation to unseen words). ``same_as`` shares one
 entry between synonymous labels of two datasets (``elderly`` -> ``old``); left/right contents are written
-once (``-left``) and mirrored. The label tables (which dataset has which labels) are in the same file.
+once (``-left``) and mirrored. The label tables (which dataset has which labels) are in the same file, and
+``tempo_free``: the contents whose meaning does not lie in their speed (a slowed wave is a wave; a slowed run is
+a jog), which `smf train --time-warp-contents tempo-free` may slow down.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from __future__ import annotations
 import functools
 import json
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 
@@ -56,6 +58,7 @@ class Lexicon:
     datasets: dict[int, tuple[tuple[str, ...], tuple[str, ...]]]  # dataset -> (contents, styles)
     mirror: dict[str, str]
     heldout_words: frozenset[str]
+    tempo_free: frozenset[str] = frozenset()  # contents whose meaning is not in their speed (mirrors included)
 
     def content(self, label: str) -> Words:
         try:
@@ -129,6 +132,9 @@ def parse_lexicon(data: dict, name: str = "lexicon") -> Lexicon:
     for label in data["styles"]:
         entry = _resolve(data["styles"], label, "style")
         lex.styles[label] = StyleWords(label, *(_words(entry.get(k), f"style {label} {k}") for k in STYLE_KINDS))
+    for c in data.get("tempo_free", ()):
+        lex.content(c)
+    lex = replace(lex, tempo_free=frozenset(c2 for c in data.get("tempo_free", ()) for c2 in (c, lex.mirror_text(c))))
     for d, labels in data.get("datasets", {}).items():
         lex.datasets[int(d)] = (tuple(labels["contents"]), tuple(labels["styles"]))
         for c in labels["contents"]:

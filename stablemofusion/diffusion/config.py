@@ -53,6 +53,7 @@ class TrainConfig:
     #                       round((n_max / n) ** balance) times per epoch (capped); 0 = off (needs clips.csv)
     short_crops: float = 0.0  # probability that an item is cropped to a random 50-100% of its clip (data/dataset.py)
     time_warp: float = 0.0  # probability that a batch is played slower by a factor in [1, TIME_WARP_MAX] (batches.py)
+    time_warp_contents: str = "all"  # all | tempo-free: only items of the lexicon's tempo_free contents are slowed
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
 
     def to_dict(self) -> dict:

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ..data.batches import get_batch
+from ..data.batches import TIME_WARP_CONTENTS, get_batch
 from ..data.dataset import MotionTextDataset
 from ..errors import SMFError
 from ..models.base import build_denoiser
@@ -74,6 +74,9 @@ def check_train_config(cfg: TrainConfig) -> None:
         raise SMFError(f"--short-crops is a probability in [0, 1], got {cfg.short_crops}")
     if not 0.0 <= cfg.time_warp <= 1.0:
         raise SMFError(f"--time-warp is a probability in [0, 1], got {cfg.time_warp}")
+    if cfg.time_warp_contents not in TIME_WARP_CONTENTS:
+        raise SMFError(f"--time-warp-contents must be one of {', '.join(TIME_WARP_CONTENTS)}, got "
+                       f"{cfg.time_warp_contents!r}")
 
 
 def label_balance(data: str | Path, ds: MotionTextDataset, power: float) -> tuple[int, ...] | None:
@@ -86,6 +89,21 @@ def label_balance(data: str | Path, ds: MotionTextDataset, power: float) -> tupl
     labels = corpus_labels(data)
     groups = [(labels[ds.ids[e.index]].dataset, labels[ds.ids[e.index]].content) for e in ds.entries]
     return label_repeats(groups, power, BALANCE_CAP)
+
+
+def warpable_items(data: str | Path, ds: MotionTextDataset, contents: str) -> tuple[bool, ...] | None:
+    """Which items time warp may slow: all (None) or, for "tempo-free", those whose content label the corpus's
+    lexicon lists as ``tempo_free`` (needs clips.csv and a lexicon named in stats.json)."""
+    if contents == "all":
+        return None
+    from ..data.labels import corpus_labels
+    from ..data.lexicon import load_lexicon
+
+    name = _lexicon_name(data)
+    if not name:
+        raise SMFError(f"{data}: --time-warp-contents {contents} needs a corpus whose stats.json names its lexicon")
+    free, labels = load_lexicon(name).tempo_free, corpus_labels(data)
+    return tuple(labels[ds.ids[e.index]].content in free for e in ds.entries)
 
 
 def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool = False, stop_after: int | None = None,
@@ -140,6 +158,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
             group["weight_decay"] = cfg.weight_decay
         ema.decay = cfg.ema_decay
     repeats = label_balance(data, ds, cfg.balance)
+    warpable = warpable_items(data, ds, cfg.time_warp_contents) if cfg.time_warp > 0 else None
     # every training caption through the frozen language model once, up front: steps then only read the cache
     cache.precompute(c.caption for e in ds.entries for c in e.captions)
     cache.flush()
@@ -158,7 +177,8 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     with open(log_path, "a", newline="") as log_file:
         log = csv.writer(log_file)
         for step in bar:
-            batch = get_batch(ds, step, cfg.batch_size * world, cfg.seed, cfg.bucket, repeats, cfg.time_warp)
+            batch = get_batch(ds, step, cfg.batch_size * world, cfg.seed, cfg.bucket, repeats, cfg.time_warp,
+                              warpable)
             sl = slice(rank * cfg.batch_size, (rank + 1) * cfg.batch_size)
             x0 = batch["motion"][sl].to(accelerator.device)
             mask = batch["mask"][sl].to(accelerator.device)
@@ -243,16 +263,21 @@ def _log_eval(out: Path, step: int, seconds: float, figures: dict) -> None:
         f.write(json.dumps({"step": step, "train_seconds": round(seconds, 1), **figures}) + "\n")
 
 
+def _lexicon_name(data: str | Path) -> str | None:
+    """The lexicon a corpus's stats.json names (None without one)."""
+    import json
+
+    stats = Path(data) / "stats.json"
+    return json.loads(stats.read_text()).get("lexicon") if stats.is_file() else None
+
+
 def _synonyms(data: str | Path) -> dict[str, tuple[str, ...]]:
     """Synonym groups for caption augmentation: the style words of the corpus's lexicon (its stats.json names
     it), or none for a corpus without one."""
-    import json
-
     from ..data.augment import synonym_groups
     from ..data.lexicon import STYLE_KINDS, load_lexicon
 
-    stats = Path(data) / "stats.json"
-    name = json.loads(stats.read_text()).get("lexicon") if stats.is_file() else None
+    name = _lexicon_name(data)
     if not name:
         return {}
     lex = load_lexicon(name)

@@ -163,6 +163,12 @@ def test_lexicon_same_as_and_mirror():
     assert lex.style("elderly").adjectives.train == ("old",)
     with pytest.raises(SMFError, match="same_as"):
         parse_lexicon({"contents": {}, "styles": {"a": {"same_as": "b"}, "b": {"same_as": "a"}}})
+    free = parse_lexicon({"mirror": {"left": "right", "right": "left"}, "contents": {"wave-left": ["<wave>"],
+                                                                                    "run": ["<run>"]},
+                          "styles": {}, "tempo_free": ["wave-left"]}).tempo_free
+    assert free == {"wave-left", "wave-right"} and not lex.tempo_free
+    with pytest.raises(SMFError, match="unknown content label 'jog'"):
+        parse_lexicon({"contents": {"run": ["<run>"]}, "styles": {}, "tempo_free": ["jog"]})
 
 
 def test_mirror_caption():

@@ -167,6 +167,34 @@ def test_label_balance_repeats_rare_labels_with_distinct_crops(corpus):
     assert label_balance(corpus, ds, 0.0) is None
 
 
+def test_time_warp_contents_tempo_free_slows_only_the_lexicons_gestures(corpus):
+    """warpable_items: None for "all"; for "tempo-free" exactly the items whose content the lexicon lists (mirrored
+    labels too: wave-right-hand with wave-left-hand), never run or walk; get_batch slows only those items."""
+    from stablemofusion.data.batches import batch_warp, get_batch
+    from stablemofusion.data.dataset import MotionTextDataset
+    from stablemofusion.data.labels import corpus_labels
+    from stablemofusion.data.lexicon import load_lexicon
+    from stablemofusion.diffusion.train import warpable_items
+
+    free = load_lexicon("bandai").tempo_free
+    assert {"wave-left-hand", "wave-right-hand", "raise-up-right-hand", "bow"} <= free
+    assert not free & {"run", "walk", "dash", "walk-turn-left", "kick"}
+    ds = MotionTextDataset(corpus, "train", seed=0, min_frames=16)
+    labels = corpus_labels(corpus)
+    flags = warpable_items(corpus, ds, "tempo-free")
+    assert warpable_items(corpus, ds, "all") is None and len(flags) == len(ds) and any(flags) and not all(flags)
+    assert flags == tuple(labels[ds.ids[e.index]].content in free for e in ds.entries)
+    step = next(s for s in range(50) if batch_warp(s, 0, 1.0) > 1.2)
+    batch = get_batch(ds, step, 16, 0, time_warp=1.0, warpable=flags)
+    slowed = [labels[i].content in free for i in batch["id"]]
+    assert any(slowed) and not all(slowed)
+    assert [w > 1.0 for w in batch["warp"].tolist()] == slowed
+    with pytest.raises(SMFError, match="time-warp-contents"):
+        from stablemofusion.diffusion.train import check_train_config
+
+        check_train_config(TrainConfig(time_warp=0.3, time_warp_contents="slow"))
+
+
 def test_self_evaluation_goes_into_eval_jsonl_and_the_curve(corpus, text_cache, tmp_path):
     calls = []
 

@@ -165,8 +165,8 @@ class MotionTextDataset(Dataset):
         motion[:n] = torch.from_numpy(source[a:a + n])
         mask = torch.zeros(self.max_frames, dtype=torch.bool)
         mask[:n] = True
-        frames = (e.start + a, e.start + a + n) if warp == 1.0 else \
-            (e.start + int(a / warp), min(e.end, e.start + int(np.ceil((a + n - 1) / warp)) + 1))
+        # source frames the crop covers: the slowed frame k sits at source time k / warp (k itself when warp is 1)
+        frames = (e.start + int(a / warp), min(e.end, e.start + int(np.ceil((a + n - 1) / warp)) + 1))
         return {"motion": motion, "mask": mask, "length": n, "caption": cap.caption, "tokens": list(cap.tokens),
                 "id": self.ids[e.index], "frames": frames, "warp": warp}
 

@@ -9,6 +9,7 @@ from a checkpoint reproduces the uninterrupted run exactly on CPU.
 from __future__ import annotations
 
 import csv
+import json
 import math
 import time
 from collections.abc import Callable
@@ -257,16 +258,12 @@ def _logged_seconds(log_path: Path, step: int) -> float:
 
 def _log_eval(out: Path, step: int, seconds: float, figures: dict) -> None:
     """Append one evaluation to ``out/eval.jsonl`` (one JSON object per line)."""
-    import json
-
     with open(out / "eval.jsonl", "a", encoding="utf-8") as f:
         f.write(json.dumps({"step": step, "train_seconds": round(seconds, 1), **figures}) + "\n")
 
 
 def _lexicon_name(data: str | Path) -> str | None:
     """The lexicon a corpus's stats.json names (None without one)."""
-    import json
-
     stats = Path(data) / "stats.json"
     return json.loads(stats.read_text()).get("lexicon") if stats.is_file() else None
 

@@ -17,7 +17,6 @@ from ..errors import SMFError
 from ..models.base import TextCondition
 from ..motion.rigid import DEFAULT_FIT, RigidFitConfig, RigidMotion, rigid_from_features_many, rigid_to_features
 from ..motion.skeleton import get_skeleton
-from ..text.frozen import sentence_embedding
 from ..text.known import ACTIONS_FILE, DomainCheck, KnownActions
 from ..text.length import WEIGHTS as LENGTH_WEIGHTS
 from ..text.length import LengthEstimator
@@ -144,8 +143,7 @@ class Components:
             raise SMFError("this model has no length estimator (length.safetensors); give the length, or train one "
                            "with `smf train-length`")
         tokens, mask = self.encode_text(prompts)
-        sentence = sentence_embedding(tokens.float().cpu(), mask.bool().cpu())
-        frames = self.length_estimator.predict_frames(sentence).clamp(self.min_frames, self.max_frames)
+        frames = self.length_estimator.predict_frames(tokens.cpu(), mask.cpu()).clamp(self.min_frames, self.max_frames)
         return [int(f) / self.fps for f in frames]
 
     def frames_for(self, seconds: float | None, frames: int | None) -> int:

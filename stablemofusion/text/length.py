@@ -1,9 +1,12 @@
-"""Length from text: a small estimator of a motion's length from the frozen sentence embedding.
+"""Length from text: a small estimator of a motion's length from the frozen encoder's tokens.
 
-A two-layer MLP maps the sentence embedding (:func:`~stablemofusion.text.frozen.sentence_embedding` of the
-frozen encoder's tokens) to a distribution over lengths in ``unit``-frame bins from ``min_frames`` to
-``max_frames``; the prediction is the distribution's median (the value that minimises the expected absolute
-error). Trained with cross-entropy on the train split's (caption, length) pairs. Saved beside a model as
+A two-layer MLP maps a summary of the caption to a distribution over lengths in ``unit``-frame bins from
+``min_frames`` to ``max_frames``; the prediction is the distribution's median (the value that minimises the
+expected absolute error). The summary (``LengthConfig.inputs``) is either the frozen encoder's sentence embedding
+(``"sentence"``, :func:`~stablemofusion.text.frozen.sentence_embedding`) or the pooled tokens of a frozen copy of
+a trained model's text transformer (``"text"``, kept inside the estimator): that transformer was trained to tell
+motions apart, and tells held-out verbs apart where the sentence embedding does not (docs/results.md, session 19).
+Trained with cross-entropy on the train split's (caption, length) pairs. Saved beside a model as
 ``length.safetensors`` + ``length.json``; the pipeline uses it when no length is given.
 """
 
@@ -19,14 +22,19 @@ from torch import nn
 
 from ..errors import SMFError
 from ..motion.skeleton import HUMANML3D
+from .frozen import sentence_embedding
+from .transformer import TextTransformer
 
 WEIGHTS, CONFIG = "length.safetensors", "length.json"
+INPUTS = ("sentence", "text", "both")  # what the estimator reads of a caption (LengthConfig.inputs)
+TEXT_DIMS = ("in_dim", "latent", "layers", "heads", "ff", "max_tokens")  # of the copied text transformer
 
 
 @dataclass
 class LengthConfig:
-    """The estimator's input (the frozen encoder it was trained with, and its width), hidden width, and the
-    length bins."""
+    """The estimator's input (the frozen encoder it was trained with; ``inputs``, one of INPUTS, and the MLP's
+    input width ``in_dim``; for ``"text"`` the copied text transformer's dimensions ``text``, TEXT_DIMS), hidden
+    width, and the length bins."""
 
     text_encoder: str = "minilm"
     in_dim: int = 384
@@ -35,6 +43,14 @@ class LengthConfig:
     min_frames: int = HUMANML3D.min_frames
     max_frames: int = HUMANML3D.max_frames
     unit: int = 4
+    inputs: str = "sentence"
+    text: dict | None = None
+
+    def __post_init__(self):
+        if self.inputs not in INPUTS:
+            raise SMFError(f"length estimator inputs must be one of {', '.join(INPUTS)}, got {self.inputs!r}")
+        if (self.inputs != "sentence") != (self.text is not None) or (self.text is not None and set(self.text) != set(TEXT_DIMS)):
+            raise SMFError(f"a length estimator on text inputs needs the text transformer's {', '.join(TEXT_DIMS)}")
 
     @property
     def bins(self) -> int:
@@ -49,26 +65,70 @@ class LengthConfig:
         return self.min_frames + self.unit * bins
 
 
+def _mlp(config: LengthConfig) -> nn.Sequential:
+    """(B, in_dim) features -> (B, bins) logits."""
+    return nn.Sequential(nn.Linear(config.in_dim, config.hidden), nn.GELU(), nn.Dropout(config.dropout),
+                         nn.Linear(config.hidden, config.bins))
+
+
 class LengthEstimator(nn.Module):
-    """(B, in_dim) sentence embeddings -> (B, bins) logits over lengths."""
+    """Frozen tokens (B, L, C) and mask (B, L) -> :meth:`features` (B, in_dim) -> (B, bins) logits over lengths.
+
+    With ``inputs == "text"`` it holds ``text``, a frozen copy of a model's text transformer (fill it with
+    :meth:`copy_text` before training); the MLP ``net`` is all that trains."""
 
     def __init__(self, config: LengthConfig):
         super().__init__()
         self.config = config
-        self.net = nn.Sequential(nn.Linear(config.in_dim, config.hidden), nn.GELU(), nn.Dropout(config.dropout),
-                                 nn.Linear(config.hidden, config.bins))
+        self.text: TextTransformer | None = None
+        if config.text is not None:
+            self.text = TextTransformer(**config.text, dropout=0.0).requires_grad_(False).eval()
+        self.net = _mlp(config)
 
-    def forward(self, sentence: torch.Tensor) -> torch.Tensor:
-        return self.net(sentence)
+    def train(self, mode: bool = True) -> "LengthEstimator":
+        """Train mode for the MLP only: the copied text transformer stays frozen in eval mode."""
+        super().train(mode)
+        if self.text is not None:
+            self.text.eval()
+        return self
+
+    def copy_text(self, text: TextTransformer) -> "LengthEstimator":
+        """Take a model's text transformer weights (the ``"text"`` inputs)."""
+        if self.text is None:
+            raise SMFError("this length estimator reads the sentence embedding: it has no text transformer")
+        self.text.load_state_dict(text.state_dict())
+        return self
 
     @torch.no_grad()
-    def predict_frames(self, sentence: torch.Tensor) -> torch.Tensor:
-        """(B,) predicted lengths in frames: the median of each predicted distribution."""
-        p = self(sentence.float()).softmax(-1).cumsum(-1)
+    def features(self, tokens: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """Frozen tokens (B, L, C), mask (B, L) bool -> (B, in_dim) unit vectors: the sentence embedding, or the
+        copied text transformer's tokens averaged over the valid ones."""
+        tokens, mask = tokens.float(), mask.bool()
+        parts = []
+        if self.config.inputs in ("sentence", "both"):
+            parts.append(sentence_embedding(tokens, mask))
+        if self.text is not None:
+            parts.append(sentence_embedding(self.text(tokens, mask), mask))
+        return torch.cat(parts, -1)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        return self.net(features)
+
+    @torch.no_grad()
+    def predict_frames(self, tokens: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """(B,) predicted lengths in frames for frozen tokens (B, L, C), mask (B, L): the median of each
+        predicted distribution."""
+        return self.median_frames(self.features(tokens, mask))
+
+    @torch.no_grad()
+    def median_frames(self, features: torch.Tensor) -> torch.Tensor:
+        """(B,) predicted lengths in frames from :meth:`features` (B, in_dim)."""
+        p = self(features.float()).softmax(-1).cumsum(-1)
         return self.config.frames_of((p < 0.5).sum(-1).clamp(max=self.config.bins - 1))
 
     def save(self, folder: str | Path, metrics: dict | None = None) -> None:
-        """Write ``length.safetensors`` and ``length.json`` (config and training metrics) into ``folder``."""
+        """Write ``length.safetensors`` and ``length.json`` (config and training metrics) into ``folder``; the
+        copied text transformer in float16 (as a shipped model holds it)."""
         from safetensors.torch import save_file
 
         from ..io import write_text
@@ -76,7 +136,8 @@ class LengthEstimator(nn.Module):
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         tmp = folder / (WEIGHTS + ".tmp")
-        save_file({k: v.detach().cpu().contiguous() for k, v in self.state_dict().items()}, tmp)
+        save_file({k: (v.half() if k.startswith("text.") else v).detach().cpu().contiguous()
+                   for k, v in self.state_dict().items()}, tmp)
         tmp.replace(folder / WEIGHTS)
         write_text(folder / CONFIG, json.dumps({"config": asdict(self.config), "metrics": metrics or {}}, indent=2) + "\n")
 
@@ -88,7 +149,7 @@ class LengthEstimator(nn.Module):
         try:
             meta = json.loads((folder / CONFIG).read_text(encoding="utf-8"))
             model = LengthEstimator(LengthConfig(**meta["config"]))
-            model.load_state_dict(load_file(folder / WEIGHTS))
+            model.load_state_dict({k: v.float() for k, v in load_file(folder / WEIGHTS).items()})
         except (OSError, KeyError, TypeError, RuntimeError, json.JSONDecodeError) as e:
             raise SMFError(f"{folder}: cannot load the length estimator ({e})") from None
         return model.eval()
@@ -109,26 +170,26 @@ def caption_lengths(data: str | Path, split: str, unit: int = 4) -> tuple[list[s
     return texts, np.asarray(lengths)
 
 
-def sentence_embeddings(texts: list[str], cache, batch: int = 512) -> torch.Tensor:
-    """(N, C) sentence embeddings of ``texts`` through a text cache (``get_or_compute``)."""
-    from .frozen import sentence_embedding
-
+def caption_features(model: LengthEstimator, texts: list[str], cache, batch: int = 512) -> torch.Tensor:
+    """(N, in_dim) :meth:`LengthEstimator.features` of ``texts`` through a text cache (``get_or_compute``)."""
     out = []
     for a in range(0, len(texts), batch):
         tokens, mask = cache.get_or_compute(texts[a:a + batch], device="cpu")
-        out.append(sentence_embedding(tokens.float(), mask.bool()))
+        out.append(model.features(tokens, mask))
     return torch.cat(out)
 
 
-def train_length_estimator(train: tuple[torch.Tensor, np.ndarray], config: LengthConfig, *, steps: int = 2000,
+def train_length_estimator(model: LengthEstimator, train: tuple[torch.Tensor, np.ndarray], *, steps: int = 2000,
                            batch_size: int = 256, lr: float = 1e-3, weight_decay: float = 0.01,
                            seed: int = 0) -> LengthEstimator:
-    """Fit the estimator on (sentence embeddings (N, C), lengths (N,)) with cross-entropy over the bins."""
+    """Fit the estimator's MLP (initialised afresh from ``seed``) on (its :meth:`~LengthEstimator.features`
+    (N, in_dim), lengths (N,)) with cross-entropy over the bins."""
     emb, lengths = train
+    config = model.config
     target = torch.from_numpy(config.bin_of(lengths)).long()
     torch.manual_seed(seed)
-    model = LengthEstimator(config)
-    opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=weight_decay)
+    model.net = _mlp(config)
+    opt = torch.optim.AdamW(model.net.parameters(), lr=lr, weight_decay=weight_decay)
     g = torch.Generator().manual_seed(seed)
     model.train()
     for _ in range(steps):
@@ -141,7 +202,8 @@ def train_length_estimator(train: tuple[torch.Tensor, np.ndarray], config: Lengt
 
 
 def length_errors(model: LengthEstimator, emb: torch.Tensor, lengths: np.ndarray, baseline: float) -> dict:
-    """Mean absolute error (frames) of the estimator and of a constant ``baseline`` on (emb, lengths)."""
-    pred = model.predict_frames(emb).numpy()
+    """Mean absolute error (frames) of the estimator and of a constant ``baseline`` on (its features (N, in_dim),
+    lengths)."""
+    pred = model.median_frames(emb).numpy()
     mae, base = float(np.abs(pred - lengths).mean()), float(np.abs(baseline - lengths).mean())
     return {"mae_frames": mae, "baseline_mae_frames": base, "reduction": 1 - mae / base, "pairs": int(len(lengths))}

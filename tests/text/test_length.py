@@ -27,18 +27,66 @@ def test_bins_and_median_prediction():
         model.net[-1].bias.fill_(-30.0)
         model.net[-1].bias[cfg.bin_of(np.array([60]))[0]] = np.log(0.3)
         model.net[-1].bias[cfg.bin_of(np.array([100]))[0]] = np.log(0.7)
-    assert model.predict_frames(torch.zeros(3, cfg.in_dim)).tolist() == [100, 100, 100]
+    assert model.median_frames(torch.zeros(3, cfg.in_dim)).tolist() == [100, 100, 100]
 
 
 def test_train_length_beats_the_constant_median(corpus, tmp_path, capsys):
     out = tmp_path / "model"
-    assert main(["train-length", "--data", str(corpus), "--out", str(out), "--steps", "300"]) == 0
+    assert main(["train-length", "--data", str(corpus), "--out", str(out), "--steps", "300", "--inputs", "sentence"]) == 0
     report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert report["train"]["mae_frames"] < 0.75 * report["train"]["baseline_mae_frames"]
     assert (out / "length.safetensors").is_file() and not (out / "text-cache").exists()
     meta = json.loads((out / "length.json").read_text())
     assert meta["config"]["min_frames"] == 40 and "train" in meta["metrics"]
     assert LengthEstimator.load(out).config == LengthConfig(**meta["config"])
+
+
+def test_text_inputs_copy_the_models_text_transformer(corpus, tmp_path, capsys, save_tiny_checkpoint):
+    path = save_tiny_checkpoint(tmp_path / "c", np.zeros(263), np.full(263, 0.1))
+    assert main(["train-length", "--data", str(corpus), "--out", str(path), "--steps", "300", "--inputs", "text"]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert report["train"]["mae_frames"] < 0.75 * report["train"]["baseline_mae_frames"]
+    est = LengthEstimator.load(path)
+    pipe = MotionPipeline.from_pretrained(path, device="cpu")
+    assert est.config.inputs == "text" and est.config.in_dim == pipe.model.text_config.latent
+    for k, v in pipe.model.text.state_dict().items():  # the copy (stored in float16) is the model's transformer
+        torch.testing.assert_close(est.text.state_dict()[k], v.half().float())
+    prompts = ["a person walks forward", "a person raises both hands"]
+    tokens, mask = pipe.encode_text(prompts)
+    with torch.no_grad():
+        h = pipe.model.text(tokens, mask)
+    pooled = (h * mask[..., None]).sum(1) / mask.sum(1, keepdim=True)
+    torch.testing.assert_close(est.features(tokens, mask), pooled / pooled.norm(dim=-1, keepdim=True), atol=1e-3, rtol=0)
+    assert pipe.predict_seconds(prompts) == [int(f) / pipe.fps for f in est.predict_frames(tokens, mask)]
+    est.train()  # only the MLP trains: the copied transformer stays in eval mode, without gradients
+    assert not est.text.training and not any(p.requires_grad for p in est.text.parameters())
+
+
+def test_both_inputs_put_the_sentence_embedding_beside_the_text_features():
+    from stablemofusion.text.frozen import sentence_embedding
+    from stablemofusion.text.length import TEXT_DIMS
+
+    dims = dict(in_dim=384, latent=32, layers=1, heads=2, ff=64, max_tokens=77)
+    assert set(dims) == set(TEXT_DIMS)
+    est = LengthEstimator(LengthConfig(in_dim=384 + 32, inputs="both", text=dims))
+    text_only = LengthEstimator(LengthConfig(in_dim=32, inputs="text", text=dims)).copy_text(est.text)
+    tokens, mask = torch.randn(2, 5, 384), torch.tensor([[1, 1, 1, 0, 0], [1, 1, 1, 1, 1]], dtype=torch.bool)
+    f = est.features(tokens, mask)
+    assert f.shape == (2, 416) and torch.equal(f[:, :384], sentence_embedding(tokens, mask))
+    torch.testing.assert_close(f[:, 384:], text_only.features(tokens, mask))
+    assert est.predict_frames(tokens, mask).shape == (2,)
+
+
+def test_text_inputs_need_a_model(corpus, tmp_path, capsys):
+    assert main(["train-length", "--data", str(corpus), "--out", str(tmp_path / "empty"), "--steps", "10",
+                 "--inputs", "both"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--inputs both" in err and "--inputs sentence" in err
+    assert not (tmp_path / "empty" / "length.safetensors").exists()
+    with pytest.raises(SMFError, match="needs the text transformer"):
+        LengthConfig(inputs="text")
+    with pytest.raises(SMFError, match="inputs must be one of"):
+        LengthConfig(inputs="words")
 
 
 def test_shipped_estimator_and_pipeline_lengths():

@@ -2,10 +2,11 @@
 
 A two-layer MLP maps a summary of the caption to a distribution over lengths in ``unit``-frame bins from
 ``min_frames`` to ``max_frames``; the prediction is the distribution's median (the value that minimises the
-expected absolute error). The summary (``LengthConfig.inputs``) is either the frozen encoder's sentence embedding
-(``"sentence"``, :func:`~stablemofusion.text.frozen.sentence_embedding`) or the pooled tokens of a frozen copy of
-a trained model's text transformer (``"text"``, kept inside the estimator): that transformer was trained to tell
-motions apart, and tells held-out verbs apart where the sentence embedding does not (docs/results.md, session 19).
+expected absolute error). The summary (``LengthConfig.inputs``) is the frozen encoder's sentence embedding
+(``"sentence"``, :func:`~stablemofusion.text.frozen.sentence_embedding`), the pooled tokens of a frozen copy of a
+trained model's text transformer (``"text"``, kept inside the estimator; that transformer was trained to tell
+motions apart, and tells held-out verbs apart where the sentence embedding does not: docs/results.md, session
+19), or the two side by side (``"both"``).
 Trained with cross-entropy on the train split's (caption, length) pairs. Saved beside a model as
 ``length.safetensors`` + ``length.json``; the pipeline uses it when no length is given.
 """
@@ -33,8 +34,8 @@ TEXT_DIMS = ("in_dim", "latent", "layers", "heads", "ff", "max_tokens")  # of th
 @dataclass
 class LengthConfig:
     """The estimator's input (the frozen encoder it was trained with; ``inputs``, one of INPUTS, and the MLP's
-    input width ``in_dim``; for ``"text"`` the copied text transformer's dimensions ``text``, TEXT_DIMS), hidden
-    width, and the length bins."""
+    input width ``in_dim``; for ``"text"`` and ``"both"`` the copied text transformer's dimensions ``text``,
+    TEXT_DIMS), hidden width, and the length bins."""
 
     text_encoder: str = "minilm"
     in_dim: int = 384
@@ -49,7 +50,8 @@ class LengthConfig:
     def __post_init__(self):
         if self.inputs not in INPUTS:
             raise SMFError(f"length estimator inputs must be one of {', '.join(INPUTS)}, got {self.inputs!r}")
-        if (self.inputs != "sentence") != (self.text is not None) or (self.text is not None and set(self.text) != set(TEXT_DIMS)):
+        needs_text = self.inputs != "sentence"
+        if needs_text != (self.text is not None) or (needs_text and set(self.text) != set(TEXT_DIMS)):
             raise SMFError(f"a length estimator on text inputs needs the text transformer's {', '.join(TEXT_DIMS)}")
 
     @property
@@ -74,7 +76,7 @@ def _mlp(config: LengthConfig) -> nn.Sequential:
 class LengthEstimator(nn.Module):
     """Frozen tokens (B, L, C) and mask (B, L) -> :meth:`features` (B, in_dim) -> (B, bins) logits over lengths.
 
-    With ``inputs == "text"`` it holds ``text``, a frozen copy of a model's text transformer (fill it with
+    With ``inputs`` "text" or "both" it holds ``text``, a frozen copy of a model's text transformer (fill it with
     :meth:`copy_text` before training); the MLP ``net`` is all that trains."""
 
     def __init__(self, config: LengthConfig):
@@ -93,7 +95,7 @@ class LengthEstimator(nn.Module):
         return self
 
     def copy_text(self, text: TextTransformer) -> "LengthEstimator":
-        """Take a model's text transformer weights (the ``"text"`` inputs)."""
+        """Take a model's text transformer weights (the ``"text"`` and ``"both"`` inputs)."""
         if self.text is None:
             raise SMFError("this length estimator reads the sentence embedding: it has no text transformer")
         self.text.load_state_dict(text.state_dict())
@@ -101,8 +103,8 @@ class LengthEstimator(nn.Module):
 
     @torch.no_grad()
     def features(self, tokens: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        """Frozen tokens (B, L, C), mask (B, L) bool -> (B, in_dim) unit vectors: the sentence embedding, or the
-        copied text transformer's tokens averaged over the valid ones."""
+        """Frozen tokens (B, L, C), mask (B, L) bool -> (B, in_dim): the sentence embedding and/or the copied text
+        transformer's tokens averaged over the valid ones, each a unit vector."""
         tokens, mask = tokens.float(), mask.bool()
         parts = []
         if self.config.inputs in ("sentence", "both"):

@@ -32,7 +32,7 @@ def test_bins_and_median_prediction():
 
 def test_train_length_beats_the_constant_median(corpus, tmp_path, capsys):
     out = tmp_path / "model"
-    assert main(["train-length", "--data", str(corpus), "--out", str(out), "--steps", "300", "--inputs", "sentence"]) == 0
+    assert main(["train-length", "--data", str(corpus), "--out", str(out), "--steps", "300"]) == 0  # sentence
     report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert report["train"]["mae_frames"] < 0.75 * report["train"]["baseline_mae_frames"]
     assert (out / "length.safetensors").is_file() and not (out / "text-cache").exists()
@@ -56,7 +56,8 @@ def test_text_inputs_copy_the_models_text_transformer(corpus, tmp_path, capsys, 
     with torch.no_grad():
         h = pipe.model.text(tokens, mask)
     pooled = (h * mask[..., None]).sum(1) / mask.sum(1, keepdim=True)
-    torch.testing.assert_close(est.features(tokens, mask), pooled / pooled.norm(dim=-1, keepdim=True), atol=1e-3, rtol=0)
+    torch.testing.assert_close(est.features(tokens, mask), pooled / pooled.norm(dim=-1, keepdim=True),
+                               atol=1e-3, rtol=0)
     assert pipe.predict_seconds(prompts) == [int(f) / pipe.fps for f in est.predict_frames(tokens, mask)]
     est.train()  # only the MLP trains: the copied transformer stays in eval mode, without gradients
     assert not est.text.training and not any(p.requires_grad for p in est.text.parameters())

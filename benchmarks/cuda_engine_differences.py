@@ -1,6 +1,6 @@
 """Largest |difference| of each engine's raw features from the `fast` engine's on a CUDA device, for 1 and 10
 sampling steps (the tiny random model of tests/diffusion/test_sampling.py's CUDA test). It chose that test's
-tolerance: `python benchmarks/cuda_engine_differences.py` (needs CUDA; results/h100-session9/)."""
+tolerance: `python benchmarks/cuda_engine_differences.py` (needs CUDA; results/h100/)."""
 import sys
 import tempfile
 from pathlib import Path

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from stablemofusion.diffusion.samplers import make_sampler
+from stablemofusion.diffusion.schedulers import make_sampler
 from stablemofusion.motion.features import bone_lengths, features_from_joints, joints_from_features
 from stablemofusion.pipeline import MotionPipeline
 

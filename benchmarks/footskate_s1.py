@@ -22,7 +22,7 @@ import torch
 from stablemofusion.footskate.contacts import (UP_FOOT_JOINTS, contact_f1, contacts_from_underpressure_labels,
                                                contacts_from_vgrf, kinematic_contacts)
 from stablemofusion.footskate.underpressure import (load_s1, load_underpressure, retarget_23_to_22,
-                                                   vgrf_from_joints22, vgrf_from_joints23)
+                                                    vgrf_from_joints22, vgrf_from_joints23)
 from stablemofusion.motion.files import resample
 
 
@@ -75,7 +75,7 @@ def main() -> None:
         "foot_corr": round(float(np.corrcoef(via22.sum(-1).ravel(), m20.ravel())[0, 1]), 4),
     }
     report["contact_f1"]["vgrf_port_via_22_joints_20fps"] = _f1s(contacts_from_vgrf(via22, 20.0), true20)
-    from stablemofusion.footskate.distil import load_vgrf_model, shipped_vgrf_model_path
+    from stablemofusion.footskate.vgrf import load_vgrf_model, shipped_vgrf_model_path
 
     path = args.vgrf_model or shipped_vgrf_model_path()
     if path is not None:

@@ -34,7 +34,7 @@ def main() -> None:
     cleanup_features(feats[0])  # torch.optim's one-off import cost
     runs = {"kinematic": {}}
     if args.vgrf_model is not None:
-        from stablemofusion.footskate.distil import load_vgrf_model
+        from stablemofusion.footskate.vgrf import load_vgrf_model
 
         model = load_vgrf_model(args.vgrf_model)
         runs["kinematic+vgrf_loss"] = {"vgrf_model": model}

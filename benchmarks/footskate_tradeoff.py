@@ -79,7 +79,7 @@ def main() -> None:
              **({"fid": fid(ref, emb.motions([f for _, f in bodies]))} if emb else {})}]
     settings = {k: (v, None) for k, v in SETTINGS.items()}
     if args.vgrf_model is not None:
-        from stablemofusion.footskate.distil import load_vgrf_model
+        from stablemofusion.footskate.vgrf import load_vgrf_model
 
         vgrf = load_vgrf_model(args.vgrf_model).eval()
         settings["+ vGRF loss (distilled model)"] = (DEFAULT, vgrf)

@@ -23,7 +23,7 @@ from stablemofusion.pipeline import MotionPipeline
 VARIANTS: dict[str, RigidFitConfig | None] = {
     "model's raw motion (no rigid stage)": None,
     "rigid (default: dataset lengths, closed form + 4 block sweeps, rotations kept)": RigidFitConfig(),
-    "rigid, L-BFGS from the closed form (20 steps; the stage before session 7)": RigidFitConfig(method="lbfgs"),
+    "rigid, L-BFGS from the closed form (20 steps; an earlier stage)": RigidFitConfig(method="lbfgs"),
     "rigid, rotation channels by IK of the rigid body": RigidFitConfig(rotations="ik"),
     "rigid, median bone lengths": RigidFitConfig(bone_lengths="median"),
     "rigid, start from the rotation channels": RigidFitConfig(start="rotations"),

@@ -86,7 +86,7 @@ async def concurrent_pass(session: aiohttp.ClientSession, base: str, bodies: lis
 async def run(base: str, bodies: list[dict], one_by_one: bool = True, passes: int = 1) -> dict:
     """The load, from an aiohttp client (keep-alive, one connection per request in flight): httpx's async
     pool was the bottleneck at 200 concurrent requests (44-300 requests/s against a server whose generation
-    is instant, vs about 1,000 with aiohttp; session 9)."""
+    is instant, vs about 1,000 with aiohttp)."""
     async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(limit=0)) as session:
         await concurrent_pass(session, base, bodies)  # warm-up, untimed
         runs = [await concurrent_pass(session, base, bodies) for _ in range(passes)]

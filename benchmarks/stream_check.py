@@ -1,4 +1,4 @@
-"""Live streams checked as issue 25 asks, over a real WebSocket against `smf serve` (the shipped model) on
+"""Live streams checked, over a real WebSocket against `smf serve` (the shipped model) on
 127.0.0.1:
 
     OMP_NUM_THREADS=1 python benchmarks/stream_check.py [--classifier CL --data CORPUS] [--seconds 30]

@@ -5,7 +5,7 @@ For each (model, steps): content/style accuracy of held-out probe prompts (and o
 of one fixed draw of a split: the figures `smf train --eval-every` records (eval/monitor.py), at a chosen step
 count. Every model samples with its own default sampler (the student: lcm; the teacher: SDE-DPM-Solver++ 2M
 Karras) and its own default guidance unless --guidance is given (the shipped student 2.5 as its input, the shipped
-teacher 1.0 since session 13; the tables of sessions 9-11 were made at 2.5 for both), the same seeds for all; each
+teacher 1.0), the same seeds for all; each
 row records its guidance.
 
     OMP_NUM_THREADS=1 python benchmarks/student_table.py --student RUN --teacher MODEL --data CORPUS \
@@ -40,7 +40,7 @@ def measure(pipe, steps: int, args, classifier, labels, probes: dict, evaluator,
 
     from stablemofusion.pipelines.settings import Settings
 
-    s = pipe.settings(Settings(args.guidance, sampler=sampler))
+    s = pipe.settings(Settings(guidance_scale=args.guidance, sampler=sampler))
     row: dict = {"steps": steps, "sampler": s.sampler, "guidance": s.guidance_scale}
     t0 = time.perf_counter()
     for name, items in probes.items():

@@ -1,9 +1,9 @@
-"""A 20 s three-prompt timeline, checked as the issue asks: does the label classifier recognise each segment,
+"""A 20 s three-prompt timeline, checked: does the label classifier recognise each segment,
 and is any join's velocity jump larger than the largest frame-to-frame change inside the segments?
 
     python benchmarks/timeline_check.py --classifier CL [--seeds 5] [--checkpoint MODEL] [--teacher] [--steps N]
 
-Timeline "walk forward:8; wave both hands:6; bow:6" (the issue's example actions). For each seed: the
+Timeline "walk forward:8; wave both hands:6; bow:6" (three actions of the corpus). For each seed: the
 classifier's content label of each segment's frames (restricted to nothing: all 24 contents compete); the
 largest change of any joint's velocity between consecutive frames at each join (frames join-2 .. join+1)
 and inside the segments away from the joins (more than 5 frames from a join), in m/s per frame.

@@ -7,10 +7,9 @@ Random normalised features and text tokens (the data pipeline is timed separatel
 With ``--data CORPUS`` it runs the real training loop (`smf train`'s own code: batches, text cache, caption
 augmentation, EMA) for each ``--recipe`` in turn, ``--rounds`` times interleaved (so a busy machine slows
 each alike), and prints the median of `smf train`'s own samples/s (log.csv) over the steps after the first
-few. Recipes: ``session5`` (the session-5 model's: fp32, captions perturbed with probability 0.5), ``v2``
-(bf16 autocast, captions perturbed with probability 0.1, label balancing), ``v3`` (the shipped teacher's: bf16,
-captions perturbed with probability 0.5, short crops 0.5) and ``v3-lean`` (v3 with captions perturbed with
-probability 0.1). ``--recipe NAME@CHECKOUT`` runs that recipe with the code of another checkout (e.g. ``git
+few. Recipes: ``fp32`` (fp32, captions perturbed with probability 0.5), ``balanced`` (bf16 autocast, captions
+perturbed with probability 0.1, label balancing), ``shipped`` (the shipped teacher's: bf16, captions perturbed with
+probability 0.5, short crops 0.5) and ``shipped-lean`` (``shipped`` with captions perturbed with probability 0.1). ``--recipe NAME@CHECKOUT`` runs that recipe with the code of another checkout (e.g. ``git
 worktree add --detach /tmp/old COMMIT``), so a speed-up in the code is measured against the code before it.
 The text cache is warmed first, so no run pays for encoding the corpus's captions.
 """
@@ -39,7 +38,7 @@ p.add_argument("--compile", action="store_true", help="torch.compile the forward
 p.add_argument("--fused", action="store_true", help="fused AdamW (CUDA)")
 p.add_argument("--data", default=None, help="a corpus: time the real training loop for each --recipe")
 p.add_argument("--recipe", action="append", default=None,
-               help="session5 | v2 | v3 | v3-lean, optionally @CHECKOUT (repeatable)")
+               help="fp32 | balanced | shipped | shipped-lean, optionally @CHECKOUT (repeatable)")
 p.add_argument("--rounds", type=int, default=2)
 p.add_argument("--text-cache", default=None, help="text cache folder (default: a temporary one)")
 p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
@@ -47,11 +46,11 @@ a = p.parse_args()
 if a.threads:
     torch.set_num_threads(a.threads)
 
-RECIPES = {"session5": ["--mixed-precision", "no", "--text-augment", "0.5", "--bucket", "16"],
-           "v2": ["--mixed-precision", "bf16", "--text-augment", "0.1", "--bucket", "16", "--balance", "0.5"],
-           "v3": ["--mixed-precision", "bf16", "--text-augment", "0.5", "--bucket", "16", "--balance", "0",
+RECIPES = {"fp32": ["--mixed-precision", "no", "--text-augment", "0.5", "--bucket", "16"],
+           "balanced": ["--mixed-precision", "bf16", "--text-augment", "0.1", "--bucket", "16", "--balance", "0.5"],
+           "shipped": ["--mixed-precision", "bf16", "--text-augment", "0.5", "--bucket", "16", "--balance", "0",
                   "--short-crops", "0.5"],
-           "v3-lean": ["--mixed-precision", "bf16", "--text-augment", "0.1", "--bucket", "16", "--balance", "0",
+           "shipped-lean": ["--mixed-precision", "bf16", "--text-augment", "0.1", "--bucket", "16", "--balance", "0",
                        "--short-crops", "0.5"]}
 # run `smf` from another checkout: an editable install's import hook would win over PYTHONPATH, so drop it first
 LAUNCH_FROM = ("import sys; sys.meta_path[:] = [f for f in sys.meta_path if 'editable' not in "
@@ -69,7 +68,7 @@ def real_loop() -> None:
 
     skip = 3
     cache = a.text_cache or tempfile.mkdtemp(prefix="smf-text-")
-    rates: dict[str, list[float]] = {r: [] for r in a.recipe or ["session5", "v2"]}
+    rates: dict[str, list[float]] = {r: [] for r in a.recipe or ["fp32", "balanced"]}
     runs = {name: name.partition("@")[::2] for name in rates}  # name -> (recipe, checkout or "")
     for name, (recipe, _) in runs.items():
         if recipe not in RECIPES:

@@ -21,6 +21,7 @@ import orjson
 
 from .errors import SMFError
 from .io import write_bytes
+from .limits import OUTPUT_FORMATS
 from .motion.files import rigid_bvh_text, rigid_pose
 from .pipelines.result import MotionResult
 
@@ -168,6 +169,7 @@ def _video(fmt: str) -> Writer:
 _video("mp4")
 _video("gif")
 FORMATS = tuple(WRITERS)
+assert set(FORMATS) == set(OUTPUT_FORMATS), "limits.OUTPUT_FORMATS names every writer"
 
 
 def parse_formats(text: str) -> list[str]:
@@ -214,7 +216,7 @@ def write_results(results: list[MotionResult], out: Path, formats: list[str], me
     for i, r in enumerate(results):
         stem = free_stem(Path(out) / slug(r.prompt, i), formats, overwrite, rig is not None)
         write_result(r, stem, formats, meta, rig)
-        print(f"wrote {stem}.* ({r.frames} frames, {r.seconds:.1f} s)")
+        print(f"wrote {stem}.* ({r.frames} frames, {r.seconds:.1f} s, seed {r.seed})")
         stems.append(stem)
     return stems
 

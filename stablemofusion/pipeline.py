@@ -17,19 +17,17 @@ import numpy as np
 import torch
 
 from .diffusion.sampling import DenoiserFn, guided
-from .diffusion.engine import SolverEngine
-from .edit import EditPlan, edit_hooks
 from .models.base import TextCondition
 from .pipelines.components import Components, default_model_path
 from .pipelines.edit import EditPipeline
 from .pipelines.result import MotionResult
-from .pipelines.sample import sample as sample_raw
-from .pipelines.settings import (BATCH_SIZE, DEFAULT_SECONDS, FOOTSKATE_MODES, LengthClampedWarning,
-                                 OutOfDomainWarning, Settings, resolve_engine)
+from .pipelines.denoise import sample as sample_raw
+from .limits import BATCH_SIZE, DEFAULT_SECONDS, FOOTSKATE_MODES
+from .pipelines.settings import EngineWarning, LengthClampedWarning, OutOfDomainWarning, Settings
 from .pipelines.stream import STREAM_CHUNK, STREAM_REWIND, MotionStream, StreamPipeline
 from .pipelines.text_to_motion import TextToMotionPipeline
 from .pipelines.timeline import TimelinePipeline
-from .timeline import DEFAULT_OVERLAP
+from .timeline_plan import DEFAULT_OVERLAP
 
 
 class MotionPipeline(Components):
@@ -38,36 +36,37 @@ class MotionPipeline(Components):
     def __call__(self, prompts: str | list[str], *, seconds: float | list[float] | None = None,
                  frames: int | list[int] | None = None, guidance_scale: float | None = None, steps: int | None = None,
                  sampler: str | None = None, seed: int | list[int] | None = None, batch_size: int = BATCH_SIZE,
-                 progress: bool = False, footskate: str = "off", footskate_options=None,
+                 progress: bool = False, footskate: str | None = None, footskate_options=None,
                  engine: str | None = None) -> list[MotionResult]:
         """One motion per prompt (:class:`~stablemofusion.pipelines.text_to_motion.TextToMotionPipeline`).
         ``footskate``: 'off', 'post' (clean up each result) or 'loop' (clean up the predicted x0 in the last
         denoising steps); ``engine``: 'auto', 'eager', 'fast', 'compiled' or 'graph' (default: the pipeline's)."""
-        settings = Settings(guidance_scale, steps, sampler, footskate, footskate_options, engine, batch_size)
-        self.engine_for(sampler, engine)  # fail early on an unknown engine
+        settings = Settings(guidance_scale=guidance_scale, steps=steps, sampler=sampler, footskate=footskate,
+                            footskate_options=footskate_options, engine=engine, batch_size=batch_size)
         return TextToMotionPipeline(self)(prompts, seconds=seconds, frames=frames, seed=seed, settings=settings,
                                           progress=progress)
 
     def timeline(self, segments: list[tuple[str, float]], *, overlap: float = DEFAULT_OVERLAP,
                  guidance_scale: float | None = None, steps: int | None = None, sampler: str | None = None,
-                 seed: int | None = None, impose: str = "x0", footskate: str = "off", footskate_options=None,
+                 seed: int | None = None, impose: str = "x0", footskate: str | None = None, footskate_options=None,
                  engine: str | None = None, progress: bool | None = False) -> MotionResult:
         """One continuous motion from (prompt, seconds) segments, of any total length
         (:class:`~stablemofusion.pipelines.timeline.TimelinePipeline`); window j uses ``seed + j``;
         ``progress`` None: a progress bar for long timelines."""
-        settings = Settings(guidance_scale, steps, sampler, footskate, footskate_options, engine)
+        settings = Settings(guidance_scale=guidance_scale, steps=steps, sampler=sampler, footskate=footskate,
+                            footskate_options=footskate_options, engine=engine)
         return TimelinePipeline(self)(segments, overlap=overlap, seed=seed, settings=settings, impose=impose,
                                       progress=progress)
 
     def edit(self, prompt: str, source: np.ndarray, mode: str, *, keep_start: float = 0.0, keep_end: float = 0.0,
              seconds: float | None = None, path: np.ndarray | None = None, guidance_scale: float | None = None,
              steps: int | None = None, sampler: str | None = None, seed: int | None = None, impose: str = "x0",
-             footskate: str = "off", footskate_options=None, engine: str | None = None,
+             footskate: str | None = None, footskate_options=None, engine: str | None = None,
              progress: bool | None = None) -> MotionResult:
         """Edit ``source`` features (Ts, D) with ``prompt`` (:class:`~stablemofusion.pipelines.edit.EditPipeline`):
-        ``mode`` one of :data:`stablemofusion.edit.EDIT_MODES`, lengths in seconds."""
-        settings = Settings(guidance_scale, steps, sampler, footskate, footskate_options, engine)
-        self.engine_for(sampler, engine)
+        ``mode`` one of :data:`stablemofusion.edit_plan.EDIT_MODES`, lengths in seconds."""
+        settings = Settings(guidance_scale=guidance_scale, steps=steps, sampler=sampler, footskate=footskate,
+                            footskate_options=footskate_options, engine=engine)
         return EditPipeline(self)(prompt, source, mode, keep_start=keep_start, keep_end=keep_end, seconds=seconds,
                                   path=path, seed=seed, settings=settings, impose=impose, progress=progress)
 
@@ -79,8 +78,7 @@ class MotionPipeline(Components):
         (or ``stream.send(p)``) changes the prompt from the next window on; window j uses ``seed + j``;
         ``stream.cut(n)`` rolls it back to frame ``n`` (any of its last ``rewind`` frames), so that the next
         chunk starts there (continuing from frame ``n - 1``, with the prompt current then)."""
-        settings = Settings(guidance_scale, steps, sampler, "off", None, engine)
-        self.engine_for(sampler, engine)
+        settings = Settings(guidance_scale=guidance_scale, steps=steps, sampler=sampler, footskate="off", engine=engine)
         return StreamPipeline(self)(prompt, seed=seed, settings=settings, chunk=chunk, rewind=rewind)
 
     @torch.no_grad()
@@ -102,25 +100,17 @@ class MotionPipeline(Components):
     def denoise(self, prompts: list[str], lengths: list[int], *, guidance_scale: float | None = None,
                 steps: int | None = None, sampler: str | None = None, seed: int | list[int] | None = None,
                 batched_cfg: bool = True,
-                footskate: str = "off", footskate_options=None, engine: str | None = None,
-                edit: EditPlan | None = None, impose: str = "x0") -> torch.Tensor:
+                footskate: str = "off", footskate_options=None, engine: str | None = None) -> torch.Tensor:
         """The model's raw features (B, max(lengths), D) of one batch in dataset units (CPU, float32), before
-        the final stage (:func:`stablemofusion.pipelines.sample.sample`); ``edit`` a known part every item
-        keeps, imposed in x0 or x_t (``impose``)."""
-        settings = Settings(guidance_scale, steps, sampler, footskate, footskate_options, engine)
-        if edit is None:
-            return sample_raw(self, prompts, lengths, settings, seed, batched_cfg=batched_cfg)
-        settings = self.settings(settings, edit=True)
-        x0_hook, xt_hook = edit_hooks(edit, self.mean, self.std, len(prompts), self.device, self.dtype, impose)
-        self.engine_for(sampler, engine)
-        raw = sample_raw(self, prompts, lengths, settings.with_engine("fast"), seed, x0_hook=x0_hook,
-                         xt_hook=xt_hook, batched_cfg=batched_cfg)
-        return torch.stack([edit.project(r.double()).float() for r in raw])
+        the final stage (:func:`stablemofusion.pipelines.denoise.sample`)."""
+        settings = self.settings(Settings(guidance_scale=guidance_scale, steps=steps, sampler=sampler,
+                                          footskate=footskate, footskate_options=footskate_options, engine=engine))
+        return sample_raw(self, prompts, lengths, settings, seed, batched_cfg=batched_cfg)
 
     def engine_for(self, sampler: str | None, engine: str | None = None) -> str:
         """The engine a call runs with: ``engine`` (default: this pipeline's) resolved for the sampler (None:
         the model's)."""
-        return resolve_engine(engine or self.engine, self.device, sampler or self.settings().sampler)
+        return self.settings(Settings(sampler=sampler, engine=engine)).engine
 
     def guided(self, cond: TextCondition, uncond: TextCondition | None, mask: torch.Tensor, scale: float,
                batched: bool = True) -> DenoiserFn:
@@ -128,9 +118,7 @@ class MotionPipeline(Components):
         model is a student, whose ``cond`` already holds the scale and ``uncond`` is None)."""
         return guided(self.model, cond, None if scale == 1.0 else uncond, mask, scale, batched)
 
-    def _engine(self, name: str) -> SolverEngine:
-        return self.solver_engine(name)
 
-
-__all__ = ["MotionPipeline", "MotionResult", "MotionStream", "Settings", "LengthClampedWarning", "OutOfDomainWarning",
+__all__ = ["MotionPipeline", "MotionResult", "MotionStream", "Settings", "EngineWarning", "LengthClampedWarning",
+           "OutOfDomainWarning",
            "default_model_path", "DEFAULT_SECONDS", "FOOTSKATE_MODES"]

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from stablemofusion.cli.main import main
-from stablemofusion.diffusion.samplers import make_sampler, sampler_names
+from stablemofusion.diffusion.schedulers import make_sampler, sampler_names
 from stablemofusion.errors import SMFError
 from stablemofusion.pipeline import LengthClampedWarning, MotionPipeline
 
@@ -100,8 +100,10 @@ def test_mixed_lengths_clamping_and_long_motions(pipe):
 
 @pytest.mark.parametrize("kwargs, msg", [
     (dict(prompts=""), "non-empty"),
-    (dict(prompts="x", seconds=-1.0), "positive"),
-    (dict(prompts="x", seconds=0.0), "positive"),
+    (dict(prompts="x", seconds=-1.0), "more than 0"),
+    (dict(prompts="x", seconds=0.0), "more than 0"),
+    (dict(prompts="x", seconds=121.0), "at most 120 s"),
+    (dict(prompts="x", guidance_scale=-3.0), "guidance must be"),
     (dict(prompts="x", sampler="magic"), "unknown sampler"),
     (dict(prompts="x", sampler="pndm", engine="fast"), "only with the eager engine"),
     (dict(prompts="x", engine="warp"), "engine must be"),
@@ -135,7 +137,7 @@ def test_generate_writes_files(checkpoint, tmp_path, capsys):
 
 @pytest.mark.parametrize("argv, msg", [
     (["generate", "", "--out", "{d}"], "empty"),
-    (["generate", "x", "--seconds", "0", "--out", "{d}"], "positive"),
+    (["generate", "x", "--seconds", "0", "--out", "{d}"], "more than 0"),
     (["generate", "x", "--format", "avi", "--out", "{d}"], "unknown format"),
     (["generate", "--prompts", "{d}/none.txt", "--out", "{d}"], "no such file"),
     (["generate", "x", "--out", "{d}", "--checkpoint", "{d}/nope"], "not a checkpoint"),
@@ -174,7 +176,8 @@ def test_bench_prints_json(checkpoint, tmp_path, capsys):
     assert [(r["batch_size"], r["engine"]) for r in rows] == [(1, "eager"), (1, auto), (2, "eager"), (2, auto)]
     assert all(r["aits"] > 0 and r["speedup_over_eager"] > 0 and r["warmup_seconds"] > 0 for r in rows)
     assert rows[0]["speedup_over_eager"] == 1.0
-    assert main(["bench", "--checkpoint", str(checkpoint), "--engine", "graph"]) == 2 or torch.cuda.is_available()
+    if not torch.cuda.is_available():  # the graph engine needs CUDA: refused here in one line
+        assert main(["bench", "--checkpoint", str(checkpoint), "--engine", "graph"]) == 2
 
 
 def test_pipeline_is_importable_from_the_package_top():

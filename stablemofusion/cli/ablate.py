@@ -16,7 +16,7 @@ DEFAULT_SAMPLERS = ("ddpm,ddim,pndm,deis-karras,dpmsolver++-karras,sde-dpmsolver
 def add_parser(sub, name: str) -> None:
     from .flags import add_teacher_flag
 
-    p = sub.add_parser(name, help="sampler and architecture ablation tables",
+    p = sub.add_parser(name,
                        description="Reproduce the paper's sampler table (min. steps within 5% of each sampler's "
                                    "best FID and top-3) and architecture table (each preset trained alike).")
     kinds = p.add_subparsers(dest="kind", metavar="KIND", required=True)
@@ -61,7 +61,7 @@ def _write(out: Path, result: dict, md: str) -> None:
 
 
 def run_samplers(args: argparse.Namespace) -> None:
-    from ..diffusion.samplers import make_sampler
+    from ..diffusion.schedulers import make_sampler
     from ..errors import SMFError
     from ..eval.ablation import ablate_samplers, sampler_markdown
     from ..pipeline import MotionPipeline
@@ -81,7 +81,7 @@ def run_samplers(args: argparse.Namespace) -> None:
         make_sampler(s, pipe.schedule)  # unknown names fail before any work
     cfg = eval_config(args, mm_captions=0 if args.mm_captions is None else args.mm_captions)
     # the model's guidance where --guidance leaves it (the samplers and steps are what this ablation varies)
-    cfg = replace(cfg, guidance_scale=pipe.settings(Settings(cfg.guidance_scale)).guidance_scale)
+    cfg = replace(cfg, guidance_scale=pipe.settings(Settings(guidance_scale=cfg.guidance_scale)).guidance_scale)
     embedder = load_embedder(args, pipe)
     full = {s: sorted(set(grid + (extra if s == "ddpm" else []))) for s in samplers}
     result = ablate_samplers(pipe, embedder, args.data, cfg, full, progress=not args.no_progress)

@@ -11,7 +11,7 @@ ADDON_NAME = "stablemofusion_addon"  # the module name Blender enables
 
 
 def add_parser(sub, name: str) -> None:
-    p = sub.add_parser(name, help="write the Blender add-on as a zip to install from Blender's preferences",
+    p = sub.add_parser(name,
                        description="Write the Blender add-on (a panel with prompt, seconds and seed that puts a "
                                    "generated motion on the selected armature) as a zip; docs/character.md.")
     p.add_argument("--out", type=Path, default=Path(f"{ADDON_NAME}.zip"), help=f"zip to write (default {ADDON_NAME}.zip)")

@@ -14,15 +14,15 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
-    from ..pipelines.settings import SAMPLER, STEPS, STUDENT
+    from ..limits import SAMPLER, STEPS, STUDENT_SAMPLER
     from .flags import add_teacher_flag
 
-    p = sub.add_parser(name, help="average inference time per sentence (batch 1 and 32)")
+    p = sub.add_parser(name)
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
     add_teacher_flag(p)
     p.add_argument("--preset", default=None, help="time an untrained preset instead of a checkpoint")
     p.add_argument("--sampler", action="append", default=None, help=f"repeatable (default: the model's: {SAMPLER}, a "
-                                                                      f"distilled student {STUDENT})")
+                                                                      f"distilled student {STUDENT_SAMPLER})")
     p.add_argument("--steps", type=int, action="append", default=None,
                    help=f"repeatable (default: the model's: {STEPS}, a distilled student its own count)")
     p.add_argument("--engine", action="append", default=None,
@@ -94,7 +94,8 @@ def run(args: argparse.Namespace) -> None:
     args.frames = args.frames or pipe.max_frames
     from ..pipelines.settings import Settings
 
-    defaults = pipe.settings(Settings(args.guidance))  # the model's guidance, steps and sampler (a student's own)
+    # the model's guidance, steps and sampler (a student's own)
+    defaults = pipe.settings(Settings(guidance_scale=args.guidance))
     samplers = args.sampler or [defaults.sampler]
     steps_list = args.steps or [defaults.steps]
     try:

@@ -7,14 +7,14 @@ import argparse
 from pathlib import Path
 
 from ..errors import SMFError
-from ..motion.files import load_motion, save_motion
 from .character import add_character_arguments, load_rig
+from .flags import add_overwrite_flag, check_new_output
 
 OUTPUTS = (".npy", ".bvh", ".glb")
 
 
 def add_parser(sub, name: str) -> None:
-    p = sub.add_parser(name, help="convert between joints .npy, features .npy, .bvh and .glb",
+    p = sub.add_parser(name,
                        description="Convert a motion between joints .npy (T,J,3 metres), features .npy (T,263|251), "
                                    "BVH and glTF 2.0 binary (.glb: a skinned character with one animation). A .npy "
                                    "output holds the other kind than the input unless --to says. With --rig and "
@@ -23,13 +23,14 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("output", type=Path, help="output file: .npy, .bvh or .glb")
     p.add_argument("--to", choices=["joints", "features"], default=None,
                    help="what a .npy output holds (default: features for a joints input, joints otherwise)")
+    add_overwrite_flag(p)
     add_character_arguments(p, reads_motion=True)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> None:
     from ..io import write_bytes
-    from ..motion.files import rigid_pose
+    from ..motion.files import load_motion, rigid_pose, save_motion
     from ..output import glb_bytes, rig_bvh_text
     from ..pipelines.result import MotionResult
 
@@ -39,6 +40,7 @@ def run(args: argparse.Namespace) -> None:
     rig = load_rig(args, args.input)
     if rig is not None and suffix != ".bvh":
         raise SMFError(f"--rig writes the rig's BVH: give an output ending in .bvh, not '{args.output.suffix}'")
+    check_new_output(args.output, args.overwrite)
     motion = load_motion(args.input, joint_map=args.joint_map)
     if rig is not None or suffix == ".glb":
         result = MotionResult(str(args.input), motion.features, motion.joints, motion.fps, None,

@@ -8,7 +8,7 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
-    p = sub.add_parser(name, help="draw a training run's learning curve (probe accuracy, FID, loss) as a PNG",
+    p = sub.add_parser(name,
                        description="Plot RUN/eval.jsonl (`smf train --eval-every`) and RUN/log.csv: held-out probe "
                                    "content and style accuracy and validation FID against steps and against "
                                    "training wall time, and the smoothed loss. With several runs: their evaluations "

@@ -33,8 +33,7 @@ _FLAGS = {  # DistilConfig field -> help
 
 
 def add_parser(sub, name: str) -> None:
-    p = sub.add_parser(name, help="distil a few-step student (consistency or regression distillation, guidance as "
-                                  "input)",
+    p = sub.add_parser(name,
                        description="Consistency distillation (LCM) of a teacher into a student that samples in a few "
                                    "steps with one forward per step (the guidance scale is an input), or regression "
                                    "on the teacher's samples (--method regression); docs/inference.md, 'Few-step "

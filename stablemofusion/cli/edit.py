@@ -7,11 +7,11 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
-    from ..edit import EDIT_MODES, IMPOSE
+    from ..limits import EDIT_MODES, IMPOSE
     from .character import add_character_arguments
     from .options import add_sampling_arguments
 
-    p = sub.add_parser(name, help="edit a motion with text: keep part of it, generate the rest",
+    p = sub.add_parser(name,
                        description="Keep part of a motion (its start, its end, both, one half of the body, or its "
                                    "root path) and generate the rest from the text; docs/editing.md.")
     p.add_argument("text", help="what the generated part should do")
@@ -33,15 +33,18 @@ def add_parser(sub, name: str) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
+    from .options import check_sampling
+
+    check_sampling(args)  # before the heavy imports below: a bad flag is answered at once
     import numpy as np
 
-    from ..edit import source_features
+    from ..edit_plan import source_features
     from ..errors import SMFError
     from ..motion.files import load_motion
     from ..output import parse_formats, write_results
     from ..pipelines.edit import check_edit_inputs
     from .character import load_rig
-    from .options import load_pipeline, output_meta, sampling_kwargs
+    from .options import load_pipeline, output_meta, sampling_kwargs, user_warnings
 
     formats = parse_formats(args.format)
     rig = load_rig(args, args.motion)
@@ -66,8 +69,9 @@ def run(args: argparse.Namespace) -> None:
     kwargs = sampling_kwargs(args)
     pipe = load_pipeline(args)
     source = source_features(motion, pipe.skeleton, pipe.fps, args.fps)
-    result = pipe.edit(args.text, source, args.mode, keep_start=args.keep_start, keep_end=args.keep_end,
-                       seconds=args.seconds, path=path, impose=args.impose, **kwargs)
+    with user_warnings():
+        result = pipe.edit(args.text, source, args.mode, keep_start=args.keep_start, keep_end=args.keep_end,
+                           seconds=args.seconds, path=path, impose=args.impose, **kwargs)
     write_results([result], args.out, formats,
                   {"edit": args.mode, "impose": args.impose, "keep_start": args.keep_start, "keep_end": args.keep_end,
                    **output_meta(args, pipe, edit=True)}, overwrite=args.overwrite, rig=rig)

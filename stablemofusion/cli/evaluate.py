@@ -8,7 +8,7 @@ from pathlib import Path
 
 def add_eval_args(p: argparse.ArgumentParser) -> None:
     """Arguments shared by `smf evaluate` and `smf ablate`."""
-    from ..pipelines.settings import SAMPLER, STEPS, STUDENT
+    from ..limits import SAMPLER, STEPS, STUDENT_SAMPLER
 
     p.add_argument("--data", type=Path, required=True, help="corpus folder (HumanML3D layout) with a test split")
     p.add_argument("--evaluator", type=Path, default=None, help="evaluator folder from `smf train-evaluator`")
@@ -16,7 +16,7 @@ def add_eval_args(p: argparse.ArgumentParser) -> None:
                    help="root of the original T2M evaluator files (instead of --evaluator); needs --glove")
     p.add_argument("--glove", type=Path, default=None, help="GloVe folder of the original T2M evaluator")
     p.add_argument("--sampler", default=None, help=f"sampler (default: the model's: {SAMPLER}, a distilled student "
-                                                   f"{STUDENT})")
+                                                   f"{STUDENT_SAMPLER})")
     p.add_argument("--steps", type=int, default=None,
                    help=f"sampling steps (default: the model's: {STEPS}, a distilled student its own count)")
     p.add_argument("--guidance", type=float, default=None,
@@ -43,7 +43,7 @@ def add_eval_args(p: argparse.ArgumentParser) -> None:
 def add_parser(sub, name: str) -> None:
     from .flags import add_teacher_flag
 
-    p = sub.add_parser(name, help="evaluate a checkpoint with the T2M protocol",
+    p = sub.add_parser(name,
                        description="FID, R-precision top-1/2/3, matching distance, diversity, multimodality over "
                                    "N replications (mean ± 95% interval), average inference time per sentence.")
     p.add_argument("--checkpoint", type=Path, default=None,

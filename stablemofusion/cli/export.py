@@ -9,7 +9,7 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
-    p = sub.add_parser(name, help="write a release folder (EMA weights in fp16, config, Mean/Std, model card)",
+    p = sub.add_parser(name,
                        description="Export a checkpoint for shipping: EMA weights only, float16 by default.")
     p.add_argument("--checkpoint", type=Path, required=True, help="checkpoint or training run folder")
     p.add_argument("--out", type=Path, required=True, help="release folder to write (replaced atomically)")

@@ -42,8 +42,21 @@ def apply_threads(threads: int | None) -> None:
 
 def add_teacher_flag(p: argparse.ArgumentParser) -> None:
     """``--teacher``: the model's teacher instead of the distilled student (commands that take ``--checkpoint``)."""
-    from ..pipelines.settings import STEPS
+    from ..limits import STEPS
 
     p.add_argument("--teacher", action="store_true",
                    help=f"sample with the model's {STEPS}-step teacher instead of its distilled student (the teacher "
                         "the student's folder names; the shipped default model has one)")
+
+
+def add_overwrite_flag(p: argparse.ArgumentParser) -> None:
+    """``--overwrite``: for commands whose output file is named on the command line."""
+    p.add_argument("--overwrite", action="store_true", help="replace the output file if it exists (default: refuse)")
+
+
+def check_new_output(path, overwrite: bool) -> None:
+    """SMFError if ``path`` exists and ``overwrite`` is off: an output named by the user is never replaced silently."""
+    from ..errors import SMFError
+
+    if not overwrite and path.exists():
+        raise SMFError(f"{path} exists; give another output name, or --overwrite to replace it")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
-    p = sub.add_parser(name, help="footskate tools: vGRF distillation, contacts, cleanup",
+    p = sub.add_parser(name,
                        description="Foot contacts, footskate cleanup and the distillation of a 22-joint vGRF "
                                    "model from UnderPressure (non-commercial weights, supplied by you).")
     fs = p.add_subparsers(dest="footskate_command", metavar="ACTION", required=True)
@@ -40,7 +40,7 @@ def add_parser(sub, name: str) -> None:
 def vgrf_model_from_args(path: Path | None, underpressure: Path | None = None, required: bool = False):
     """The vGRF callable to use: UnderPressure (retargeted), a distilled file, the shipped one, or None."""
     from ..errors import SMFError
-    from ..footskate.distil import load_vgrf_model, shipped_vgrf_model_path
+    from ..footskate.vgrf import load_vgrf_model, shipped_vgrf_model_path
 
     if underpressure is not None:
         from ..footskate.underpressure import TeacherOn22, load_underpressure
@@ -58,7 +58,7 @@ def run_distil(args: argparse.Namespace) -> None:
     import torch
 
     from ..errors import SMFError
-    from ..footskate.distil import distil, load_corpus_joints, save_vgrf_model
+    from ..footskate.vgrf import distil, load_corpus_joints, save_vgrf_model
     from ..footskate.underpressure import load_underpressure
 
     if args.steps < 1:

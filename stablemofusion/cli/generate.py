@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import warnings
 from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
+    from ..limits import BATCH_SIZE
     from .character import add_character_arguments
     from .options import add_sampling_arguments
 
-    p = sub.add_parser(name, help="generate motions from text",
+    p = sub.add_parser(name,
                        description="Generate one motion per prompt and write joints/features .npy, video and BVH.")
     p.add_argument("text", nargs="?", default=None, help="the prompt (or use --prompts FILE)")
     p.add_argument("--prompts", type=Path, default=None, help="file with one prompt per line")
@@ -20,7 +20,7 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--seconds", type=float, default=None,
                    help="length of each motion (default: predicted from the text by the model's length estimator; "
                         "4 s for a model without one); not with --timeline, whose segments give their own")
-    p.add_argument("--batch-size", type=int, default=32)
+    p.add_argument("--batch-size", type=int, default=BATCH_SIZE, help="prompts generated together")
     add_sampling_arguments(p)
     add_character_arguments(p, reads_motion=False)
     p.set_defaults(func=run)
@@ -29,13 +29,13 @@ def add_parser(sub, name: str) -> None:
 def read_prompts(args) -> list[str]:
     """The prompts of the command line (a text, --prompts FILE or --timeline), checked."""
     from ..errors import SMFError
+    from ..limits import check_seconds
 
     if sum(x is not None for x in (args.text, args.prompts, args.timeline)) != 1:
         raise SMFError("give one of: a prompt text, --prompts FILE, --timeline 'PROMPT:SECONDS; ...'")
     if args.timeline is not None and args.seconds is not None:
         raise SMFError("--seconds does not apply to --timeline: give each segment its seconds ('PROMPT:SECONDS; ...')")
-    if args.seconds is not None and not args.seconds > 0:
-        raise SMFError(f"--seconds must be positive, got {args.seconds}")
+    check_seconds(args.seconds, "--seconds")
     if args.prompts is not None:
         if not args.prompts.is_file():
             raise SMFError(f"no such file: {args.prompts}")
@@ -48,7 +48,7 @@ def read_prompts(args) -> list[str]:
             raise SMFError(f"{args.prompts} holds no prompts")
         return prompts
     if args.timeline is not None:
-        from ..timeline import parse_timeline
+        from ..timeline_plan import parse_timeline
 
         return [p for p, _ in parse_timeline(args.timeline)]
     if not args.text.strip():
@@ -57,26 +57,24 @@ def read_prompts(args) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> None:
+    from .options import check_sampling
+
+    check_sampling(args)  # before the heavy imports below: a bad flag is answered at once
     from ..output import parse_formats, write_results
-    from ..pipeline import LengthClampedWarning, OutOfDomainWarning
     from .character import load_rig
-    from .options import load_pipeline, output_meta, sampling_kwargs
+    from .options import load_pipeline, output_meta, sampling_kwargs, user_warnings
 
     formats = parse_formats(args.format)
     rig = load_rig(args)  # checked before the model loads
     prompts = read_prompts(args)
     kwargs = sampling_kwargs(args)
     pipe = load_pipeline(args)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with user_warnings():
         if args.timeline is not None:
-            from ..timeline import parse_timeline
+            from ..timeline_plan import parse_timeline
 
             results = [pipe.timeline(parse_timeline(args.timeline), progress=None, **kwargs)]
         else:
             results = pipe(prompts, seconds=args.seconds, batch_size=args.batch_size, progress=len(prompts) > 1,
                            **kwargs)
-    shown = (LengthClampedWarning, OutOfDomainWarning)
-    for w in dict.fromkeys(str(c.message) for c in caught if issubclass(c.category, shown)):
-        print(f"smf: warning: {w}")
     write_results(results, args.out, formats, output_meta(args, pipe), overwrite=args.overwrite, rig=rig)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
-    p = sub.add_parser(name, help="parameter counts of model presets and architectures")
+    p = sub.add_parser(name)
     p.add_argument("--preset", action="append", default=None, help="preset name (repeatable; default: all)")
     p.add_argument("--checkpoint", type=Path, default=None, help="describe a checkpoint folder instead")
     p.set_defaults(func=run)

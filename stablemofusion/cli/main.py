@@ -1,4 +1,6 @@
-"""The `smf` command: one small module per subcommand, each with ``add_parser`` and ``run``."""
+"""The `smf` command: one small module per subcommand, each with ``add_parser`` and ``run``.
+
+Only the module of the command being run is imported (``smf --help`` and argument errors import no model code)."""
 
 from __future__ import annotations
 
@@ -9,50 +11,87 @@ import sys
 from .. import __version__
 from ..errors import SMFError
 
-# subcommand name -> module under stablemofusion.cli
+# subcommand name -> (module under stablemofusion.cli, one-line help); users' commands first, then research ones
 COMMANDS = {
-    "render": "render",
-    "convert": "convert",
-    "prepare": "prepare",
-    "train": "train",
-    "distil": "distil",
-    "curve": "curve",
-    "info": "info",
-    "generate": "generate",
-    "edit": "edit",
-    "bench": "bench",
-    "footskate": "footskate",
-    "train-evaluator": "train_evaluator",
-    "train-classifier": "train_classifier",
-    "train-length": "train_length",
-    "evaluate": "evaluate",
-    "export": "export",
-    "ablate": "ablate",
-    "serve": "serve",
-    "addon": "addon",
+    "generate": ("generate", "generate motions from text"),
+    "edit": ("edit", "edit a motion with text: keep part of it, generate the rest"),
+    "convert": ("convert", "convert between joints .npy, features .npy, .bvh and .glb"),
+    "render": ("render", "stick-figure video or still of a joints/features .npy or .bvh"),
+    "serve": ("serve", "serve text-to-motion over HTTP, with a 3D viewer"),
+    "addon": ("addon", "write the Blender add-on as a zip to install from Blender's preferences"),
+    "info": ("info", "parameter counts of model presets, or a model folder's settings"),
+    "prepare": ("prepare", "build a text-motion corpus in the HumanML3D layout"),
+    "train": ("train", "train a diffusion denoiser on a HumanML3D-layout corpus"),
+    "distil": ("distil", "distil a few-step student (consistency or regression distillation, guidance as input)"),
+    "train-length": ("train_length", "train the length-from-text estimator of a model folder"),
+    "train-evaluator": ("train_evaluator", "train the text/motion evaluator used by `smf evaluate`"),
+    "train-classifier": ("train_classifier", "train the motion classifier behind `smf evaluate --classifier`"),
+    "evaluate": ("evaluate", "evaluate a checkpoint with the T2M protocol"),
+    "ablate": ("ablate", "sampler and architecture ablation tables"),
+    "bench": ("bench", "average inference time per sentence (batch 1 and 32)"),
+    "export": ("export", "write a release folder (EMA weights in fp16, config, Mean/Std, model card)"),
+    "curve": ("curve", "draw a training run's learning curve (probe accuracy, FID, loss) as a PNG"),
+    "footskate": ("footskate", "footskate tools: vGRF distillation, contacts, cleanup"),
 }
 
 
+class HelpWithDefaults(argparse.HelpFormatter):
+    """Help that shows each option's default, unless its text already speaks of one or it has none."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if (not action.option_strings or "default" in text or action.default in (None, False, argparse.SUPPRESS)
+                or isinstance(action, argparse._HelpAction)):
+            return text
+        return f"{text} (default: %(default)s)"
+
+
 class _Parser(argparse.ArgumentParser):
-    """ArgumentParser whose usage errors are one line (exit code 2)."""
+    """ArgumentParser whose usage errors are one line (exit code 2) and whose help shows defaults."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", HelpWithDefaults)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # noqa: D102
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+class _Commands:
+    """What a command module's ``add_parser`` receives: ``add_parser(name, ...)`` with the command's help."""
+
+    def __init__(self, sub):
+        self._sub = sub
+
+    def add_parser(self, name: str, **kwargs) -> argparse.ArgumentParser:
+        kwargs.setdefault("help", COMMANDS[name][1])
+        return self._sub.add_parser(name, **kwargs)
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser of `smf`, with the full arguments of ``command`` only (None: every command fully, for docs
+    and tests); the other commands are listed by name and help."""
     parser = _Parser(prog="smf", description="StableMoFusion: text to human motion.")
     parser.add_argument("--version", action="version", version=f"smf {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name, module in COMMANDS.items():
-        importlib.import_module(f"{__package__}.{module}").add_parser(sub, name)
+    for name, (module, text) in COMMANDS.items():
+        if command is None or name == command:
+            importlib.import_module(f"{__package__}.{module}").add_parser(_Commands(sub), name)
+        else:
+            sub.add_parser(name, help=text)
     return parser
+
+
+def requested_command(argv: list[str]) -> str:
+    """The command named on a command line ('' for none): its first word not starting with '-'."""
+    word = next((a for a in argv if not a.startswith("-")), "")
+    return word if word in COMMANDS else ""
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: bad input prints one line 'smf: error: ...' and returns exit code 2."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(requested_command(argv)).parse_args(argv)
     try:
         args.func(args)
     except SMFError as e:

@@ -4,19 +4,19 @@ from :mod:`stablemofusion.pipelines.settings`, and the pipeline settings and wri
 from __future__ import annotations
 
 import argparse
+import contextlib
 from pathlib import Path
 
 
 def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
     """--out, --format, --overwrite, --guidance, --steps, --sampler, --seed, --checkpoint, --teacher, --device,
     --engine and the footskate flags."""
-    from ..diffusion.engine import ENGINES
-    from ..output import FORMATS
-    from ..pipelines.settings import FOOTSKATE_MODES, GUIDANCE, SAMPLER, STEPS, STUDENT, STUDENT_EDIT_STEPS
+    from ..limits import (DEFAULT_FORMATS, ENGINES, FOOTSKATE, FOOTSKATE_MODES, GUIDANCE, OUTPUT_FORMATS, SAMPLER,
+                          STEPS, STUDENT_EDIT_STEPS, STUDENT_SAMPLER)
     from .flags import add_teacher_flag
 
     p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.add_argument("--format", default="npy,mp4,bvh", help=f"comma list of {','.join(FORMATS)} (default npy,mp4,bvh)")
+    p.add_argument("--format", default=DEFAULT_FORMATS, help=f"comma list of {','.join(OUTPUT_FORMATS)}")
     p.add_argument("--overwrite", action="store_true",
                    help="replace files of the same name (default: a free name, NAME-2, NAME-3, ...)")
     p.add_argument("--guidance", type=float, default=None,
@@ -26,8 +26,9 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"sampling steps (default: the model's: {STEPS}, a distilled student its own count; editing "
                         f"with a student at least {STUDENT_EDIT_STEPS})")
     p.add_argument("--sampler", default=None,
-                   help=f"sampler name (default: the model's: {SAMPLER}, a distilled student {STUDENT})")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+                   help=f"sampler name (default: the model's: {SAMPLER}, a distilled student {STUDENT_SAMPLER})")
+    p.add_argument("--seed", type=int, default=None,
+                   help="random seed (default: a fresh one, printed with each motion so that it can be made again)")
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
     add_teacher_flag(p)
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
@@ -37,8 +38,10 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--engine", default="auto", choices=("auto",) + ENGINES,
                    help="denoising engine (default auto: CUDA graphs on a GPU, the precomputed solver loop on a CPU; "
                         "docs/inference.md)")
-    p.add_argument("--footskate", default="off", choices=FOOTSKATE_MODES,
-                   help="footskate cleanup: off, post (after sampling) or loop (inside the last denoising steps)")
+    p.add_argument("--footskate", default=FOOTSKATE, choices=FOOTSKATE_MODES,
+                   help="footskate cleanup: off, post (after sampling) or loop (inside the last denoising steps); "
+                        "post by default: the raw motion skates about 3 times as much as real motion "
+                        "(docs/footskate.md)")
     add_contact_arguments(p)
 
 
@@ -63,8 +66,18 @@ def footskate_options_from_args(args):
     return FootskateOptions(config=CleanupConfig(contacts=args.contacts), vgrf_model=model)
 
 
+def check_sampling(args) -> None:
+    """The flags of :func:`add_sampling_arguments` against the limits, before anything heavy is imported."""
+    from ..limits import check_footskate, check_guidance, check_seed, check_steps
+
+    check_guidance(args.guidance)
+    check_steps(args.steps)
+    check_seed(args.seed)
+    check_footskate(args.footskate)
+
+
 def sampling_kwargs(args) -> dict:
-    """The pipeline keywords of :func:`add_sampling_arguments`' flags."""
+    """The pipeline keywords of :func:`add_sampling_arguments`' flags (checked first: :func:`check_sampling`)."""
     options = footskate_options_from_args(args) if args.footskate != "off" else None
     return dict(guidance_scale=args.guidance, steps=args.steps, sampler=args.sampler, seed=args.seed,
                 footskate=args.footskate, footskate_options=options, engine=args.engine)
@@ -99,10 +112,36 @@ def set_threads(args) -> None:
 
 
 def load_pipeline(args):
+    """The pipeline of ``--checkpoint``/``--teacher``, saying on stderr what it loads (imports and loading take a few
+    seconds on a first run)."""
+    what = f"the model in {args.checkpoint}" if args.checkpoint is not None else "the shipped model"
+    status = LoadingStatus(f"smf: loading {what}{' (its teacher)' if args.teacher else ''} and its text encoder ...")
     from ..pipeline import MotionPipeline
 
     set_threads(args)
-    return MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device, engine=args.engine)
+    pipe = MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device, engine=args.engine)
+    pipe.text_cache.encoder.load()  # now, under the status line, not inside the first generation
+    status.done()
+    return pipe
+
+
+class LoadingStatus:
+    """A status line on a terminal's stderr while something loads, erased when done (nothing when stderr is a
+    file or a pipe: there stderr holds only warnings and errors, one line each)."""
+
+    def __init__(self, text: str):
+        import sys
+
+        self.stream = sys.stderr
+        self.shown = self.stream.isatty()
+        if self.shown:
+            self.stream.write(text)
+            self.stream.flush()
+
+    def done(self) -> None:
+        if self.shown:
+            self.stream.write("\r\033[K")
+            self.stream.flush()
 
 
 def output_meta(args, pipe, *, edit: bool = False) -> dict:
@@ -110,5 +149,21 @@ def output_meta(args, pipe, *, edit: bool = False) -> dict:
     ``edit``: for an edit)."""
     from ..pipelines.settings import Settings
 
-    s = pipe.settings(Settings(args.guidance, args.steps, args.sampler), edit=edit)
+    s = pipe.settings(Settings(guidance_scale=args.guidance, steps=args.steps, sampler=args.sampler), edit=edit)
     return {"sampler": s.sampler, "steps": s.steps, "guidance": s.guidance_scale, "student": pipe.student}
+
+
+@contextlib.contextmanager
+def user_warnings():
+    """Within it, the pipeline's warnings meant for users (engine, length, out of domain) are gathered and printed
+    after as one line each, ``smf: warning: ...``."""
+    import warnings
+
+    from ..pipeline import EngineWarning, LengthClampedWarning, OutOfDomainWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    shown = (EngineWarning, LengthClampedWarning, OutOfDomainWarning)
+    for w in dict.fromkeys(str(c.message) for c in caught if issubclass(c.category, shown)):
+        print(f"smf: warning: {w}")

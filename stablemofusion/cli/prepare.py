@@ -8,7 +8,7 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
-    p = sub.add_parser(name, help="build a text-motion corpus in the HumanML3D layout",
+    p = sub.add_parser(name,
                        description="Build a corpus in the official HumanML3D layout (new_joints, new_joint_vecs, "
                                    "texts, Mean/Std, splits).")
     kinds = p.add_subparsers(dest="kind", metavar="SOURCE", required=True)

@@ -8,10 +8,10 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
-    from ..diffusion.engine import ENGINES
+    from ..limits import ENGINES
     from .flags import add_teacher_flag
 
-    p = sub.add_parser(name, help="serve text-to-motion over HTTP",
+    p = sub.add_parser(name,
                        description="An HTTP API (POST /v1/generate, GET /v1/health) with dynamic batching.")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
     p.add_argument("--port", type=int, default=8000)
@@ -43,9 +43,9 @@ def run(args: argparse.Namespace) -> None:
     from ..errors import SMFError
     from ..pipelines.components import model_folder
     from ..serve import ProcessWorker, WorkerSpec, create_app
-    from ..serve.limits import MAX_STREAMS
+    from ..serve.server_limits import MAX_STREAMS
     from ..serve.server import uvicorn_config
-    from ..serve.stream import StreamProcessWorker
+    from ..serve.live import StreamProcessWorker
 
     if not 0 < args.port < 65536:
         raise SMFError(f"--port must be 1-65535, got {args.port}")
@@ -61,7 +61,30 @@ def run(args: argparse.Namespace) -> None:
     app = create_app(ProcessWorker(spec, config), max_batch=args.max_batch, wait_ms=args.wait_ms,
                      max_queue=args.max_queue, allowed_hosts=tuple(args.allow_host), streams=streams,
                      max_streams=max_streams)
+    sock = listening_socket(args.host, args.port)  # a busy port is one line, before anything starts
     logging.basicConfig(level=logging.INFO, format="smf serve: %(levelname)s %(message)s")
     print(f"smf serve: http://{args.host}:{args.port} (POST /v1/generate, WebSocket /v1/stream, GET /v1/health; "
           "the model loads in the worker: /v1/health says when it is ready)", flush=True)
-    uvicorn.Server(uvicorn_config(app, args.host, args.port)).run()
+    uvicorn.Server(uvicorn_config(app, args.host, args.port)).run(sockets=[sock])
+
+
+def listening_socket(host: str, port: int):
+    """A TCP socket bound to ``host``:``port``, or SMFError naming why not (a port in use, an unknown host)."""
+    import errno
+    import socket
+
+    from ..errors import SMFError
+
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+    except socket.gaierror as e:
+        raise SMFError(f"cannot listen on {host}:{port}: {e.strerror}") from None
+    sock = socket.socket(family, kind, proto)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind(address)
+    except OSError as e:
+        sock.close()
+        hint = " (another server is using it: stop it or choose another --port)" if e.errno == errno.EADDRINUSE else ""
+        raise SMFError(f"cannot listen on {host}:{port}: {e.strerror}{hint}") from None
+    return sock

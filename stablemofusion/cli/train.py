@@ -36,7 +36,7 @@ _TYPES = {"init_from": str}
 
 
 def add_parser(sub, name: str) -> None:
-    p = sub.add_parser(name, help="train a diffusion denoiser on a HumanML3D-layout corpus",
+    p = sub.add_parser(name,
                        description="Train a denoiser (x0 prediction, masked MSE, AdamW, EMA, CFG dropout) through "
                                    "accelerate: CPU, one GPU, or `accelerate launch -m stablemofusion.cli.main train`.")
     p.add_argument("--data", type=Path, required=True, help="corpus folder (official HumanML3D layout)")

@@ -14,7 +14,7 @@ _HELP = {"steps": "optimisation steps", "batch_size": "motions per batch", "lr":
 
 
 def add_parser(sub, name: str) -> None:
-    p = sub.add_parser(name, help="train the motion classifier behind `smf evaluate --classifier`",
+    p = sub.add_parser(name,
                        description="Train a content and style classifier on the real train-split motions of a "
                                    "labelled corpus (clips.csv); prints its accuracy on the val and test splits.")
     p.add_argument("--data", type=Path, required=True, help="labelled corpus folder (from `smf prepare bandai`)")

@@ -17,7 +17,7 @@ _HELP = {"steps": "optimisation steps", "batch_size": "pairs per batch", "lr": "
 
 
 def add_parser(sub, name: str) -> None:
-    p = sub.add_parser(name, help="train the text/motion evaluator used by `smf evaluate`",
+    p = sub.add_parser(name,
                        description="Train the T2M-style evaluator (temporal conv + BiGRU motion encoder, frozen "
                                    "language model + BiGRU text encoder, 512-d) contrastively on the train split.")
     p.add_argument("--data", type=Path, required=True, help="corpus folder (HumanML3D layout)")

@@ -10,7 +10,7 @@ from ..text.length import INPUTS
 
 
 def add_parser(sub, name: str) -> None:
-    p = sub.add_parser(name, help="train the length-from-text estimator of a model folder",
+    p = sub.add_parser(name,
                        description="Fit a distribution over motion lengths (4-frame bins) from each train-split "
                                    "caption (read through --inputs); report its mean absolute error on the test split "
                                    "against the constant train median; write length.safetensors and length.json into "

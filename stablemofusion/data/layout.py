@@ -272,11 +272,6 @@ class MotionLayout:
         save_npy(path, np.asarray(features, dtype=np.float32))
         return path
 
-    def write_joints(self, motion_id: str, joints: np.ndarray) -> Path:
-        path = self.joints_dir / f"{motion_id}.npy"
-        save_npy(path, np.asarray(joints, dtype=np.float32))
-        return path
-
     def write_texts(self, motion_id: str, lines: Sequence[CaptionLine]) -> Path:
         path = self.texts_dir / f"{motion_id}.txt"
         write_text(path, "".join(format_text_line(c) + "\n" for c in lines))

@@ -48,7 +48,8 @@ from ..errors import SMFError
 from .checkpoint import CHECKPOINT_DIR, CONFIG, EMA, MODEL, STATE, companion_files, load_checkpoint, \
     load_training_state, read_config, resolve, save_checkpoint
 from .config import LENGTH_MULTIPLE, DistilConfig
-from .samplers import CONSISTENCY_GRID, STUDENT_SAMPLER, TIMESTEP_SCALING, parse_sampler
+from ..limits import STUDENT_SAMPLER
+from .schedulers import CONSISTENCY_GRID, TIMESTEP_SCALING, parse_sampler
 from .sampling import guided, model_denoiser, run_solver
 from .solvers import consistency_scalings, solver_table
 from .train import _mix, masked_mse, open_log

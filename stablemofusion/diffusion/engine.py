@@ -28,11 +28,11 @@ from dataclasses import dataclass, field
 import torch
 
 from ..errors import SMFError
+from ..limits import ENGINES
 from ..models.base import TextCondition
 from .sampling import Step, guided, run_solver
 from .solvers import SolverTable
 
-ENGINES = ("eager", "fast", "compiled", "graph", "compiled-graph", "aot")
 GRAPH_ENGINES = ("graph", "compiled-graph")
 COMPILED_ENGINES = ("compiled", "compiled-graph", "aot")  # run through SolverEngine (padded shapes)
 FRAME_BUCKET = 16

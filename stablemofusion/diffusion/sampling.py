@@ -19,7 +19,7 @@ import torch
 
 from ..errors import SMFError
 from ..models.base import TextCondition
-from .samplers import SamplerSpec, model_output_for
+from .schedulers import SamplerSpec, model_output_for
 from .solvers import SolverTable
 
 

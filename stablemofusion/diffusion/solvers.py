@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from ..errors import SMFError
-from .samplers import SIGMA_DATA, make_sampler, parse_sampler
+from .schedulers import SIGMA_DATA, make_sampler, parse_sampler
 from .schedule import ScheduleConfig
 
 
@@ -62,7 +62,7 @@ class SolverTable:
 
 
 def solver_table(name: str, steps: int, schedule: ScheduleConfig | None = None) -> SolverTable:
-    """The coefficient table of sampler ``name`` (see :data:`stablemofusion.diffusion.samplers.SAMPLERS`,
+    """The coefficient table of sampler ``name`` (see :data:`stablemofusion.diffusion.schedulers.SAMPLERS`,
     those with ``fast``) for ``steps`` steps, on the CPU."""
     base, spec, _ = parse_sampler(name)
     if not spec.fast:
@@ -100,7 +100,7 @@ def _levels(base: str, sched, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _fast_names() -> list[str]:
-    from .samplers import sampler_names
+    from .schedulers import sampler_names
 
     return [n for n in sampler_names() if parse_sampler(n)[1].fast]
 

@@ -135,7 +135,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig, *, resume: bool =
     if cfg.init_from and not resume:
         _init_weights(model, cfg.init_from)
     # the fused kernel (one pass over all parameters) on a GPU and on the CPU: on this 2-core CPU 6 ms per step
-    # for the 5.5M-parameter small-sentence model against 21 ms for the reference loop (session 15)
+    # for the 5.5M-parameter small-sentence model against 21 ms for the reference loop (docs/models.md)
     optimizer = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, fused=True)
     ema = EMAModel(model.parameters(), decay=cfg.ema_decay)
     start = 0

@@ -58,7 +58,7 @@ class EvalConfig:
         """This config with ``pipe``'s model's guidance, steps and sampler where it leaves them None."""
         from ..pipelines.settings import Settings
 
-        s = pipe.settings(Settings(self.guidance_scale, self.steps, self.sampler))
+        s = pipe.settings(Settings(guidance_scale=self.guidance_scale, steps=self.steps, sampler=self.sampler))
         return replace(self, guidance_scale=s.guidance_scale, steps=s.steps, sampler=s.sampler)
 
 

@@ -26,7 +26,7 @@ class FootskateOptions:
     x0 of that many final denoising steps (the model repairs, in the next step, what the optimisation
     distorted), ending ``loop_skip_last`` steps before the end (0: the last x0, which the sampler returns
     as the result, is cleaned too). ``vgrf_model``: optional (B, T, 22, 3) -> (B, T, 2, 16) callable, e.g. a
-    distilled model from :func:`stablemofusion.footskate.distil.load_vgrf_model` (non-commercial)."""
+    distilled model from :func:`stablemofusion.footskate.vgrf.load_vgrf_model` (non-commercial)."""
 
     config: CleanupConfig = field(default_factory=CleanupConfig)
     loop_steps: int = 2

@@ -177,14 +177,3 @@ def rig_bvh_text(rig: BVH, motion, fps: float, precision: int = 6) -> str:
     out += ["MOTION", f"Frames: {T}", f"Frame Time: {1.0 / fps:.9g}"]
     out += [row % tuple(r) for r in data.tolist()]
     return "\n".join(out) + "\n"
-
-
-def save_rig_bvh(joints: np.ndarray, rig: str | Path | BVH, joint_map: str | Path | JointMap, path: str | Path,
-                 fps: float = 20.0) -> None:
-    """Retarget our joints (T, 22, 3) metres at ``fps`` onto ``rig`` (a BVH file or object) with ``joint_map``
-    (a JointMap, a JSON path or a built-in name) and write the rig's BVH to ``path``, atomically."""
-    from ..io import write_text
-
-    rig = rig if isinstance(rig, BVH) else read_bvh(rig)
-    jmap = joint_map if isinstance(joint_map, JointMap) else JointMap.named(joint_map)
-    write_text(path, rig_bvh_text(rig, retarget_onto_bvh(joints, rig, jmap), fps))

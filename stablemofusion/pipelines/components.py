@@ -4,6 +4,7 @@ the length estimator, the known actions, the rigid final stage and the per-(samp
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,8 @@ from ..motion.skeleton import get_skeleton
 from ..text.known import ACTIONS_FILE, DomainCheck, KnownActions
 from ..text.length import WEIGHTS as LENGTH_WEIGHTS
 from ..text.length import LengthEstimator
-from .settings import DEFAULT_SECONDS, LengthClampedWarning, OutOfDomainWarning, Settings, check_footskate
+from ..limits import DEFAULT_SECONDS, check_footskate, check_seconds
+from .settings import LengthClampedWarning, OutOfDomainWarning, Settings, resolve_engine
 
 
 def default_model_path() -> Path | None:
@@ -49,7 +51,7 @@ class Components:
                  device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32, text_cache_size: int = 1024,
                  rigid: RigidFitConfig | None = DEFAULT_FIT, engine: str = "auto"):
         from ..text.cache import LRUTextCache
-        from ..text.frozen import load_text_encoder
+        from ..text.frozen import encoder_name, load_text_encoder
 
         self.device, self.dtype = torch.device(device), dtype
         self.model = model.to(self.device, dtype).eval()
@@ -64,8 +66,9 @@ class Components:
         self.engine = engine
         self._tables: dict[tuple[str, int], SolverTable] = {}
         self._engines: dict[str, SolverEngine] = {}
-        self.text_cache = LRUTextCache(_LazyEncoder(lambda: load_text_encoder(self.text_encoder_name).to(self.device)),
-                                       maxsize=text_cache_size)
+        encoder = _LazyEncoder(lambda: load_text_encoder(self.text_encoder_name).to(self.device),
+                               encoder_name(self.text_encoder_name))
+        self.text_cache = LRUTextCache(encoder, maxsize=text_cache_size)
         self.rigid = rigid
         self.known_actions: KnownActions | None = None  # from the folder's actions.json
         self.length_estimator: LengthEstimator | None = None  # from the folder's length.safetensors
@@ -100,13 +103,18 @@ class Components:
         """Whether the model is a distilled few-step student (guidance as input, one forward per step)."""
         return self.config.student
 
-    def settings(self, settings: Settings | None = None, *, edit: bool = False) -> Settings:
-        """``settings`` (default: all defaults) with this model's guidance, steps and sampler where they are None
-        (its config's guidance scale or GUIDANCE; a student: its distilled step count and consistency sampling,
-        for an ``edit`` at least STUDENT_EDIT_STEPS), checked."""
+    def settings(self, settings: Settings | None = None, *, edit: bool = False, hooks: bool = False) -> Settings:
+        """``settings`` (default: all defaults) resolved for this model, once per call: its guidance, steps and
+        sampler where they are None (its config's guidance scale or GUIDANCE; a student: its distilled step count
+        and consistency sampling, for an ``edit`` at least STUDENT_EDIT_STEPS), checked, and the engine decided
+        (``hooks``: the call changes the steps, as edits and timelines do; footskate 'loop' does too)."""
         student_steps = self.config.distil.sample_steps if self.student else None
-        return (settings or Settings()).for_model(student_steps, self.config.guidance, edit=edit).check(
-            rigid=self.rigid is not None)
+        rigid = self.rigid is not None
+        s = (settings or Settings()).check(rigid=rigid).for_model(student_steps, self.config.guidance, edit=edit,
+                                                                  rigid=rigid)
+        engine = resolve_engine(s.engine or self.engine, self.device, s.sampler,
+                                hooks=hooks or s.footskate == "loop")
+        return replace(s, engine=engine)
 
     @property
     def window_seconds(self) -> float:
@@ -154,6 +162,7 @@ class Components:
             if not np.isfinite(seconds) or seconds <= 0:
                 raise SMFError(f"seconds must be a positive number, got {seconds}")
             frames = int(round(seconds * self.fps))
+        check_seconds(frames / self.fps, "the length")
         if frames <= 0:
             raise SMFError(f"frames must be positive, got {frames}")
         n = max(frames, self.min_frames) // LENGTH_MULTIPLE * LENGTH_MULTIPLE
@@ -225,21 +234,24 @@ class Components:
 
 
 class _LazyEncoder:
-    """Loads the frozen text encoder on first use (a fully cached pipeline never loads it)."""
+    """Loads the frozen text encoder on first use (a fully cached pipeline never loads it): its ``name`` is known
+    without loading it (the known actions read it to check their cached embeddings)."""
 
-    def __init__(self, load):
+    def __init__(self, load, name: str):
         self._load = load
         self._enc = None
+        self.name = name
         self.calls = 0
 
-    def _get(self):
+    def load(self):
+        """The encoder, loaded now if it was not."""
         if self._enc is None:
             self._enc = self._load()
         return self._enc
 
     def encode(self, texts: list[str]):
         self.calls += 1
-        return self._get().encode(texts)
+        return self.load().encode(texts)
 
     def __getattr__(self, name):
-        return getattr(self._get(), name)
+        return getattr(self.load(), name)

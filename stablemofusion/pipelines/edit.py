@@ -1,20 +1,21 @@
 """Editing: keep part of a source motion (its start, end, both, half of the body, or its root path) and generate
-the rest from text (:mod:`stablemofusion.edit` plans the edit and builds its sampling hooks)."""
+the rest from text (:mod:`stablemofusion.edit_plan` plans the edit and builds its sampling hooks)."""
 
 from __future__ import annotations
 
 import numpy as np
 import torch
 
-from ..edit import EDIT_MODES, edit_hooks, plan_edit, splice_rigid
-from ..diffusion.samplers import sampler_spec
+from ..edit_plan import EDIT_MODES, edit_hooks, plan_edit, splice_rigid
+from ..diffusion.schedulers import sampler_spec
 from ..errors import SMFError
 from ..motion.rigid import rigid_to_features
 from ..motion.root import headings, place_like, place_rigid_like, root_xz
 from .components import Components
 from .result import MotionResult
-from .sample import sample
-from .settings import Settings, base_seed, check_text
+from .denoise import sample
+from ..limits import base_seed, check_prompt
+from .settings import Settings
 
 PROGRESS_SECONDS = 5.0  # edits longer than this show a progress bar by default
 MODE_FLAGS = {"prefix": ("keep_start",), "suffix": ("keep_end",), "inbetween": ("keep_start", "keep_end")}
@@ -31,15 +32,15 @@ class EditPipeline:
     def __call__(self, prompt: str, source: np.ndarray, mode: str, *, keep_start: float = 0.0, keep_end: float = 0.0,
                  seconds: float | None = None, path: np.ndarray | None = None, seed: int | None = None,
                  settings: Settings = Settings(), impose: str = "x0", progress: bool | None = None) -> MotionResult:
-        """``source`` features (Ts, D) in dataset units (:func:`stablemofusion.edit.source_features` converts
+        """``source`` features (Ts, D) in dataset units (:func:`stablemofusion.edit_plan.source_features` converts
         joints and BVH); ``keep_start`` / ``keep_end`` seconds; ``seconds`` the output length (default the
         source's: the output then has the source's frame count); ``path`` (T, 2) metres for 'trajectory'.
         ``progress``: a tqdm bar over the denoising steps (None: for edits longer than PROGRESS_SECONDS)."""
         c = self.c
         # 1. check inputs
-        check_text(prompt, "the prompt")
+        check_prompt(prompt, "the prompt")
         check_edit_inputs(mode, keep_start, keep_end, seconds)
-        settings = c.settings(settings, edit=True)  # a student: more steps than its own (STUDENT_EDIT_STEPS)
+        settings = c.settings(settings, edit=True, hooks=True)  # a student: more steps than its own
         if not sampler_spec(settings.sampler).fast:
             raise SMFError(f"editing needs a sampler with a precomputed form, not {settings.sampler!r}")
         # 2. prepare: the plan, its hooks and the seed
@@ -54,7 +55,7 @@ class EditPipeline:
         x0_hook, xt_hook = edit_hooks(plan, c.mean, c.std, 1, c.device, c.dtype, impose)
         # 3. denoise (the table loop: hooks run eagerly), exact on the known part after the last step
         show = plan.frames / c.fps > PROGRESS_SECONDS if progress is None else progress
-        raw = sample(c, [prompt], [plan.frames], settings.with_engine("fast"), [seed], x0_hook=x0_hook,
+        raw = sample(c, [prompt], [plan.frames], settings, [seed], x0_hook=x0_hook,
                      xt_hook=xt_hook, progress=show)
         f, motion = c.finish(plan.project(raw[0].double()).float().numpy(), settings.footskate,
                              settings.footskate_options)

@@ -2,7 +2,7 @@
 between windows (the server's WebSocket /v1/stream, the viewer's live mode).
 
 Every window after the first keeps the last second of the motion so far as its known start (prefix editing
-with its seam blending, as timelines do: :mod:`stablemofusion.timeline`) and adds ``chunk`` frames from the
+with its seam blending, as timelines do: :mod:`stablemofusion.timeline_plan`) and adds ``chunk`` frames from the
 prompt current when it starts; it generates ``TAIL`` frames more and drops them (a motion's last frames are its
 least settled). Features are relative to the body, so the new frames continue the root path and heading; the
 stream keeps the world heading and position of its kept frames and places each window's joints there: the
@@ -25,17 +25,18 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from ..diffusion.samplers import sampler_spec
+from ..diffusion.schedulers import sampler_spec
 from ..diffusion.sampling import replace_x0
-from ..edit import blend_seams
+from ..edit_plan import blend_seams
 from ..errors import SMFError
 from ..motion.features import joints_from_features, root_from_features
 from ..motion.root import headings
 from ..motion.rotation import qinv, qrot, yaw_quat
-from ..timeline import TAIL
+from ..timeline_plan import TAIL
 from .components import Components
-from .sample import sample
-from .settings import Settings, base_seed, check_text
+from .denoise import sample
+from ..limits import base_seed, check_prompt
+from .settings import Settings
 
 STREAM_KEEP = 20  # frames of the motion so far each window keeps as its start (1 s at 20 fps)
 STREAM_CHUNK = 12  # frames each window adds (0.6 s at 20 fps): with the kept second and the dropped tail a
@@ -107,7 +108,7 @@ class MotionStream:
     def set_prompt(self, prompt: str, *, seed: int | None = None, guidance_scale: float | None = None) -> int:
         """Use ``prompt`` from the next window on (and ``seed`` for that window, ``seed + 1`` for the one after,
         ...; ``guidance_scale``, where given); returns its prompt index."""
-        self.prompt = check_text(prompt, "the prompt")
+        self.prompt = check_prompt(prompt, "the prompt")
         if guidance_scale is not None:
             self.settings = replace(self.settings, guidance_scale=guidance_scale).check()
         if seed is not None:
@@ -148,8 +149,8 @@ class StreamPipeline:
                  chunk: int = STREAM_CHUNK, keep: int = STREAM_KEEP, rewind: int = STREAM_REWIND) -> MotionStream:
         c = self.c
         # 1. check inputs
-        check_text(prompt, "the prompt")
-        settings = c.settings(settings)
+        check_prompt(prompt, "the prompt")
+        settings = c.settings(settings, hooks=True)  # each window after the first continues by editing
         if not sampler_spec(settings.sampler).fast:
             raise SMFError(f"streams continue the motion by editing: they need a sampler with a precomputed form, "
                            f"not {settings.sampler!r}")
@@ -189,7 +190,7 @@ def _window(c: Components, streams: list[MotionStream], keep: int, frames: int, 
         x0_hook = replace_x0(c.normalise(known), mask)
     # 2. denoise, each stream with its prompt and its window's seed
     raw = sample(c, [s.prompt for s in streams], [frames] * len(streams),
-                 settings.with_engine("fast") if keep else settings, [s.window_seed for s in streams],
+                 settings, [s.window_seed for s in streams],
                  x0_hook=x0_hook)
     # 3. post-process: exact on the kept part, the seam blended; placed in each stream's world
     chunks = []

@@ -8,8 +8,9 @@ from tqdm import tqdm
 from ..errors import SMFError
 from .components import Components
 from .result import MotionResult
-from .sample import sample
-from .settings import Settings, base_seed, check_text
+from .denoise import sample
+from ..limits import base_seed, check_prompt, check_seconds, check_seed
+from .settings import Settings
 from .timeline import TimelinePipeline
 
 
@@ -32,16 +33,20 @@ class TextToMotionPipeline:
         if not prompts:
             raise SMFError("every prompt must be a non-empty text")
         for p in prompts:
-            check_text(p, "every prompt")
+            check_prompt(p, "every prompt")
         settings = c.settings(settings)
         n = len(prompts)
         secs = list(seconds) if isinstance(seconds, (list, tuple)) else [seconds] * n
         frs = list(frames) if isinstance(frames, (list, tuple)) else [frames] * n
         if len(secs) != n or len(frs) != n:
             raise SMFError("give one length for all prompts or one per prompt")
+        for s in secs:
+            check_seconds(s)
         per_item = isinstance(seed, (list, tuple))
         if per_item and len(seed) != n:
             raise SMFError(f"give one seed for all prompts or one per prompt: {len(seed)} seeds for {n} prompts")
+        for s in seed if per_item else [seed]:
+            check_seed(s)
         # 2. prepare: lengths (the model's estimate where none is given), seeds, domains
         unknown = [i for i in range(n) if secs[i] is None and frs[i] is None]
         if unknown and c.length_estimator is not None:

@@ -1,5 +1,5 @@
 """Timelines: one continuous motion from (prompt, seconds) segments, window after window
-(:mod:`stablemofusion.timeline` plans the windows; each later window is a prefix edit of the motion so far)."""
+(:mod:`stablemofusion.timeline_plan` plans the windows; each later window is a prefix edit of the motion so far)."""
 
 from __future__ import annotations
 
@@ -7,14 +7,15 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ..edit import edit_hooks, plan_edit
-from ..diffusion.samplers import sampler_spec
+from ..edit_plan import edit_hooks, plan_edit
+from ..diffusion.schedulers import sampler_spec
 from ..errors import SMFError
-from ..timeline import DEFAULT_OVERLAP, plan_windows
+from ..timeline_plan import DEFAULT_OVERLAP, plan_windows
 from .components import Components
 from .result import MotionResult
-from .sample import sample
-from .settings import Settings, base_seed, check_text
+from .denoise import sample
+from ..limits import base_seed, check_prompt, check_seconds, check_segments
+from .settings import Settings
 
 PROGRESS_WINDOWS = 3  # timelines of more windows than this show a progress bar by default
 
@@ -32,14 +33,17 @@ class TimelinePipeline:
         c = self.c
         # 1. check inputs
         segs = []
+        check_segments(len(segments))
         for prompt, secs in segments:
-            check_text(prompt, "every timeline prompt")
-            if not isinstance(secs, (int, float)) or not np.isfinite(secs) or secs <= 0:
-                raise SMFError(f"timeline segment {prompt!r}: seconds must be a positive number, got {secs}")
+            check_prompt(prompt, "every timeline prompt")
+            if not isinstance(secs, (int, float)) or not np.isfinite(secs) or secs * c.fps < 1:
+                raise SMFError(f"timeline segment {prompt!r}: seconds must be at least one frame ({1 / c.fps:g} s), "
+                               f"got {secs}")
             segs.append((prompt, int(round(secs * c.fps))))
-        settings = c.settings(settings)
-        # 2. prepare: the windows and the seed
+        check_seconds(sum(secs for _, secs in segments), "a timeline's total seconds")
+        # 2. prepare: the windows, the settings (later windows continue by editing: hooks) and the seed
         windows = plan_windows(segs, c.max_frames, int(round(overlap * c.fps)), c.min_frames)
+        settings = c.settings(settings, hooks=len(windows) > 1)
         if len(windows) > 1:
             check_long(settings.sampler, c.window_seconds)
         base = base_seed(seed)
@@ -53,7 +57,7 @@ class TimelinePipeline:
             else:
                 plan = plan_edit("prefix", out[-w.keep:].numpy(), c.skeleton, keep_start=w.keep, frames=frames)
                 x0_hook, xt_hook = edit_hooks(plan, c.mean, c.std, 1, c.device, c.dtype, impose)
-                raw = sample(c, [w.prompt], [frames], settings.with_engine("fast"), [base + j], x0_hook=x0_hook,
+                raw = sample(c, [w.prompt], [frames], settings, [base + j], x0_hook=x0_hook,
                              xt_hook=xt_hook)[0]
                 raw = plan.project(raw.double()).float()  # exact on the kept part
             out = torch.cat([out, raw[w.keep:w.keep + w.new].double()])

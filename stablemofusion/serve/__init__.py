@@ -2,7 +2,7 @@
 
 from .app import create_app
 from .batcher import DynamicBatcher
-from .errors import ServeError
+from .http_errors import ServeError
 from .worker import Job, ProcessWorker, ThreadWorker, WorkerSpec
 
 __all__ = ["DynamicBatcher", "Job", "ProcessWorker", "ServeError", "ThreadWorker", "WorkerSpec", "create_app"]

@@ -4,7 +4,7 @@
     POST /v1/timeline[?format=...]           {"segments": [{"prompt", "seconds"}, ...], "seed"?, ...}
     POST /v1/convert?filename=NAME.bvh|.npy  (raw file bytes) -> the file's joints as JSON, for the viewer
     GET  /v1/health
-    WS   /v1/stream                          a live stream: prompts in, frames out (serve/stream.py)
+    WS   /v1/stream                          a live stream: prompts in, frames out (serve/live.py)
     GET  /  the three.js viewer (assets/viewer, three.js vendored from npm: no CDN)
 
 Every error is JSON ``{"error": "<one line>"}``: 4xx for bad input, 503 when the worker cannot answer, 500
@@ -17,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+from collections import OrderedDict
 from pathlib import Path
 
 from fastapi import FastAPI, Request, WebSocket
@@ -28,11 +29,12 @@ from starlette.exceptions import HTTPException
 from .batcher import DynamicBatcher
 from .checks import GenerateRequest, RequestChecks, TimelineRequest, check_format, parse_body, validation_message
 from .convert import check_suffix, convert_upload
-from .errors import ServeError, log_event
+from .http_errors import ServeError, log_event
 from .guard import Guard
-from .limits import MAX_BODY_BYTES, MAX_STREAMS
-from .output import motion_response
-from .stream import StreamHub, ThreadStreamWorker, serve_stream
+from .. import limits
+from .server_limits import MAX_BODY_BYTES, MAX_STREAMS, RECENT_RESULTS
+from .responses import motion_response
+from .live import StreamHub, ThreadStreamWorker, serve_stream
 from .worker import Job, ThreadWorker
 
 VIEWER = Path(__file__).resolve().parents[1] / "assets" / "viewer"
@@ -48,9 +50,34 @@ async def _until_disconnected(request: Request) -> None:
         pass
 
 
-async def answer(request: Request, batcher: DynamicBatcher, job: Job, format: str) -> Response:
-    """Submit ``job`` and answer with its motion in ``format``; a client that leaves cancels its job (it is
-    dropped if it has not started)."""
+class RecentResults:
+    """The last few motions made, by their job (its seed included, so the same job makes the same motion): the
+    viewer asks for a motion as JSON and then as .glb, BVH or npy, and each later format is converted, not made
+    again."""
+
+    def __init__(self, size: int = RECENT_RESULTS):
+        self.size, self._results = size, OrderedDict()
+
+    def get(self, job: Job):
+        result = self._results.get(job)
+        if result is not None:
+            self._results.move_to_end(job)
+        return result
+
+    def put(self, job: Job, result) -> None:
+        self._results[job] = result
+        self._results.move_to_end(job)
+        while len(self._results) > self.size:
+            self._results.popitem(last=False)
+
+
+async def answer(request: Request, batcher: DynamicBatcher, job: Job, format: str,
+                 recent: RecentResults | None = None) -> Response:
+    """Submit ``job`` (unless ``recent`` holds its motion) and answer with its motion in ``format``; a client that
+    leaves cancels its job (it is dropped if it has not started)."""
+    done = recent.get(job) if recent is not None else None
+    if done is not None:
+        return motion_response(done, format)
     work = asyncio.ensure_future(batcher.submit(job))
     gone = asyncio.ensure_future(_until_disconnected(request))
     try:
@@ -61,7 +88,10 @@ async def answer(request: Request, batcher: DynamicBatcher, job: Job, format: st
             work.cancel()
     if not work.done() or work.cancelled():
         return error(499, "the client disconnected")
-    return motion_response(work.result(), format)  # a ServeError of the job propagates
+    result = work.result()  # a ServeError of the job propagates
+    if recent is not None:
+        recent.put(job, result)
+    return motion_response(result, format)
 
 
 def _install_error_handlers(app: FastAPI) -> None:
@@ -92,7 +122,7 @@ def create_app(model, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: i
                max_streams: int = MAX_STREAMS) -> FastAPI:
     """The ASGI app; ``model`` is a worker (serve/worker.py: `smf serve` gives a supervised
     :class:`~stablemofusion.serve.worker.ProcessWorker`) or a pipeline (generated on a thread). ``streams``
-    the live streams' worker (serve/stream.py; default: a thread with ``model`` when it is a pipeline, else
+    the live streams' worker (serve/live.py; default: a thread with ``model`` when it is a pipeline, else
     none); ``max_streams`` live streams at once (0: none)."""
     worker = model if hasattr(model, "submit") else ThreadWorker(model)
     if streams is None and not hasattr(model, "submit") and max_streams > 0:
@@ -100,7 +130,8 @@ def create_app(model, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: i
     hub = StreamHub(streams, max_streams if streams is not None else 0)
     batcher = DynamicBatcher(worker, max_batch=max_batch, wait_ms=wait_ms, max_queue=max_queue)
     cfg = worker.config
-    checks = RequestChecks(cfg.fps, cfg.min_frames, cfg.max_frames)
+    checks = RequestChecks(cfg.fps)
+    recent = RecentResults()
     converting = asyncio.Semaphore(1)  # one upload parsed at a time, on a thread
 
     @contextlib.asynccontextmanager
@@ -128,7 +159,8 @@ def create_app(model, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: i
         sizes = batcher.batch_sizes
         return JSONResponse(
             {"status": "ok" if ready else state["state"], "worker": state, "fps": cfg.fps,
-             "seconds": [checks.min_s, checks.max_s], "max_batch": max_batch, "waiting": batcher.waiting,
+             "seconds": [cfg.min_frames / cfg.fps, limits.MAX_SECONDS], "limits": limits.table(),
+             "max_batch": max_batch, "waiting": batcher.waiting,
              "batches": len(sizes), "largest_batch": max(sizes, default=0), "dropped": batcher.dropped,
              "streams": hub.health() if streams is not None else {"state": "off", "active": 0, "max": 0}},
             status_code=200 if ready else 503)
@@ -137,13 +169,13 @@ def create_app(model, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: i
     async def generate(request: Request, format: str = "json"):
         check_format(format)
         job = checks.generate(parse_body(await request.body(), GenerateRequest))
-        return await answer(request, batcher, job, format)
+        return await answer(request, batcher, job, format, recent)
 
     @app.post("/v1/timeline")
     async def timeline(request: Request, format: str = "json"):
         check_format(format)
         job = checks.timeline(parse_body(await request.body(), TimelineRequest))
-        return await answer(request, batcher, job, format)
+        return await answer(request, batcher, job, format, recent)
 
     @app.post("/v1/convert")
     async def convert(request: Request, filename: str):

@@ -14,7 +14,7 @@ import asyncio
 import logging
 from collections import defaultdict
 
-from .errors import ServeError, log_event
+from .http_errors import ServeError, log_event
 from .worker import Failure, Job
 
 

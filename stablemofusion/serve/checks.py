@@ -4,14 +4,14 @@ becomes a :class:`~stablemofusion.serve.worker.Job`. Raises :class:`ServeError` 
 from __future__ import annotations
 
 import json
-import random
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from .errors import ServeError
-from .output import MOTION_FORMATS
-from .limits import MAX_GUIDANCE, MAX_PROMPT_CHARS, MAX_SEED, MAX_SEGMENTS, MAX_STEPS, MAX_TIMELINE_SECONDS
+from .. import limits
+from ..errors import SMFError
+from .http_errors import ServeError
+from .responses import MOTION_FORMATS
 from .worker import Job
 
 FORMATS = tuple(MOTION_FORMATS)  # json, bvh, npy, glb
@@ -25,10 +25,10 @@ class GenerateRequest(BaseModel):
 
     prompt: str
     seconds: float | None = None  # None: predicted from the text (models with a length estimator), else 4 s
-    seed: int | None = Field(default=None, ge=0, lt=MAX_SEED)
-    guidance: float | None = Field(default=None, ge=0.0, le=MAX_GUIDANCE)  # None: the model's
-    steps: int | None = Field(default=None, ge=1, le=MAX_STEPS)  # None: the model's
-    footskate: Literal["off", "post", "loop"] = "off"
+    seed: int | None = None  # None: a fresh one, reported; ranges: stablemofusion/limits.py, checked in RequestChecks
+    guidance: float | None = None  # None: the model's
+    steps: int | None = None  # None: the model's
+    footskate: Literal["off", "post", "loop"] = limits.FOOTSKATE
 
 
 class Segment(BaseModel):
@@ -37,7 +37,7 @@ class Segment(BaseModel):
     model_config = STRICT
 
     prompt: str
-    seconds: float = Field(gt=0.0)
+    seconds: float
 
 
 class TimelineRequest(BaseModel):
@@ -45,11 +45,11 @@ class TimelineRequest(BaseModel):
 
     model_config = STRICT
 
-    segments: list[Segment] = Field(min_length=1, max_length=MAX_SEGMENTS)
-    seed: int | None = Field(default=None, ge=0, lt=MAX_SEED)
-    guidance: float | None = Field(default=None, ge=0.0, le=MAX_GUIDANCE)  # None: the model's
-    steps: int | None = Field(default=None, ge=1, le=MAX_STEPS)  # None: the model's
-    footskate: Literal["off", "post", "loop"] = "off"
+    segments: list[Segment] = Field(min_length=1, max_length=limits.MAX_SEGMENTS)
+    seed: int | None = None
+    guidance: float | None = None
+    steps: int | None = None
+    footskate: Literal["off", "post", "loop"] = limits.FOOTSKATE
 
 
 def parse_body(data: bytes, model: type[BaseModel]) -> BaseModel:
@@ -84,42 +84,47 @@ def check_format(format: str) -> str:
 
 
 def check_prompt(text: str, where: str) -> str:
-    """A stripped prompt of 1 to MAX_PROMPT_CHARS characters that is valid Unicode text."""
-    prompt = text.strip()
+    """A stripped prompt within the limits that is valid Unicode text."""
     try:
-        prompt.encode("utf-8")
+        text.encode("utf-8")
     except UnicodeEncodeError:
         raise ServeError(422, f"{where}: not valid text (it holds a lone surrogate code point)") from None
-    if not prompt or len(prompt) > MAX_PROMPT_CHARS:
-        raise ServeError(422, f"{where} must have 1 to {MAX_PROMPT_CHARS} characters, got {len(prompt)}")
-    return prompt
+    return checked(limits.check_prompt, text, where)
+
+
+def checked(check, *args):
+    """``check(*args)`` of :mod:`stablemofusion.limits`, its SMFError as a 422."""
+    try:
+        return check(*args)
+    except SMFError as e:
+        raise ServeError(422, str(e)) from None
 
 
 class RequestChecks:
-    """Turns request bodies into jobs for a model of frame rate ``fps`` and length range (frames)."""
+    """Turns request bodies into jobs for a model of frame rate ``fps``, with the limits of every door
+    (:mod:`stablemofusion.limits`)."""
 
-    def __init__(self, fps: float, min_frames: int, max_frames: int):
-        self.fps, self.min_s, self.max_s = fps, min_frames / fps, max_frames / fps
+    def __init__(self, fps: float):
+        self.fps = fps
+
+    def _common(self, body) -> tuple[int, float | None, int | None]:
+        checked(limits.check_guidance, body.guidance)
+        checked(limits.check_steps, body.steps)
+        return checked(limits.base_seed, body.seed), body.guidance, body.steps
 
     def generate(self, body: GenerateRequest) -> Job:
         prompt = check_prompt(body.prompt, "prompt")
-        if body.seconds is not None and not self.min_s <= body.seconds <= self.max_s:
-            raise ServeError(422, f"seconds must be between {self.min_s:g} and {self.max_s:g}, got {body.seconds:g}")
-        return Job(prompt, body.seconds, _seed(body.seed), body.guidance, body.steps, body.footskate)
+        checked(limits.check_seconds, body.seconds)
+        seed, guidance, steps = self._common(body)
+        return Job(prompt, body.seconds, seed, guidance, steps, body.footskate)
 
     def timeline(self, body: TimelineRequest) -> Job:
         segments = tuple((check_prompt(s.prompt, f"segments.{i}.prompt"), s.seconds)
                          for i, s in enumerate(body.segments))
         for i, (_, seconds) in enumerate(segments):
-            if seconds * self.fps < 1:
+            if not seconds * self.fps >= 1:
                 raise ServeError(422, f"segments.{i}.seconds must be at least one frame ({1 / self.fps:g} s), "
                                       f"got {seconds:g}")
-        total = sum(sec for _, sec in segments)
-        if total > MAX_TIMELINE_SECONDS:
-            raise ServeError(422, f"a timeline lasts at most {MAX_TIMELINE_SECONDS:g} s, got {total:g}")
-        return Job("; ".join(p for p, _ in segments), None, _seed(body.seed), body.guidance, body.steps,
-                   body.footskate, segments)
-
-
-def _seed(seed: int | None) -> int:
-    return random.randrange(2**31) if seed is None else seed
+        checked(limits.check_seconds, sum(sec for _, sec in segments), "a timeline's total seconds")
+        seed, guidance, steps = self._common(body)
+        return Job("; ".join(p for p, _ in segments), None, seed, guidance, steps, body.footskate, segments)

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ServeError
-from .limits import (MAX_ABS_METRES, MAX_ABS_VALUE, MAX_CONVERT_SECONDS, MAX_FRAME_TIME_S, MIN_FRAME_TIME_S)
+from .http_errors import ServeError
+from .server_limits import (MAX_ABS_METRES, MAX_ABS_VALUE, MAX_CONVERT_SECONDS, MAX_FRAME_TIME_S, MIN_FRAME_TIME_S)
 from ..output import joints_json_bytes
 
 SUFFIXES = (".bvh", ".npy")

@@ -16,8 +16,8 @@ from __future__ import annotations
 import asyncio
 import json
 
-from .errors import ServeError
-from .limits import BODY_TIMEOUT_S, CLIENT_HEADER, LOOPBACK_HOSTS, MAX_UPLOAD_BYTES
+from .http_errors import ServeError
+from .server_limits import BODY_TIMEOUT_S, CLIENT_HEADER, LOOPBACK_HOSTS, MAX_UPLOAD_BYTES
 
 UPLOAD_PATHS = ("/v1/convert",)
 JSON_PATHS = ("/v1/generate", "/v1/timeline")

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
-from .limits import (GRACEFUL_SHUTDOWN_S, HEADER_TIMEOUT_S, KEEP_ALIVE_S, MAX_CONNECTIONS, MAX_HEADER_BYTES,
-                     MAX_STREAM_MESSAGE_BYTES)
+from .server_limits import (GRACEFUL_SHUTDOWN_S, HEADER_TIMEOUT_S, KEEP_ALIVE_S, MAX_CONNECTIONS, MAX_HEADER_BYTES,
+                            MAX_STREAM_MESSAGE_BYTES)
 
 
 def header_timeout_protocol(seconds: float = HEADER_TIMEOUT_S) -> type:

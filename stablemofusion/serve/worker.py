@@ -20,9 +20,10 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 from ..errors import SMFError
-from .errors import ServeError, log, log_event
-from .limits import (WARM_STEPS, WORKER_MAX_FAILED_STARTS, WORKER_POLL_S, WORKER_RESTART_DELAY_S,
-                     WORKER_START_TIMEOUT_S, WORKER_STOP_S)
+from ..limits import FOOTSKATE
+from .http_errors import ServeError, log, log_event
+from .server_limits import (WARM_STEPS, WORKER_MAX_FAILED_STARTS, WORKER_POLL_S, WORKER_RESTART_DELAY_S,
+                            WORKER_START_TIMEOUT_S, WORKER_STOP_S)
 
 
 @dataclass(frozen=True)
@@ -35,7 +36,7 @@ class Job:
     seed: int
     guidance: float | None = None  # None: the model's
     steps: int | None = None  # None: the model's (a distilled student's own count)
-    footskate: str = "off"
+    footskate: str = FOOTSKATE
     segments: tuple[tuple[str, float], ...] | None = None
 
 

@@ -223,6 +223,12 @@ class CLIPTextEncoder(FrozenTextEncoder):
         super().__init__(name or f"clip:{path}", model, tokenizer, model.config.hidden_size, max_tokens)
 
 
+def encoder_name(name: str | None) -> str:
+    """The name the encoder :func:`load_text_encoder` builds from ``name`` reports (its ``.name``)."""
+    name = (name or DEFAULT_ENCODER).strip()
+    return DEFAULT_ENCODER if name.lower() == DEFAULT_ENCODER else name
+
+
 def load_text_encoder(name: str = DEFAULT_ENCODER) -> FrozenTextEncoder:
     """Build a frozen encoder from its name: ``"minilm"`` (default) or ``"clip:<folder>"``."""
     name = (name or DEFAULT_ENCODER).strip()

@@ -50,9 +50,11 @@ class DomainCheck:
         return out
 
     def message(self, prompt: str) -> str:
-        names = ", ".join(f"{label} ({sim:.2f})" for label, sim in self.closest)
-        return (f"{prompt!r} is not like anything this model was trained on (similarity {self.similarity:.2f}); "
-                f"closest actions it knows: {names}")
+        """One warning line with one figure, the in-domain score the decision used (the closest actions by
+        name only: their cosine similarities are another measure)."""
+        names = ", ".join(label for label, _ in self.closest)
+        return (f"{prompt!r} is not like anything this model was trained on (in-domain score "
+                f"{self.similarity:.2f}); closest actions it knows: {names}")
 
 
 class KnownActions:

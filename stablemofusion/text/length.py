@@ -5,8 +5,8 @@ A two-layer MLP maps a summary of the caption to a distribution over lengths in 
 expected absolute error). The summary (``LengthConfig.inputs``) is the frozen encoder's sentence embedding
 (``"sentence"``, :func:`~stablemofusion.text.frozen.sentence_embedding`), the pooled tokens of a frozen copy of a
 trained model's text transformer (``"text"``, kept inside the estimator; that transformer was trained to tell
-motions apart, and tells held-out verbs apart where the sentence embedding does not: docs/results.md, session
-19), or the two side by side (``"both"``).
+motions apart, and tells held-out verbs apart where the sentence embedding does not: docs/history.md), or the two
+side by side (``"both"``).
 Trained with cross-entropy on the train split's (caption, length) pairs. Saved beside a model as
 ``length.safetensors`` + ``length.json``; the pipeline uses it when no length is given.
 """

@@ -111,3 +111,49 @@ def test_settings_flags_with_a_none_default_take_numbers(tmp_path, capsys):
                  "--max-frames", "120"]) == 2
     err = capsys.readouterr().err
     assert "invalid" not in err and "does not exist" in err
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["generate"], ["generate", "--help"], ["edit", "x"], ["convert"],
+                                  ["render", "--help"], ["serve", "--help"], ["addon", "--help"], ["info", "--help"],
+                                  ["generate", "walk", "--out", "o", "--guidance", "-3"]])
+def test_help_and_argument_errors_import_no_model_code(argv):
+    """`smf --help`, a command's --help and argument errors answer at once: no torch, numpy or model import."""
+    code = ("import sys\nfrom stablemofusion.cli.main import main\ntry:\n    rc = main(sys.argv[1:])\n"
+            "except SystemExit as e:\n    rc = e.code\nheavy = [m for m in ('torch', 'numpy', 'transformers') "
+            "if m in sys.modules]\nprint('HEAVY', heavy, 'RC', rc)")
+    out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=60)
+    assert "HEAVY [] RC" in out.stdout, (out.stdout, out.stderr)
+    if argv[-1] != "--help":
+        assert out.stdout.strip().endswith("RC 2") and out.stderr.count("\n") == 1 and "error:" in out.stderr
+
+
+def test_help_shows_defaults(capsys):
+    with pytest.raises(SystemExit):
+        main(["generate", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "(default: 32)" in text and "(default: npy,mp4,bvh)" in text and "post by default" in text
+
+
+def test_convert_and_render_never_replace_an_output_silently(ref_joints_file, tmp_path, capsys):
+    out = tmp_path / "f.npy"
+    out.write_bytes(b"mine")
+    assert run("convert", ref_joints_file, out) == 2
+    assert "exists" in capsys.readouterr().err and out.read_bytes() == b"mine"
+    assert run("convert", ref_joints_file, out, "--overwrite") == 0 and np.load(out).shape == (115, 263)
+    png = tmp_path / "s.png"
+    png.write_bytes(b"mine")
+    assert run("render", ref_joints_file, "--frame", 3, "--out", png) == 2 and png.read_bytes() == b"mine"
+
+
+def test_serve_on_a_busy_port_is_one_line(tmp_path):
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        out = subprocess.run([sys.executable, "-m", "stablemofusion.cli.main", "serve", "--port", str(port)],
+                             capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2, out.stderr
+    assert out.stderr.count("\n") == 1 and out.stderr.startswith("smf: error: cannot listen on 127.0.0.1:")
+    assert "in use" in out.stderr and out.stdout == ""

@@ -9,7 +9,7 @@ import pytest
 from stablemofusion.cli.main import main
 from stablemofusion.errors import SMFError
 from stablemofusion.pipeline import MotionPipeline
-from stablemofusion.pipelines.settings import SAMPLER, STEPS, STUDENT
+from stablemofusion.limits import SAMPLER, STEPS, STUDENT_SAMPLER
 
 
 @pytest.fixture(scope="module")
@@ -51,7 +51,7 @@ def test_teacher_flag_errors_that_need_no_model(tmp_path, capsys):
 
 
 def test_teacher_flag_samples_with_the_students_teacher(student, tmp_path):
-    for flags, expected in (([], (STUDENT, 1, True)), (["--teacher"], (SAMPLER, STEPS, False))):
+    for flags, expected in (([], (STUDENT_SAMPLER, 1, True)), (["--teacher"], (SAMPLER, STEPS, False))):
         out = tmp_path / ("teacher" if flags else "student")
         assert main(["generate", "a person walks", "--checkpoint", str(student), "--seconds", "2", "--format", "json",
                      "--out", str(out), "--device", "cpu", *flags]) == 0

@@ -1,4 +1,4 @@
-"""The holes of issue 26, as a new user meets them on the command line: each closed."""
+"""The holes a new user meets on the command line: each closed."""
 
 import argparse
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from stablemofusion.cli.main import main
-from stablemofusion.edit import source_features
+from stablemofusion.edit_plan import source_features
 from stablemofusion.errors import SMFError
 from stablemofusion.motion.files import load_motion, save_bvh
 from stablemofusion.motion.skeleton import HUMANML3D
@@ -47,9 +47,9 @@ def test_edit_with_the_student_takes_its_edit_steps_and_teacher_its_own(tmp_path
     --teacher edits with the teacher's defaults. The JSON records what was used."""
     import json
 
-    from stablemofusion.pipelines.settings import SAMPLER, STEPS, STUDENT, STUDENT_EDIT_STEPS
+    from stablemofusion.limits import SAMPLER, STEPS, STUDENT_SAMPLER, STUDENT_EDIT_STEPS
 
-    for flags, expected in (([], (STUDENT, STUDENT_EDIT_STEPS)), (["--teacher"], (SAMPLER, STEPS))):
+    for flags, expected in (([], (STUDENT_SAMPLER, STUDENT_EDIT_STEPS)), (["--teacher"], (SAMPLER, STEPS))):
         out = tmp_path / ("t" if flags else "s")
         assert main(["edit", "a person waves", "--motion", "example:wave-both-hands", "--mode", "prefix",
                      "--keep-start", "1", "--format", "json", "--out", str(out), *flags]) == 0

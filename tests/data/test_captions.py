@@ -8,15 +8,15 @@ import re
 import pytest
 
 from stablemofusion.data.captions import (
-    POS_TAGS,
-    STRUCTURES,
-    captions_for,
-    generate,
-    mirror_caption,
-    mirror_label,
-    mirror_tokens,
-    structures_for,
-)
+                                          POS_TAGS,
+                                          STRUCTURES,
+                                          captions_for,
+                                          generate,
+                                          mirror_caption,
+                                          mirror_label,
+                                          mirror_tokens,
+                                          structures_for,
+                                          )
 from stablemofusion.data.lexicon import STYLE_KINDS, load_lexicon, marked_verbs, parse_lexicon, verb_forms
 from stablemofusion.errors import SMFError
 

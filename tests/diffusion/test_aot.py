@@ -49,7 +49,7 @@ def test_aot_engine_equals_eager_for_any_batch_and_length(aot_pipe):
     ref = pipe.denoise(["a person jumps up and down twice, then sits on the floor"], [83], steps=4, seed=[5],
                        engine="eager")
     assert (one - ref).abs().max() < 1e-4
-    stats = pipe._engine("aot").stats.warmup_seconds
+    stats = pipe.solver_engine("aot").stats.warmup_seconds
     assert list(stats) == [("aot", "built")]
     assert len(list(cache.glob("denoise-*.pt2"))) == 1
 

@@ -12,7 +12,7 @@ from stablemofusion.cli.main import main
 from stablemofusion.diffusion.checkpoint import load_checkpoint, read_config
 from stablemofusion.diffusion.config import CheckpointConfig, DistilConfig
 from stablemofusion.diffusion.distil import distil, drawn_length, masked_huber, skip_grid, student_from_teacher
-from stablemofusion.diffusion.samplers import make_sampler
+from stablemofusion.diffusion.schedulers import make_sampler
 from stablemofusion.diffusion.solvers import solver_table
 from stablemofusion.diffusion.train import TrainConfig, train
 from stablemofusion.errors import SMFError

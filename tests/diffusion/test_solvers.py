@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from stablemofusion.diffusion.samplers import SAMPLERS, make_sampler, sampler_names, sampler_spec
+from stablemofusion.diffusion.schedulers import SAMPLERS, make_sampler, sampler_names, sampler_spec
 from stablemofusion.diffusion.sampling import Noise, run_diffusers, run_solver
 from stablemofusion.diffusion.solvers import solver_table
 from stablemofusion.errors import SMFError

@@ -9,12 +9,12 @@ import pytest
 from stablemofusion.cli.main import main
 from stablemofusion.data.dataset import MotionTextDataset
 from stablemofusion.eval.classifier import (
-    corpus_labels,
-    dataset_labels,
-    label_accuracy,
-    load_classifier,
-    real_accuracy,
-)
+                                            corpus_labels,
+                                            dataset_labels,
+                                            label_accuracy,
+                                            load_classifier,
+                                            real_accuracy,
+                                            )
 from stablemofusion.eval.prompts import format_prompt_accuracy, load_prompts, prompt_accuracy
 
 

@@ -144,7 +144,7 @@ def test_cleanup_features_and_errors(wave):
 
 
 def test_cleanup_with_a_vgrf_model(wave, add_root_slide):
-    from stablemofusion.footskate.distil import VgrfStudent
+    from stablemofusion.footskate.vgrf import VgrfStudent
 
     torch.manual_seed(0)
     model = VgrfStudent().eval()

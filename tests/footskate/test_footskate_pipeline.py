@@ -25,15 +25,20 @@ def pipe(checkpoint):
     return MotionPipeline.from_pretrained(checkpoint, device="cpu")
 
 
-def test_off_is_the_default(pipe):
+def test_post_is_the_default_and_off_without_the_rigid_stage(pipe, checkpoint):
+    from stablemofusion.limits import FOOTSKATE
+
+    assert FOOTSKATE == "post" and pipe.settings().footskate == "post"
     a = pipe(["a person walks"], frames=40, steps=3, seed=1)[0]
-    b = pipe(["a person walks"], frames=40, steps=3, seed=1, footskate="off")[0]
+    b = pipe(["a person walks"], frames=40, steps=3, seed=1, footskate="post")[0]
     assert np.array_equal(a.features, b.features)
+    raw = MotionPipeline.from_pretrained(checkpoint, device="cpu", rigid=None)
+    assert raw.settings().footskate == "off"  # the cleanup works on the rigid body
 
 
 @pytest.mark.parametrize("mode", ["post", "loop"])
 def test_post_and_loop_run(pipe, mode):
-    off = pipe(["a person walks", "a man jumps"], frames=[40, 48], steps=4, seed=1)
+    off = pipe(["a person walks", "a man jumps"], frames=[40, 48], steps=4, seed=1, footskate="off")
     res = pipe(["a person walks", "a man jumps"], frames=[40, 48], steps=4, seed=1, footskate=mode)
     for r, o in zip(res, off):
         assert r.features.shape == o.features.shape and np.isfinite(r.features).all()

@@ -1,14 +1,10 @@
 """Store the outputs of the shipped default pair for fixed seeds: tests/golden/test_golden.py compares the current
-code's outputs to them. The shipped pair is the v3 pair of session 11 (teacher: issue 22's run b2 at step 8,000; its
-1-step student), with edits at STUDENT_EDIT_STEPS = 4; regenerated in session 13 when the teacher's config got its
-own default guidance scale 1.0 (the student's outputs unchanged; with guidance 2.5 the teacher's were too: keys
-``t2m_cfg_*`` are the earlier file's ``t2m_*``); regenerated in session 14 for the v4 student (the v3 student
-regressed on the teacher's samples at guidance 1.0, ``smf distil --method regression``; the teacher unchanged).
-The teacher (``default_model/teacher``, selected explicitly with ``teacher=True``: SDE-DPM-Solver++ 2M Karras, 10
-steps, its default guidance) on every task (text to motion, footskate post, a timeline, every edit mode, x_t imputation, the HTTP
-response), and the student (``default_model``: lcm, 1 step; edits at STUDENT_EDIT_STEPS) on a few, the HTTP
-response's joints included (keys ``student/...``). Both with the default rigid stage. (Earlier files: the v2 pair
-made at cdb32c3 in session 9; before that a 10-step model of session 5, at 54506c9.)
+code's outputs to them (regenerate when the shipped weights or a seeded output change on purpose; docs/history.md
+says when they did). The teacher (``default_model/teacher``, selected explicitly with ``teacher=True``:
+SDE-DPM-Solver++ 2M Karras, 10 steps, its default guidance) on every task (text to motion, footskate post, a
+timeline, every edit mode, x_t imputation, the HTTP response), and the student (``default_model``: lcm, 1 step;
+edits at STUDENT_EDIT_STEPS) on a few, the HTTP response's joints included (keys ``student/...``). Both with the
+default rigid stage; keys ``t2m_cfg_*`` are the teacher at guidance 2.5.
 
     OMP_NUM_THREADS=1 python tests/golden/make_golden.py   # writes tests/golden/golden.npz
 """
@@ -57,19 +53,19 @@ def outputs(pipe) -> dict[str, np.ndarray]:
         out[name + "/features"] = project(r.features)
         out[name + "/joints"] = np.asarray(r.joints, dtype=np.float32)
 
-    for r, name in zip(pipe(PROMPTS, seconds=[2.0, 3.0], seed=[3, 7]), ("t2m_a", "t2m_b")):
+    for r, name in zip(pipe(PROMPTS, seconds=[2.0, 3.0], seed=[3, 7], footskate="off"), ("t2m_a", "t2m_b")):
         put(name, r)
-    put("t2m_batch_seed", pipe(PROMPTS, seconds=2.0, seed=11)[1])
+    put("t2m_batch_seed", pipe(PROMPTS, seconds=2.0, seed=11, footskate="off")[1])
     put("t2m_post", pipe(PROMPTS[0], seconds=2.0, seed=5, footskate="post")[0])
-    put("timeline", pipe.timeline(TIMELINE, seed=4))
+    put("timeline", pipe.timeline(TIMELINE, seed=4, footskate="off"))
     src = source_motion()
     for mode, kw in EDITS.items():
-        put(f"edit_{mode}", pipe.edit("a person waves", src, mode, seed=9, **kw))
+        put(f"edit_{mode}", pipe.edit("a person waves", src, mode, seed=9, footskate="off", **kw))
     put("edit_prefix_xt", pipe.edit("a person waves", src, "prefix", seed=9, impose="xt", keep_start=1.0,
-                                    seconds=4.0))
-    # classifier-free guidance on the real weights (the teacher's default 1.0 has no unconditional pass): the
-    # stored t2m_a of the files before session 13
-    for r, name in zip(pipe(PROMPTS, seconds=[2.0, 3.0], seed=[3, 7], guidance_scale=2.5), ("t2m_cfg_a", "t2m_cfg_b")):
+                                    seconds=4.0, footskate="off"))
+    # classifier-free guidance on the real weights (the teacher's default 1.0 has no unconditional pass)
+    for r, name in zip(pipe(PROMPTS, seconds=[2.0, 3.0], seed=[3, 7], guidance_scale=2.5, footskate="off"),
+                       ("t2m_cfg_a", "t2m_cfg_b")):
         put(name, r)
     return out
 
@@ -82,10 +78,11 @@ def student_outputs(pipe) -> dict[str, np.ndarray]:
         out["student/" + name + "/features"] = project(r.features)
         out["student/" + name + "/joints"] = np.asarray(r.joints, dtype=np.float32)
 
-    put("t2m_a", pipe(PROMPTS, seconds=[2.0, 3.0], seed=[3, 7])[0])
+    put("t2m_a", pipe(PROMPTS, seconds=[2.0, 3.0], seed=[3, 7], footskate="off")[0])
     put("t2m_post", pipe(PROMPTS[0], seconds=2.0, seed=5, footskate="post")[0])
-    put("timeline", pipe.timeline(TIMELINE, seed=4))
-    put("edit_prefix", pipe.edit("a person waves", source_motion(), "prefix", seed=9, keep_start=1.0, seconds=4.0))
+    put("timeline", pipe.timeline(TIMELINE, seed=4, footskate="off"))
+    put("edit_prefix", pipe.edit("a person waves", source_motion(), "prefix", seed=9, keep_start=1.0, seconds=4.0,
+                                  footskate="off"))
     return out
 
 
@@ -99,7 +96,8 @@ def http_body(**pipeline_kwargs) -> dict:
     pipe = MotionPipeline.from_pretrained(device="cpu", **pipeline_kwargs)
     # the server checks the Host header (loopback names); the request as any local client sends it
     with TestClient(create_app(pipe), base_url="http://127.0.0.1") as client:
-        res = client.post("/v1/generate", json={"prompt": "a person walks forward", "seconds": 2.0, "seed": 3})
+        res = client.post("/v1/generate", json={"prompt": "a person walks forward", "seconds": 2.0, "seed": 3,
+                                                  "footskate": "off"})
         assert res.status_code == 200, res.text
         return res.json()
 

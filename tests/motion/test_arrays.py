@@ -1,4 +1,4 @@
-"""numpy and torch meet once, at the edges of the motion math (issue 26): the functions are written in torch,
+"""numpy and torch meet once, at the edges of the motion math: the functions are written in torch,
 numpy float64 in gives numpy float64 out, torch in gives torch out (dtype kept, gradients flowing), and no
 function of these modules looks at the array type itself."""
 

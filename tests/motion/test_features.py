@@ -4,9 +4,9 @@ import torch
 
 from stablemofusion.errors import MotionFormatError
 from stablemofusion.motion.features import (
-    bone_lengths, canonicalize, feature_slices, features_from_joints, joints_from_features, mirror_features,
-    mirror_joints,
-)
+                                            bone_lengths, canonicalize, feature_slices, features_from_joints, joints_from_features, mirror_features,
+                                            mirror_joints,
+                                            )
 from stablemofusion.motion.skeleton import HUMANML3D, KIT
 
 

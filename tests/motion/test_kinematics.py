@@ -174,7 +174,7 @@ def fk_recurrences(source: str) -> list[tuple[str, int]]:
 
 
 def test_the_check_finds_the_forward_kinematics_it_replaced():
-    """The loops this issue removed (BVH's, the rest pose's, the L-BFGS fit's, the global rotations') are found."""
+    """The loops removed (BVH's, the rest pose's, the L-BFGS fit's, the global rotations') are found."""
     old_bvh = ("def fk(bvh):\n    for j, p in enumerate(bvh.parents):\n"
                "        glob[:, j] = glob[:, p] @ rot[:, j]\n"
                "        pos[:, j] = pos[:, p] + np.einsum('fik,fk->fi', glob[:, p], trans[:, j])\n")

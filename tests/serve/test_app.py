@@ -61,11 +61,12 @@ def test_bvh_and_npy_formats_are_the_same_motion(pipe, tmp_path):
 
 
 @pytest.mark.parametrize("url, body, status, message", [
-    ("/v1/generate", {"prompt": "   "}, 422, "prompt must have"),
-    ("/v1/generate", {"prompt": "x" * 301}, 422, "prompt must have"),
-    ("/v1/generate", {"prompt": "walk", "seconds": 60}, 422, "seconds must be between"),
-    ("/v1/generate", {"prompt": "walk", "seconds": 0.5}, 422, "seconds must be between"),
+    ("/v1/generate", {"prompt": "   "}, 422, "prompt must be a non-empty text"),
+    ("/v1/generate", {"prompt": "x" * 301}, 422, "prompt must have at most 300 characters"),
+    ("/v1/generate", {"prompt": "walk", "seconds": 121}, 422, "seconds must be more than 0 and at most 120 s"),
+    ("/v1/generate", {"prompt": "walk", "seconds": 0}, 422, "seconds must be more than 0"),
     ("/v1/generate", {"prompt": "walk", "steps": 0}, 422, "steps"),
+    ("/v1/generate", {"prompt": "walk", "seed": -1}, 422, "seed must be"),
     ("/v1/generate", {"prompt": "walk", "footskate": "maybe"}, 422, "footskate"),
     ("/v1/generate", {"prompt": "walk", "colour": "red"}, 422, "colour"),
     ("/v1/generate", {"seconds": 3}, 422, "prompt"),

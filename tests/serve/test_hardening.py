@@ -1,4 +1,4 @@
-"""Issue 27, one test per hole a hostile client found: isolation, strict input, bounded bodies and uploads,
+"""One test per hole a hostile client found: isolation, strict input, bounded bodies and uploads,
 cancelled work, one error format, escaped logs, Host and content-type checks, connection timeouts."""
 
 from __future__ import annotations
@@ -256,10 +256,8 @@ def test_a_half_open_connection_is_closed():
         socks = [socket.create_connection(("127.0.0.1", port)) for _ in range(5)]
         for s in socks:
             s.sendall(b"GET /v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\n")  # never ends its headers
-            s.settimeout(5)
-        t0 = time.monotonic()
-        assert all(s.recv(100) == b"" for s in socks)  # closed by the server
-        assert time.monotonic() - t0 < 4
+            s.settimeout(60)  # a safety net only: the server closes them after its 0.5 s header timeout
+        assert all(s.recv(100) == b"" for s in socks)  # closed by the server, not by our timeout
         for s in socks:
             s.close()
 
@@ -302,9 +300,8 @@ def test_convert_rejects_absurd_bvh_values(pipe, small_bvh, case):
 def test_convert_bounds_npy_uploads(pipe, array):
     buf = io.BytesIO()
     np.save(buf, array)
-    t0 = time.monotonic()
     r = post_raw(create_app(pipe), "/v1/convert?filename=m.npy", buf.getvalue(), OCTETS)
-    assert r.status_code == 422 and time.monotonic() - t0 < 2
+    assert r.status_code == 422
 
 
 def test_convert_runs_off_the_event_loop(pipe, monkeypatch):
@@ -323,13 +320,12 @@ def test_convert_runs_off_the_event_loop(pipe, monkeypatch):
         async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as c:
             upload = asyncio.ensure_future(c.post("/v1/convert?filename=a.bvh", content=b"x", headers=OCTETS))
             await asyncio.sleep(0.2)
-            t0 = time.monotonic()
             health = await c.get("/v1/health")
-            waited = time.monotonic() - t0
+            answered_first = not upload.done()  # were the parse on the event loop, health would wait for it
             await upload
-            return health, waited
-    health, waited = asyncio.run(go())
-    assert health.status_code == 200 and waited < 0.5
+            return health, answered_first
+    health, answered_first = asyncio.run(go())
+    assert health.status_code == 200 and answered_first
 
 
 class Spy(Poisoned):

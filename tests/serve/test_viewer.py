@@ -80,6 +80,7 @@ def generate_and_pause(page, frame: int, body: bool) -> None:
     page.set_checked("#body", body)
     page.fill("#prompt", "a person walks forward")
     page.fill("#seconds", "2")
+    page.fill("#seed", "0")
     page.click("#generate")
     page.wait_for_function("window.smf.ready && (window.smf.character !== null) === " + str(body).lower(),
                            timeout=60_000)
@@ -123,6 +124,48 @@ def test_a_timeline_prompt_and_an_empty_length(page):
     page.wait_for_function("document.getElementById('status').className === 'error'", timeout=30_000)
     assert "is not PROMPT:SECONDS" in page.inner_text("#status")
     assert [m for m in page.logs if "pageerror" in m] == []
+
+
+def test_one_generation_per_click_the_servers_limits_and_a_fresh_seed(page, server):
+    """A click with the body shown asks for JSON and then .glb: the server makes the motion once. The viewer caps
+    nothing itself (30 s is a long motion, as at every door) and shows the server's refusal; an empty seed is a
+    fresh one, shown with the motion."""
+    import httpx
+
+    batches = lambda: httpx.get(server + "/v1/health").json()["batches"]  # noqa: E731
+    page.fill("#prompt", "a person walks forward")
+    page.fill("#seed", "")
+    page.fill("#seconds", "30")
+    before = batches()
+    page.set_checked("#body", True)
+    page.click("#generate")
+    page.wait_for_function("window.smf.ready && window.smf.character !== null && window.smf.frames === 600",
+                           timeout=120_000)
+    assert batches() == before + 1
+    assert "seed " in page.inner_text("#status")
+    page.fill("#seconds", "121")
+    page.click("#generate")
+    page.wait_for_function("document.getElementById('status').className === 'error'", timeout=30_000)
+    assert "seconds must be more than 0 and at most 120 s" in page.inner_text("#status")
+    page.fill("#seconds", "2")
+
+
+def test_the_out_of_domain_warning_is_shown(page):
+    """The server's warning of a prompt far from the model's actions is shown with the motion (the tiny test
+    model knows no actions, so the answer is the server's for such a prompt, rewritten in the page's fetch)."""
+    page.route("**/v1/generate", lambda route: route.fulfill(
+        status=200, content_type="application/json",
+        body=__import__("json").dumps({"prompt": "does a backflip", "fps": 20.0, "frames": 40, "seed": 3,
+                                       "warning": "'does a backflip' is not like anything this model was trained on",
+                                       "joints": np.zeros((40, 22, 3)).tolist()})))
+    try:
+        page.set_checked("#body", False)
+        page.fill("#prompt", "does a backflip")
+        page.click("#generate")
+        page.wait_for_function("document.getElementById('status').className === 'error'", timeout=30_000)
+        assert "Warning: 'does a backflip' is not like anything" in page.inner_text("#status")
+    finally:
+        page.unroute("**/v1/generate")
 
 
 def test_dropping_a_local_npy_shows_it_and_bad_files_show_an_error(page):

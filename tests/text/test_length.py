@@ -99,7 +99,7 @@ def test_shipped_estimator_and_pipeline_lengths():
     given = pipe("a person walks forward", seconds=3.0, steps=2, seed=0)[0]
     assert len(given.joints) == 60
     meta = json.loads((default_model_path() / "length.json").read_text())
-    assert meta["metrics"]["test"]["reduction"] >= 0.25  # the bar: 25% lower error than the median
+    assert meta["metrics"]["test"]["reduction"] >= 0.25  # the bar: 25% lower error than the median
 
 
 def test_an_estimator_of_another_text_encoder_is_refused(tmp_path, save_tiny_checkpoint):

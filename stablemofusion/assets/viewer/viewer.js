@@ -208,7 +208,8 @@ function parseTimeline(text) {
 $('form').addEventListener('submit', async (ev) => {
   ev.preventDefault();
   if ($('live').checked) { livePrompt($('prompt').value); return; }
-  const common = { seed: Number($('seed').value), footskate: $('footskate').value };
+  const common = { footskate: $('footskate').value };
+  if ($('seed').value.trim() !== '') common.seed = Number($('seed').value);  // else the server draws one
   state.ready = false;
   $('generate').disabled = true;
   status('generating...');
@@ -226,7 +227,8 @@ $('form').addEventListener('submit', async (ev) => {
     state.endpoint = endpoint;
     setMotion(m.joints, m.frames, m.fps, `"${m.prompt}": ${m.frames} frames, seed ${m.seed}`);
     for (const f of Object.keys(DOWNLOADS)) $(f).disabled = false;
-    await showCharacter();
+    await showCharacter();  // the server converts the motion it just made (no second generation)
+    if (m.warning) status(`${$('status').textContent}. Warning: ${m.warning}`, true);
   } catch (e) {
     status(e.message, true);
   } finally {
@@ -348,14 +350,22 @@ function liveAppend(m) {
     camera.position.set(joints[0] + 3, 1.7, joints[2] + 4.5);
     state.ready = true;
   }
+  // frames that arrive after their play time: the stream is behind (a busy machine); said, never hidden
+  const playing = ((performance.now() - L.start) / 1000) * m.fps;  // the play clock, in stream frames
+  const late = Math.max(0, Math.min(m.joints.length, Math.ceil(playing - m.start)));
+  L.late += late;
   const p = L.prompts[m.prompt_index];
-  if (p !== undefined) status(`live: "${p}" (frame ${L.received})`);
+  if (p === undefined) return;
+  if (late > 0) status(`live: "${p}" (frame ${L.received}): behind by ${((playing - m.start) / m.fps).toFixed(1)} s, ${L.late} late frames`, true);
+  else status(`live: "${p}" (frame ${L.received})`);
 }
 
 function livePrompt(text) {
   if (!state.live) liveStart();
   const L = state.live;
-  const message = JSON.stringify(L.prompts.length ? { prompt: text } : { prompt: text, seed: Number($('seed').value) });
+  const first = { prompt: text };
+  if ($('seed').value.trim() !== '') first.seed = Number($('seed').value);
+  const message = JSON.stringify(L.prompts.length ? { prompt: text } : first);
   L.prompts.push(text);
   if (L.ws.readyState === WebSocket.OPEN) L.ws.send(message);
   else L.ws.addEventListener('open', () => L.ws.send(message), { once: true });
@@ -373,7 +383,7 @@ function liveStart() {
   $('generate').textContent = 'Send';
   const proto = location.protocol === 'https:' ? 'wss:' : 'ws:';
   const ws = new WebSocket(`${proto}//${location.host}/v1/stream`);
-  state.live = { ws, start: null, offset: 0, received: 0, index: -1, prompts: [] };
+  state.live = { ws, start: null, offset: 0, received: 0, index: -1, prompts: [], late: 0 };
   const current = () => state.live !== null && state.live.ws === ws;  // not stopped or replaced since
   ws.addEventListener('message', (ev) => {
     if (!current()) return;  // frames already in flight when the stream was stopped

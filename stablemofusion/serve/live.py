@@ -34,14 +34,15 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
-from pydantic import BaseModel, Field
+from pydantic import BaseModel
 
-from .checks import STRICT, check_prompt, parse_body
-from .errors import ServeError, log_event
-from .limits import (MAX_GUIDANCE, MAX_SEED, MAX_STREAM_MESSAGE_BYTES, MAX_STREAM_MESSAGES, MAX_STREAM_SECONDS,
-                     MAX_STREAMS, STREAM_AHEAD_S, STREAM_DECIMALS, STREAM_GATHER_S, STREAM_JOIN_S,
-                     STREAM_MESSAGE_FRAMES, STREAM_MESSAGE_WINDOW_S, STREAM_RECENT_WINDOWS, STREAM_SEND_LEAD_S,
-                     STREAM_START_TIMEOUT_S, STREAM_SWITCH_FACTOR, WARM_STEPS)
+from .. import limits
+from .checks import STRICT, checked, check_prompt, parse_body
+from .http_errors import ServeError, log_event
+from .server_limits import (MAX_STREAM_MESSAGE_BYTES, MAX_STREAM_MESSAGES, MAX_STREAM_SECONDS,
+                            MAX_STREAMS, STREAM_AHEAD_S, STREAM_DECIMALS, STREAM_GATHER_S, STREAM_JOIN_S,
+                            STREAM_MESSAGE_FRAMES, STREAM_MESSAGE_WINDOW_S, STREAM_RECENT_WINDOWS, STREAM_SEND_LEAD_S,
+                            STREAM_START_TIMEOUT_S, STREAM_SWITCH_FACTOR, WARM_STEPS)
 from .worker import Failure, ProcessWorker, child_loop
 
 TRY_LATER = 1013  # WebSocket close code: the server is at its stream limit
@@ -54,8 +55,8 @@ class StreamMessage(BaseModel):
     model_config = STRICT
 
     prompt: str | None = None
-    seed: int | None = Field(default=None, ge=0, lt=MAX_SEED)
-    guidance: float | None = Field(default=None, ge=0.0, le=MAX_GUIDANCE)
+    seed: int | None = None  # ranges: stablemofusion/limits.py
+    guidance: float | None = None
     stop: bool | None = None
 
 
@@ -389,6 +390,8 @@ class StreamSession:
         if body.prompt is None:
             raise ServeError(422, 'prompt: a message is {"prompt": "...", "seed"?, "guidance"?} or {"stop": true}')
         prompt = check_prompt(body.prompt, "prompt")
+        checked(limits.check_seed, body.seed)
+        checked(limits.check_guidance, body.guidance)
         self.pending = StreamJob(self.sid, prompt, body.seed, body.guidance)
         self.pending_index = self.prompts
         self.prompts += 1

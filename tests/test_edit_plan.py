@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from stablemofusion.cli.main import main
-from stablemofusion.edit import blend_seams, body_mask, plan_edit, source_features
+from stablemofusion.edit_plan import blend_seams, body_mask, plan_edit, source_features
 from stablemofusion.errors import SMFError
 from stablemofusion.motion.features import features_from_joints, joints_from_features
 from stablemofusion.motion.files import load_motion
@@ -77,7 +77,7 @@ def test_kept_frames_are_the_source(pipe, source, mode, kw, impose):
     T, n_s, n_e = len(r.joints), int(kw.get("keep_start", 0) * 20), int(kw.get("keep_end", 0) * 20)
     out = list(range(n_s)) + list(range(T - n_e, T))
     src = list(range(n_s)) + list(range(len(source) - n_e, len(source)))
-    assert T == len(source) and np.abs(r.joints[out] - ref[src]).max() < 0.01  # the bar: 1 cm
+    assert T == len(source) and np.abs(r.joints[out] - ref[src]).max() < 0.01  # the bar: 1 cm
     # the features decode to the same joints, and the edit changed the generated part
     assert np.abs(joints_from_features(r.features) - r.joints).max() < 0.01 or mode == "suffix"
     gen = [i for i in range(T) if i not in out]

@@ -8,7 +8,7 @@ import torch
 
 from stablemofusion.cli.main import main
 from stablemofusion.errors import SMFError
-from stablemofusion.footskate.distil import VgrfStudent, load_vgrf_model, save_vgrf_model
+from stablemofusion.footskate.vgrf import VgrfStudent, load_vgrf_model, save_vgrf_model
 
 
 def test_save_load_roundtrip(tmp_path):

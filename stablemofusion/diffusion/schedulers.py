@@ -48,8 +48,6 @@ SAMPLERS: dict[str, SamplerSpec] = {
     "lcm": SamplerSpec("LCMScheduler", {"original_inference_steps": 50, "timestep_scaling": 10.0,
                                         "set_alpha_to_one": False}, stochastic=True, fast=True),
 }
-DEFAULT_SAMPLER = "sde-dpmsolver++-karras"
-STUDENT_SAMPLER = "lcm"  # the default sampler of a distilled student
 CONSISTENCY_GRID = SAMPLERS["lcm"].options["original_inference_steps"]
 TIMESTEP_SCALING = SAMPLERS["lcm"].options["timestep_scaling"]
 SIGMA_DATA = 0.5  # LCM's boundary-condition constant (diffusers' LCMScheduler)

@@ -1,4 +1,4 @@
-"""A live stream's pacing (serve/stream.py) on its own: the frame buffer, the send and cut rules, and one
+"""A live stream's pacing (serve/live.py) on its own: the frame buffer, the send and cut rules, and one
 connection's session driven by a fake WebSocket and a fake stream worker (a window takes 50 ms), on the real
 clock: frames sent never beyond the send lead, the frames made and not sent bounded, a new prompt cut in."""
 
@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from stablemofusion.pipelines.stream import STREAM_CHUNK, STREAM_REWIND
-from stablemofusion.serve.errors import ServeError
-from stablemofusion.serve.limits import (STREAM_AHEAD_S, STREAM_JOIN_S, STREAM_MESSAGE_FRAMES,
-                                         STREAM_SEND_LEAD_S, STREAM_SWITCH_FACTOR)
-from stablemofusion.serve.stream import FrameBuffer, StreamFrames, StreamSession, cut_frame, due_frames
+from stablemofusion.serve.http_errors import ServeError
+from stablemofusion.serve.server_limits import (STREAM_AHEAD_S, STREAM_JOIN_S, STREAM_MESSAGE_FRAMES,
+                                                STREAM_SEND_LEAD_S, STREAM_SWITCH_FACTOR)
+from stablemofusion.serve.live import FrameBuffer, StreamFrames, StreamSession, cut_frame, due_frames
 
 FPS = 20
 
@@ -169,7 +169,7 @@ class FakeWorker:
 def test_streams_join_the_worker_call_that_starts_so_their_windows_are_batched():
     """Two streams started 0.3 s apart: without joining, each would ask on its own phase (one window a call);
     a stream with less than STREAM_AHEAD_S + STREAM_JOIN_S made ahead joins the other's call."""
-    from stablemofusion.serve.stream import StreamHub, serve_stream
+    from stablemofusion.serve.live import StreamHub, serve_stream
 
     class Socket(FakeWebSocket):
         async def accept(self):

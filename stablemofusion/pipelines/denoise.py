@@ -13,11 +13,11 @@ from typing import Callable
 import torch
 
 from ..diffusion.engine import COMPILED_ENGINES, GRAPH_ENGINES
-from ..diffusion.samplers import make_sampler, sampler_spec
+from ..diffusion.schedulers import make_sampler, sampler_spec
 from ..diffusion.sampling import Noise, Step, X0Hook, XHook, guided, run_diffusers, run_solver, with_x0_hook
 from ..diffusion.solvers import SolverTable
 from .components import Components
-from .settings import Settings, resolve_engine
+from .settings import HOOK_ENGINES, Settings
 
 XtHookFactory = Callable[[torch.Tensor, SolverTable], XHook]
 
@@ -30,9 +30,11 @@ def sample(c: Components, prompts: list[str], lengths: list[int], settings: Sett
     ``seed``: one for the batch, or one per item (then an item does not depend on the others batched with
     it). In footskate 'loop' mode the last predicted x0 are cleaned (rigid body) inside the loop.
     ``progress``: a tqdm bar over the steps (loops that run step by step on the host: not CUDA graphs)."""
-    settings = c.settings(settings)
-    hooks = x0_hook is not None or xt_hook is not None or settings.footskate == "loop"
-    engine = resolve_engine(settings.engine or c.engine, c.device, settings.sampler, hooks=hooks)
+    if not settings.resolved:
+        raise ValueError("sample() takes settings resolved for the model: Components.settings(...)")
+    engine = settings.engine
+    if (x0_hook is not None or xt_hook is not None or settings.footskate == "loop") and engine not in HOOK_ENGINES:
+        raise ValueError(f"hooks need one of the engines {HOOK_ENGINES}, got {engine!r}: resolve with hooks=True")
     B, T, D = len(prompts), max(lengths), int(c.mean.shape[0])
     noise = Noise(seed, lengths, D, c.device)
     mask = (torch.arange(T)[None] < torch.tensor(lengths)[:, None]).to(c.device)

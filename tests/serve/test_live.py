@@ -12,7 +12,7 @@ import pytest
 from stablemofusion.errors import SMFError
 from stablemofusion.motion.features import joints_from_features
 from stablemofusion.serve import create_app
-from stablemofusion.serve.limits import STREAM_AHEAD_S, STREAM_SEND_LEAD_S
+from stablemofusion.serve.server_limits import STREAM_AHEAD_S, STREAM_SEND_LEAD_S
 
 from serve_helpers import live_server
 
@@ -145,7 +145,7 @@ def test_protocol_frames_prompt_index_errors_and_stop(server):
         assert first[0]["start"] == 0 and contiguous(first) and first[0]["fps"] == 20
         assert first[0]["prompt_index"] == 0 and np.array(first[0]["joints"]).shape[1:] == (22, 3)
         for bad, why in [("not json", "not valid JSON"), (json.dumps({"prompt": "x", "bogus": 1}), "bogus"),
-                         (json.dumps({"prompt": ""}), "prompt must have 1 to 300"), (json.dumps({"seed": 2}), "prompt"),
+                         (json.dumps({"prompt": ""}), "prompt must be a non-empty text"), (json.dumps({"seed": 2}), "prompt"),
                          (json.dumps({"stop": False}), "stop"), (json.dumps([1]), "")]:
             ws.send(bad)
             m = json.loads(ws.recv(timeout=30))

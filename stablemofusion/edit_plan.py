@@ -26,13 +26,12 @@ import numpy as np
 import torch
 
 from .errors import SMFError
+from .limits import EDIT_MODES, IMPOSE
 from .motion.features import feature_slices
 from .motion.rigid import RigidMotion
 from .motion.root import follow_path, headings, land_at, root_xz
 from .motion.skeleton import Skeleton, get_skeleton
 
-EDIT_MODES = ("prefix", "suffix", "inbetween", "upper-body", "lower-body", "trajectory")
-IMPOSE = ("x0", "xt")
 SEAM_FRAMES = 10  # generated frames next to a kept block over which a seam is blended (0.5 s at 20 fps)
 
 
@@ -95,7 +94,7 @@ class PlanTensors:
 
 def edit_hooks(plan: EditPlan, mean: torch.Tensor, std: torch.Tensor, batch: int, device: torch.device,
                dtype: torch.dtype, impose: str = "x0"):
-    """The sampling hooks imposing ``plan`` on a batch (:mod:`stablemofusion.pipelines.sample`), built once on
+    """The sampling hooks imposing ``plan`` on a batch (:mod:`stablemofusion.pipelines.denoise`), built once on
     the torch side: (x0 hook or None, x_t hook factory or None). ``mean``/``std`` (D,) float32 the model's
     normalisation; ``impose`` 'x0' (replace the prediction's known entries and project its root) or 'xt'
     (impute the noisy sample; the root constraints still on x0)."""

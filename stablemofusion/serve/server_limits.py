@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from ..limits import MAX_SECONDS
+
 # request bodies (enforced while reading, for every transfer encoding: serve/guard.py)
 MAX_BODY_BYTES = 16 * 1024  # a JSON request
 MAX_UPLOAD_BYTES = 16 * 1024 * 1024  # a dropped .bvh / .npy (POST /v1/convert)
@@ -15,16 +17,12 @@ GRACEFUL_SHUTDOWN_S = 5  # after SIGTERM, requests in flight get this long befor
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")  # Host header names accepted by default (DNS rebinding)
 CLIENT_HEADER = "x-smf-client"  # a request with this header (or an octet-stream body) may POST a file
 
-# generation requests (serve/checks.py)
-MAX_PROMPT_CHARS = 300
-MAX_STEPS = 50
-MAX_GUIDANCE = 20.0
-MAX_SEGMENTS = 16
-MAX_TIMELINE_SECONDS = 120.0
-MAX_SEED = 2**63
+# generation requests: the limits of every door, stablemofusion/limits.py (checked in serve/checks.py)
+
+RECENT_RESULTS = 8  # motions kept by their request, so that asking again in another format converts, not generates
 
 # POST /v1/convert (serve/convert.py): a file shown by the viewer
-MAX_CONVERT_SECONDS = 120.0  # as long as the longest timeline
+MAX_CONVERT_SECONDS = MAX_SECONDS  # as long as the longest motion
 MIN_FRAME_TIME_S = 1e-3  # a BVH between 1 and 1000 frames per second
 MAX_FRAME_TIME_S = 1.0
 MAX_ABS_VALUE = 1e6  # any number of an uploaded file (metres, centimetres, millimetres or degrees)
@@ -38,7 +36,7 @@ WORKER_RESTART_DELAY_S = 0.5
 WORKER_POLL_S = 0.1
 WARM_STEPS = 2  # the warm-up generation before the worker reports ready
 
-# live streams (WebSocket /v1/stream: serve/stream.py)
+# live streams (WebSocket /v1/stream: serve/live.py)
 MAX_STREAMS = 4  # live streams at once (`smf serve --max-streams`); one more is told so and closed
 STREAM_AHEAD_S = 1.5  # windows are made until the frames made play this long ahead of play time (a slow window
 # on a loaded CPU does not make frames late) ...

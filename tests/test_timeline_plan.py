@@ -6,7 +6,7 @@ import pytest
 from stablemofusion.cli.main import main
 from stablemofusion.errors import SMFError
 from stablemofusion.pipeline import MotionPipeline
-from stablemofusion.timeline import TAIL, parse_timeline, plan_windows
+from stablemofusion.timeline_plan import TAIL, parse_timeline, plan_windows
 
 
 def test_parse_timeline():
@@ -51,8 +51,11 @@ def test_timeline_is_one_continuous_motion(pipe):
     walked = np.linalg.norm(r.joints[159, 0, [0, 2]] - r.joints[0, 0, [0, 2]])
     assert walked > 3.0  # 8 s of walking goes somewhere (9 m when written)
     # the root path does not jump at the joins either
-    step = np.linalg.norm(r.joints[1:, 0, [0, 2]] - r.joints[:-1, 0, [0, 2]], axis=-1)
-    assert max(step[j - 2:j + 2].max() for j in joins) <= step.max()
+    step = np.linalg.norm(r.joints[1:, 0, [0, 2]] - r.joints[:-1, 0, [0, 2]], axis=-1)  # (T-1,) metres per frame
+    inside = np.ones(len(step), dtype=bool)
+    for j in joins:
+        inside[j - 8:j + 6] = False
+    assert max(step[j - 2:j + 2].max() for j in joins) <= step[inside].max()  # no larger than a step inside
 
 
 def test_short_first_segments_and_samplers_without_a_fast_form(pipe):

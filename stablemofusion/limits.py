@@ -1,0 +1,129 @@
+"""The defaults and limits of a generation request, one table for every door: the library, `smf`, the HTTP API and
+the viewer (which sends its requests to the HTTP API and shows its answers). A value outside a limit is refused
+with one line naming it (``SMFError``; the command line exits 2, HTTP answers 422), never clamped silently.
+
+Pure Python (no numpy, no torch): the command line's parsers read it without loading the model code.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import random
+
+from .errors import SMFError
+
+# --- defaults ---
+# classifier-free guidance scale of a model whose config names none (a model's own: its config's ``guidance``, set
+# by `smf export --guidance`; a distilled student takes the scale as an input)
+GUIDANCE = 2.5
+STEPS = 10  # sampling steps of an ordinary model (a distilled student: its checkpoint's distil.sample_steps)
+SAMPLER = "sde-dpmsolver++-karras"  # sampler of an ordinary model
+STUDENT_SAMPLER = "lcm"  # sampler of a distilled student (multistep consistency sampling)
+# steps of a distilled student when it edits a motion (at least; its own count if larger): at 1 step the kept frames
+# are imposed on its only prediction, which never saw them, and the seams were twice the teacher's (docs/editing.md)
+STUDENT_EDIT_STEPS = 4
+BATCH_SIZE = 32  # prompts per sampling call
+DEFAULT_SECONDS = 4.0  # length of a motion when none is given and the model has no length estimator
+FOOTSKATE_MODES = ("off", "post", "loop")
+# footskate cleanup of a generated motion unless a request says otherwise (the rigid stage on): measured on the shipped
+# 1-step student, 64 test captions, `benchmarks/footskate_generated.py --n 64` (2-core AMD EPYC): the raw motion's
+# skate ratio is 0.234 against 0.080 for the real motions of those captions; after 'post' 0.064, the joints moved
+# 1.2 cm on average, for 51 ms more per motion (61 against 11 ms). docs/footskate.md.
+FOOTSKATE = "post"
+ENGINES = ("eager", "fast", "compiled", "graph", "compiled-graph", "aot")  # diffusion/engine.py: what each does
+OUTPUT_FORMATS = ("npy", "json", "bvh", "glb", "mp4", "gif")  # output.py: one writer each
+DEFAULT_FORMATS = "npy,mp4,bvh"
+EDIT_MODES = ("prefix", "suffix", "inbetween", "upper-body", "lower-body", "trajectory")  # edit.py: what each keeps
+IMPOSE = ("x0", "xt")  # where an edit imposes the kept part: the x0 prediction or the noisy sample
+
+# --- limits ---
+MAX_SECONDS = 120.0  # a motion or a whole timeline; longer than the model's window: made window by window
+MIN_STEPS, MAX_STEPS = 1, 50
+MIN_GUIDANCE, MAX_GUIDANCE = 0.0, 20.0
+MAX_SEGMENTS = 16  # segments of a timeline
+MAX_PROMPT_CHARS = 300
+MAX_BATCH_SIZE = 256
+SEED_RANGE = 2**53  # seeds are whole numbers in [0, SEED_RANGE): exact in JavaScript too (the viewer sends them back)
+FRESH_SEEDS = 2**32  # a request without a seed gets one drawn from [0, FRESH_SEEDS): short enough to type again
+
+
+def _whole(x) -> bool:
+    return isinstance(x, numbers.Integral) and not isinstance(x, bool)
+
+
+def _number(x) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def check_steps(steps: int | None) -> int | None:
+    """Sampling steps in [MIN_STEPS, MAX_STEPS], or None (the model's own)."""
+    if steps is not None and (not _whole(steps) or not MIN_STEPS <= steps <= MAX_STEPS):
+        raise SMFError(f"steps must be a whole number from {MIN_STEPS} to {MAX_STEPS}, got {steps}")
+    return steps
+
+
+def check_guidance(scale: float | None) -> float | None:
+    """A guidance scale in [MIN_GUIDANCE, MAX_GUIDANCE], or None (the model's own)."""
+    if scale is not None and (not _number(scale) or not MIN_GUIDANCE <= scale <= MAX_GUIDANCE):
+        raise SMFError(f"guidance must be a number from {MIN_GUIDANCE:g} to {MAX_GUIDANCE:g}, got {scale}")
+    return scale
+
+
+def check_seconds(seconds: float | None, what: str = "seconds") -> float | None:
+    """A positive length of at most MAX_SECONDS (a motion, or a timeline's total), or None (predicted)."""
+    if seconds is not None and (not _number(seconds) or not 0 < seconds <= MAX_SECONDS):
+        raise SMFError(f"{what} must be more than 0 and at most {MAX_SECONDS:g} s, got {seconds}")
+    return seconds
+
+
+def check_segments(count: int) -> int:
+    if not 1 <= count <= MAX_SEGMENTS:
+        raise SMFError(f"a timeline has 1 to {MAX_SEGMENTS} segments, got {count}")
+    return count
+
+
+def check_seed(seed: int | None) -> int | None:
+    """A seed in [0, SEED_RANGE), or None (a fresh one)."""
+    if seed is not None and (not _whole(seed) or not 0 <= seed < SEED_RANGE):
+        raise SMFError(f"seed must be a whole number from 0 to {SEED_RANGE - 1}, got {seed}")
+    return seed
+
+
+def check_batch_size(n: int) -> int:
+    if not _whole(n) or not 1 <= n <= MAX_BATCH_SIZE:
+        raise SMFError(f"batch size must be a whole number from 1 to {MAX_BATCH_SIZE}, got {n}")
+    return n
+
+
+def check_footskate(mode: str) -> str:
+    if mode not in FOOTSKATE_MODES:
+        raise SMFError(f"footskate must be one of {', '.join(FOOTSKATE_MODES)}, got {mode!r}")
+    return mode
+
+
+def check_prompt(text, what: str = "the prompt") -> str:
+    """A prompt of 1 to MAX_PROMPT_CHARS characters (surrounding spaces not counted), returned stripped."""
+    if not isinstance(text, str) or not text.strip():
+        raise SMFError(f"{what} must be a non-empty text")
+    text = text.strip()
+    if len(text) > MAX_PROMPT_CHARS:
+        raise SMFError(f"{what} must have at most {MAX_PROMPT_CHARS} characters, got {len(text)}")
+    return text
+
+
+def fresh_seed() -> int:
+    """A random seed for a request without one (reported with its result, so the motion can be made again)."""
+    return random.randrange(FRESH_SEEDS)
+
+
+def base_seed(seed: int | None) -> int:
+    """The seed policy of every door: a request's seed as given (checked), or a fresh one."""
+    return fresh_seed() if check_seed(seed) is None else int(seed)
+
+
+def table() -> dict:
+    """The limits as JSON (GET /v1/health, the viewer)."""
+    return {"seconds": [0, MAX_SECONDS], "steps": [MIN_STEPS, MAX_STEPS], "guidance": [MIN_GUIDANCE, MAX_GUIDANCE],
+            "segments": MAX_SEGMENTS, "prompt_chars": MAX_PROMPT_CHARS, "seed": [0, SEED_RANGE - 1],
+            "footskate": list(FOOTSKATE_MODES)}

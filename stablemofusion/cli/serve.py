@@ -8,7 +8,7 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
-    from ..limits import ENGINES
+    from ..limits import BATCH_SIZE, ENGINES
     from .flags import add_teacher_flag
 
     p = sub.add_parser(name,
@@ -24,7 +24,7 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--engine", default="auto", choices=("auto",) + ENGINES,
                    help="denoising engine of the worker (default auto; 'compiled' pays on a CPU server: a one-off "
                         "compilation per shape, docs/inference.md)")
-    p.add_argument("--max-batch", type=int, default=32, help="most requests in one sampling call (default 32)")
+    p.add_argument("--max-batch", type=int, default=BATCH_SIZE, help="most requests in one sampling call")
     p.add_argument("--wait-ms", type=float, default=5.0, help="how long to gather requests for a batch (default 5)")
     p.add_argument("--max-queue", type=int, default=256, help="waiting requests before 503 (default 256)")
     p.add_argument("--threads", type=int, default=2, help="torch threads of the generating process (default 2)")

@@ -117,7 +117,7 @@ def _install_error_handlers(app: FastAPI) -> None:
         return error(500, "internal server error")
 
 
-def create_app(model, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: int = 256,
+def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.0, max_queue: int = 256,
                max_body_bytes: int = MAX_BODY_BYTES, allowed_hosts: tuple[str, ...] = (), streams=None,
                max_streams: int = MAX_STREAMS) -> FastAPI:
     """The ASGI app; ``model`` is a worker (serve/worker.py: `smf serve` gives a supervised

@@ -14,6 +14,7 @@ import asyncio
 import logging
 from collections import defaultdict
 
+from ..limits import BATCH_SIZE
 from .http_errors import ServeError, log_event
 from .worker import Failure, Job
 
@@ -22,7 +23,7 @@ class DynamicBatcher:
     """Gathers jobs for up to ``wait_ms`` after the first (at most ``max_batch``) and runs them together;
     at most ``max_queue`` jobs wait (503 beyond). ``batch_sizes`` records every call's size."""
 
-    def __init__(self, worker, *, max_batch: int = 32, wait_ms: float = 5.0, max_queue: int = 256):
+    def __init__(self, worker, *, max_batch: int = BATCH_SIZE, wait_ms: float = 5.0, max_queue: int = 256):
         if max_batch < 1 or wait_ms < 0 or max_queue < 0:
             raise ServeError(500, "max_batch must be >= 1, wait_ms and max_queue >= 0")
         self.worker, self.max_batch, self.wait, self.max_queue = worker, max_batch, wait_ms / 1000.0, max_queue

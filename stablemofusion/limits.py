@@ -23,6 +23,10 @@ STUDENT_SAMPLER = "lcm"  # sampler of a distilled student (multistep consistency
 # steps of a distilled student when it edits a motion (at least; its own count if larger): at 1 step the kept frames
 # are imposed on its only prediction, which never saw them, and the seams were twice the teacher's (docs/editing.md)
 STUDENT_EDIT_STEPS = 4
+# the most steps a distilled student samples soundly (a model's config may name its own: ``max_steps``): past them
+# its multistep consistency sampling drifts. The shipped 1-step student, 6 prompts x 4 s, the root's largest speed:
+# 2.6 m/s at 1-6 steps, 3.6 at 7, 5.1 at 8, 9.2 at 10, 80 at 20, 6e5 at 50 (its joints 470 km away)
+STUDENT_MAX_STEPS = 6
 BATCH_SIZE = 32  # prompts per sampling call
 DEFAULT_SECONDS = 4.0  # length of a motion when none is given and the model has no length estimator
 FOOTSKATE_MODES = ("off", "post", "loop")

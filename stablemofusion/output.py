@@ -113,7 +113,7 @@ def joints_json_bytes(joints: np.ndarray, fps: float) -> bytes:
 
 def _rounded(joints: np.ndarray) -> np.ndarray:
     """Joints rounded to :data:`JSON_DECIMALS`, in float64 as the standard library's encoder wrote them."""
-    return np.round(np.asarray(joints, dtype=np.float64), JSON_DECIMALS)
+    return np.ascontiguousarray(np.round(np.asarray(joints, dtype=np.float64), JSON_DECIMALS))  # any memory layout
 
 
 def _dumps(body: dict) -> bytes:

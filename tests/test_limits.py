@@ -104,3 +104,18 @@ def test_one_seed_policy():
     assert limits.base_seed(7) == 7
     seeds = {limits.base_seed(None) for _ in range(20)}
     assert len(seeds) > 1 and all(0 <= s < limits.SEED_RANGE for s in seeds)
+
+
+@pytest.fixture(scope="module")
+def student(checkpoint, tmp_path_factory, save_tiny_student):
+    return save_tiny_student(tmp_path_factory.mktemp("limits-student") / "student", checkpoint)
+
+
+def test_a_student_takes_only_the_steps_it_samples_soundly(student, tmp_path, capsys):
+    """Past STUDENT_MAX_STEPS a distilled student drifts into motions no human makes: refused at every door."""
+    pipe = MotionPipeline.from_pretrained(student, device="cpu")
+    assert pipe.student and pipe.max_steps == limits.STUDENT_MAX_STEPS
+    assert len(pipe([PROMPT], seconds=2, seed=0, steps=limits.STUDENT_MAX_STEPS)[0].joints) == 40
+    req = {"seconds": 2, "steps": limits.STUDENT_MAX_STEPS + 1}
+    answers = [library(pipe, req), http(pipe, req), cli(student, req, tmp_path, capsys)]
+    assert all(isinstance(a, str) and f"steps must be at most {limits.STUDENT_MAX_STEPS}" in a for a in answers)

@@ -19,6 +19,7 @@ from .rigid import RigidMotion, pose_from_joints
 from .skeleton import Skeleton, get_skeleton, skeleton_for_shape
 
 MOTION_SUFFIXES = (".npy", ".bvh")
+MIN_BONE_M = 1e-3  # a bone shorter than this on average (1 mm) is no bone
 
 
 @dataclass
@@ -60,14 +61,28 @@ def load_motion(path: str | Path, skeleton: str | Skeleton | None = None, joint_
         arr = np.load(path, allow_pickle=False)
     except Exception as e:  # noqa: BLE001 - numpy raises many types for broken files
         raise MotionFormatError(f"{path}: not a readable .npy array ({e.__class__.__name__})") from None
-    if not np.issubdtype(arr.dtype, np.number):
-        raise MotionFormatError(f"{path}: array of dtype {arr.dtype} is not numeric")
+    if not np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.complexfloating):
+        raise MotionFormatError(f"{path}: array of dtype {arr.dtype} is not real numbers")
     sk, kind = skeleton_for_shape(arr.shape) if skeleton is None else _kind_for(arr.shape, get_skeleton(skeleton))
     if not np.isfinite(arr).all():
         raise MotionFormatError(f"{path}: {kind} contain NaN or inf")
     if kind == "features":
         return Motion(joints_from_features(arr.astype(np.float64), sk), sk, sk.fps, arr)
-    return Motion(arr.astype(np.float64), sk, sk.fps)
+    joints = arr.astype(np.float64)
+    check_bones(joints, sk, str(path))
+    return Motion(joints, sk, sk.fps)
+
+
+def check_bones(joints: np.ndarray, skeleton: Skeleton, where: str) -> None:
+    """MotionFormatError when a bone of ``joints`` (T, J, 3) metres has (almost) no length on average: those are
+    not a body's joints (every joint at one point, say), and no rigid skeleton fits them."""
+    parents = np.asarray(skeleton.parents)
+    bones = np.linalg.norm(joints[:, 1:] - joints[:, parents[1:]], axis=-1).mean(0)  # (J-1,) metres
+    short = np.flatnonzero(bones < MIN_BONE_M)
+    if len(short):
+        name = skeleton.joint_names[int(short[0]) + 1]
+        raise MotionFormatError(f"{where}: the bone to joint {name} has no length ({bones[short[0]] * 1000:.2f} mm on "
+                                "average): not a body's joints")
 
 
 def resample(x: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarray:

@@ -21,7 +21,7 @@ from ..motion.skeleton import get_skeleton
 from ..text.known import ACTIONS_FILE, DomainCheck, KnownActions
 from ..text.length import WEIGHTS as LENGTH_WEIGHTS
 from ..text.length import LengthEstimator
-from ..limits import DEFAULT_SECONDS, check_footskate, check_seconds
+from ..limits import DEFAULT_SECONDS, MAX_STEPS, STUDENT_MAX_STEPS, check_footskate, check_seconds
 from .settings import LengthClampedWarning, OutOfDomainWarning, Settings, resolve_engine
 
 
@@ -112,9 +112,20 @@ class Components:
         rigid = self.rigid is not None
         s = (settings or Settings()).check(rigid=rigid).for_model(student_steps, self.config.guidance, edit=edit,
                                                                   rigid=rigid)
+        if s.steps > self.max_steps:
+            raise SMFError(f"steps must be at most {self.max_steps} for this model (a distilled student: more steps "
+                           f"drift into motions no human makes), got {s.steps}; its teacher (--teacher) takes up to {MAX_STEPS}")
         engine = resolve_engine(s.engine or self.engine, self.device, s.sampler,
                                 hooks=hooks or s.footskate == "loop")
         return replace(s, engine=engine)
+
+    @property
+    def max_steps(self) -> int:
+        """The most sampling steps this model takes: a distilled student's own sound range (its config's
+        ``max_steps``, else STUDENT_MAX_STEPS), any other model MAX_STEPS."""
+        if not self.student:
+            return MAX_STEPS
+        return int(getattr(self.config, "max_steps", None) or max(STUDENT_MAX_STEPS, self.config.distil.sample_steps))
 
     @property
     def window_seconds(self) -> float:

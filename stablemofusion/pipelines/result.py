@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..motion.features import joints_from_features
+from ..motion.plausible import check_plausible
 from ..motion.rigid import RigidMotion
 from ..motion.skeleton import Skeleton
 from ..text.known import DomainCheck
@@ -30,8 +31,10 @@ class MotionResult:
     @classmethod
     def build(cls, prompt: str, features: np.ndarray, motion: RigidMotion | None, skeleton: Skeleton, fps: float,
               seed: int | None, domain: DomainCheck | None = None) -> "MotionResult":
-        """A result whose joints come from the rigid body, or from the features without one."""
+        """A result whose joints come from the rigid body, or from the features without one; a motion no human
+        makes is an error (:func:`~stablemofusion.motion.plausible.check_plausible`), never a result."""
         joints = joints_from_features(features, skeleton) if motion is None else motion.joints()
+        check_plausible(joints, fps)
         return cls(prompt, features, joints, fps, seed, motion, domain)
 
     @property

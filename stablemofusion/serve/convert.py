@@ -61,7 +61,9 @@ def _check_bvh(data: bytes, filename: str) -> None:
 
 
 def _check_npy(data: bytes, filename: str) -> None:
-    from ..errors import MotionFormatError
+    """The header of an uploaded .npy (any layout numpy writes): a real numeric array of a known skeleton's shape,
+    at most MAX_CONVERT_SECONDS long, whose data is exactly as long as the header says."""
+    from ..errors import SMFError
     from ..motion.skeleton import skeleton_for_shape
 
     try:
@@ -71,12 +73,16 @@ def _check_npy(data: bytes, filename: str) -> None:
         shape, _, dtype = read(buf)
     except Exception:  # noqa: BLE001 - numpy raises many types for broken headers
         raise ServeError(422, f"{filename}: not a readable .npy array") from None
-    if dtype.hasobject or not np.issubdtype(dtype, np.number):
-        raise ServeError(422, f"{filename}: array of dtype {dtype} is not numeric")
+    if dtype.hasobject or not np.issubdtype(dtype, np.number) or np.issubdtype(dtype, np.complexfloating):
+        raise ServeError(422, f"{filename}: array of dtype {dtype} is not real numbers")
     try:
         sk, _ = skeleton_for_shape(shape)
-    except MotionFormatError as e:
+    except SMFError as e:
         raise ServeError(422, f"{filename}: {e}") from None
+    size = buf.tell() + int(np.prod(shape)) * dtype.itemsize
+    if len(data) != size:
+        raise ServeError(422, f"{filename}: its header says {size} bytes, the file has {len(data)} "
+                              f"({'truncated' if len(data) < size else 'extra bytes'})")
     if shape[0] > MAX_CONVERT_SECONDS * sk.fps:
         raise ServeError(422, f"{filename}: the viewer shows motions of up to {MAX_CONVERT_SECONDS:g} s, got "
                               f"{shape[0]} frames at {sk.fps:g} fps")

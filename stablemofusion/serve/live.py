@@ -168,11 +168,11 @@ class ThreadStreamWorker:
             self._pool.shutdown(wait=False, cancel_futures=True)
 
 
-def _stream_child_main(conn, spec) -> None:
+def _stream_child_main(conn, spec, beat=None) -> None:
     """The stream worker process: windows of the open streams (their state lives here), until told to stop."""
     streams: dict = {}
     child_loop(conn, spec, "stream worker", warm_streams,
-               lambda pipe, message: run_stream_jobs(pipe, streams, message[0]))
+               lambda pipe, message: run_stream_jobs(pipe, streams, message[0]), beat)
 
 
 class StreamProcessWorker(ProcessWorker):

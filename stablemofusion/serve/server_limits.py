@@ -34,6 +34,12 @@ WORKER_STOP_S = 2.0  # asked to stop, then terminated, then killed
 WORKER_MAX_FAILED_STARTS = 3  # consecutive starts that die before ready: the worker is marked failed
 WORKER_RESTART_DELAY_S = 0.5
 WORKER_POLL_S = 0.1
+WORKER_BEAT_S = 1.0  # a worker process marks that it lives this often (a thread of its own, busy or not) ...
+WORKER_BEAT_TIMEOUT_S = 5.0  # ... and one whose mark is older than this is unresponsive (stopped, frozen): not
+# ready at once, its call fails with 503, and it is killed and started again
+WORKER_CALL_BASE_S = 30.0  # every worker call has a deadline: this much, plus ...
+WORKER_CALL_PER_WORK_S = 0.02  # ... this per second of motion per sampling step it was asked for (a 120 s
+# timeline at 50 steps: 150 s more); a call past its deadline fails with 503 and the worker is started again
 WARM_STEPS = 2  # the warm-up generation before the worker reports ready
 
 # live streams (WebSocket /v1/stream: serve/live.py)

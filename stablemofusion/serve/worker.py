@@ -22,8 +22,9 @@ from dataclasses import dataclass
 from ..errors import SMFError
 from ..limits import FOOTSKATE
 from .http_errors import ServeError, log, log_event
-from .server_limits import (WARM_STEPS, WORKER_MAX_FAILED_STARTS, WORKER_POLL_S, WORKER_RESTART_DELAY_S,
-                            WORKER_START_TIMEOUT_S, WORKER_STOP_S)
+from .server_limits import (WARM_STEPS, WORKER_BEAT_S, WORKER_BEAT_TIMEOUT_S, WORKER_CALL_BASE_S,
+                            WORKER_CALL_PER_WORK_S, WORKER_MAX_FAILED_STARTS, WORKER_POLL_S,
+                            WORKER_RESTART_DELAY_S, WORKER_START_TIMEOUT_S, WORKER_STOP_S)
 
 
 @dataclass(frozen=True)
@@ -143,11 +144,34 @@ class WorkerSpec:
     engine: str = "auto"
 
 
-def child_loop(conn, spec: WorkerSpec, name: str, warm_up, handle) -> None:
-    """The body of a worker process: load and warm its own pipeline (``warm_up(pipe)``), then answer each
-    message with ``handle(pipe, message)`` until told to stop or the server goes away."""
+def call_deadline(jobs: list) -> float:
+    """Seconds a worker call for ``jobs`` may take: WORKER_CALL_BASE_S plus WORKER_CALL_PER_WORK_S per second of
+    motion per sampling step asked for (a length or steps left to the model count as a window, 10 steps)."""
+    work = 0.0
+    for job in jobs:
+        seconds = getattr(job, "seconds", None) or sum(s for _, s in (getattr(job, "segments", None) or ())) or 10.0
+        work += seconds * (getattr(job, "steps", None) or 10)
+    return WORKER_CALL_BASE_S + WORKER_CALL_PER_WORK_S * work
+
+
+def heartbeat(beat) -> None:
+    """Mark ``beat`` (a shared double) with the time every WORKER_BEAT_S, on a thread of its own, for ever."""
+    def run():
+        while True:
+            beat.value = time.monotonic()
+            time.sleep(WORKER_BEAT_S)
+
+    threading.Thread(target=run, name="smf-heartbeat", daemon=True).start()
+
+
+def child_loop(conn, spec: WorkerSpec, name: str, warm_up, handle, beat=None) -> None:
+    """The body of a worker process: mark ``beat`` while it lives, load and warm its own pipeline
+    (``warm_up(pipe)``), then answer each message with ``handle(pipe, message)`` until told to stop or the server
+    goes away."""
     import signal
 
+    if beat is not None:
+        heartbeat(beat)
     import torch
 
     from ..pipeline import MotionPipeline
@@ -169,9 +193,9 @@ def child_loop(conn, spec: WorkerSpec, name: str, warm_up, handle) -> None:
         conn.send(handle(pipe, message))
 
 
-def _child_main(conn, spec: WorkerSpec) -> None:
+def _child_main(conn, spec: WorkerSpec, beat=None) -> None:
     """The batch worker process: batches of jobs, each answered alone when the batch fails."""
-    child_loop(conn, spec, "worker", warm, lambda pipe, message: run_isolated(pipe, *message))
+    child_loop(conn, spec, "worker", warm, lambda pipe, message: run_isolated(pipe, *message), beat)
 
 
 class _Died(Exception):
@@ -187,6 +211,7 @@ class ProcessWorker:
         self._inbox: queue.Queue = queue.Queue()
         self._state, self._loaded, self._warm, self._restarts, self._busy = "stopped", False, False, 0, False
         self._proc = None
+        self._beat = None  # the process's heartbeat (a shared double: time.monotonic() of its last mark)
         self._thread: threading.Thread | None = None
         self._stopping = threading.Event()
         self._lock = threading.Lock()
@@ -211,6 +236,7 @@ class ProcessWorker:
         alive = self._proc is not None and self._proc.is_alive()
         # between the worker's death and the supervisor noticing it, it is not ready (never a stale "ready")
         state = "restarting" if self._state == "ready" and not alive else self._state
+        state = "unresponsive" if state == "ready" and self._silent() else state
         return {"state": state, "pid": self._proc.pid if alive else None, "model_loaded": self._loaded, "warm": self._warm,
                 "busy": self._busy, "restarts": self._restarts}
 
@@ -257,10 +283,20 @@ class ProcessWorker:
     child_main = staticmethod(_child_main)  # the process's body (module level: spawn pickles it by name)
     process_name = "smf-worker"
 
+    def _silent(self) -> float | None:
+        """Seconds since the process's last heartbeat when more than WORKER_BEAT_TIMEOUT_S (it is stopped or
+        frozen), else None."""
+        beat = self._beat
+        if beat is None or not self._warm:
+            return None
+        quiet = time.monotonic() - beat.value
+        return quiet if quiet > WORKER_BEAT_TIMEOUT_S else None
+
     def _spawn(self):
         ctx = multiprocessing.get_context("spawn")  # no forked torch threads
         parent, child = ctx.Pipe()
-        self._proc = ctx.Process(target=self.child_main, args=(child, self.spec), name=self.process_name,
+        self._beat = ctx.Value("d", time.monotonic(), lock=False)
+        self._proc = ctx.Process(target=self.child_main, args=(child, self.spec, self._beat), name=self.process_name,
                                  daemon=True)
         self._proc.start()
         child.close()
@@ -285,13 +321,16 @@ class ProcessWorker:
             except queue.Empty:
                 if not self._proc.is_alive():
                     raise _Died(f"exit code {self._proc.exitcode}") from None
+                quiet = self._silent()
+                if quiet is not None:
+                    raise _Died(f"unresponsive: no heartbeat for {quiet:.1f} s") from None
                 continue
             if not future.set_running_or_notify_cancel():
                 continue
             try:
                 self._busy = True
                 conn.send((jobs, max_batch))
-                future.set_result(self._receive(conn))
+                future.set_result(self._receive(conn, time.monotonic() + call_deadline(jobs)))
             except _Died:
                 self._down()
                 future.set_exception(ServeError(503, "the generation worker stopped while generating this "
@@ -304,12 +343,18 @@ class ProcessWorker:
             finally:
                 self._busy = False
 
-    def _receive(self, conn):
+    def _receive(self, conn, deadline: float | None = None):
+        """The process's next message; _Died when it ends, stops beating, or passes ``deadline``."""
         while not conn.poll(WORKER_POLL_S):
             if self._stopping.is_set():
                 raise _Died("the server is stopping")
             if not self._proc.is_alive():
                 raise _Died(f"exit code {self._proc.exitcode}")
+            quiet = self._silent()
+            if quiet is not None:
+                raise _Died(f"unresponsive: no heartbeat for {quiet:.1f} s")
+            if deadline is not None and time.monotonic() > deadline:
+                raise _Died("no answer within the call's deadline")
         try:
             return conn.recv()
         except (EOFError, OSError):

@@ -157,3 +157,12 @@ def test_serve_on_a_busy_port_is_one_line(tmp_path):
     assert out.returncode == 2, out.stderr
     assert out.stderr.count("\n") == 1 and out.stderr.startswith("smf: error: cannot listen on 127.0.0.1:")
     assert "in use" in out.stderr and out.stdout == ""
+
+
+@pytest.mark.parametrize("array, words", [(np.zeros((40, 22, 3)), "has no length"),
+                                          (np.ones((40, 22, 3), dtype=complex), "not real numbers")])
+def test_convert_of_joints_no_body_has_is_one_line(array, words, tmp_path, capsys):
+    np.save(tmp_path / "m.npy", array)
+    assert run("convert", tmp_path / "m.npy", tmp_path / "m.bvh") == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and words in err and not (tmp_path / "m.bvh").exists()

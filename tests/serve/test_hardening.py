@@ -362,3 +362,30 @@ def test_no_module_global_pipeline():
 
     for module in (batcher, worker):
         assert not [n for n in vars(module) if re.search("pipe", n, re.I) and not callable(vars(module)[n])]
+
+
+def _npy(array: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, array)
+    return buf.getvalue()
+
+
+_WALK = np.cumsum(np.full((40, 22, 3), 0.01), axis=1)  # 40 frames of a 22-joint body with bones of 1.7 cm
+
+
+@pytest.mark.parametrize("data, words", [
+    (_npy(_WALK)[:-100], "truncated"),
+    (_npy(_WALK)[:128], "truncated"),
+    (_npy(_WALK) + b"1234", "extra bytes"),
+    (_npy(np.zeros((2, 40, 22, 3, 1))), "neither joints"),
+    (_npy(np.float32(3.0)), "neither joints"),
+    (_npy(_WALK.astype(complex)), "not real numbers"),
+])
+def test_convert_answers_every_malformed_npy_with_a_4xx(pipe, data, words):
+    r = post_raw(create_app(pipe), "/v1/convert?filename=m.npy", data, OCTETS)
+    assert r.status_code == 422 and words in r.json()["error"]
+
+
+def test_convert_reads_a_fortran_order_npy(pipe):
+    r = post_raw(create_app(pipe), "/v1/convert?filename=m.npy", _npy(np.asfortranarray(_WALK)), OCTETS)
+    assert r.status_code == 200 and np.allclose(r.json()["joints"], _WALK, atol=1e-4)

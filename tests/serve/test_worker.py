@@ -127,3 +127,49 @@ def _alive(pid: int) -> bool:
             return f.read().split(") ", 1)[1][0] != "Z"
     except OSError:
         return False
+
+
+def test_a_stopped_worker_is_found_by_its_heartbeat_answered_503_and_restarted(pipe, checkpoint):
+    """SIGSTOP (a frozen process) while a long request runs: health says not ready once the heartbeat is older
+    than WORKER_BEAT_TIMEOUT_S, the request gets a 503, and a new worker answers after."""
+    from stablemofusion.serve.server_limits import WORKER_BEAT_TIMEOUT_S
+
+    worker = ProcessWorker(WorkerSpec(str(checkpoint), "cpu", threads=1), pipe.config)
+    app = create_app(worker)
+
+    async def until(client, ready: bool, polls: int = 1200):
+        for _ in range(polls):  # a safety net of 120 s: the states are what is checked
+            r = await client.get("/v1/health")
+            if (r.status_code == 200) == ready:
+                return r.json()
+            await asyncio.sleep(0.1)
+        raise AssertionError(f"health never became {'ready' if ready else 'not ready'}: {r.json()}")
+
+    async def go():
+        transport = httpx.ASGITransport(app=app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1", timeout=300) as c:
+            worker.start()
+            pid = (await until(c, True))["worker"]["pid"]
+            long = asyncio.ensure_future(c.post("/v1/timeline", json=LONG))
+            for _ in range(600):
+                if worker.health()["busy"]:
+                    break
+                await asyncio.sleep(0.05)
+            os.kill(pid, signal.SIGSTOP)
+            stopped_at = time.monotonic()
+            down = await until(c, False)
+            noticed = time.monotonic() - stopped_at
+            in_flight = await long
+            after = await until(c, True)
+            ok = await c.post("/v1/generate", json=SHORT)
+            return pid, down, noticed, in_flight, after, ok
+
+    try:
+        pid, down, noticed, in_flight, after, ok = asyncio.run(go())
+    finally:
+        worker.close()
+    assert down["worker"]["state"] in ("unresponsive", "restarting", "starting", "warming")
+    assert noticed >= WORKER_BEAT_TIMEOUT_S - 1.5  # found by the heartbeat's age, not by chance
+    assert in_flight.status_code == 503 and "restarted" in in_flight.json()["error"]
+    assert after["worker"]["pid"] != pid and after["worker"]["restarts"] == 1
+    assert ok.status_code == 200 and ok.json()["frames"] == 40

@@ -95,6 +95,28 @@ def _save_tiny_checkpoint(path: Path, mean: np.ndarray, std: np.ndarray) -> Path
 
 
 @pytest.fixture(scope="session")
+def tiny_checkpoint(tmp_path_factory) -> Path:
+    """One tiny random-weight checkpoint (root height 0.9 m on average) shared by the tests that only read it."""
+    mean, std = np.zeros(263), np.full(263, 0.1)
+    mean[3] = 0.9
+    return _save_tiny_checkpoint(tmp_path_factory.mktemp("tiny-ckpt") / "checkpoint", mean, std)
+
+
+@pytest.fixture(scope="module")
+def tiny_pipe(tiny_checkpoint):
+    """A function giving a pipeline of ``tiny_checkpoint`` (one thread; a new one per call: tests may change it)."""
+    def make(tiny_checkpoint_path: Path | None = None):
+        import torch
+
+        from stablemofusion.pipeline import MotionPipeline
+
+        torch.set_num_threads(1)
+        return MotionPipeline.from_pretrained(tiny_checkpoint_path or tiny_checkpoint, device="cpu")
+
+    return make
+
+
+@pytest.fixture(scope="session")
 def save_tiny_student():
     """The function below, for tests in any folder."""
     return _save_tiny_student

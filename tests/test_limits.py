@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
 from stablemofusion import limits
 from stablemofusion.cli.main import main
@@ -28,16 +27,13 @@ PROMPT = "a person walks forward"
 
 
 @pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory, save_tiny_checkpoint):
-    mean, std = np.zeros(263), np.full(263, 0.1)
-    mean[3] = 0.9
-    return save_tiny_checkpoint(tmp_path_factory.mktemp("limits-ckpt") / "checkpoint", mean, std)
+def checkpoint(tiny_checkpoint):
+    return tiny_checkpoint
 
 
 @pytest.fixture(scope="module")
-def pipe(checkpoint):
-    torch.set_num_threads(1)
-    return MotionPipeline.from_pretrained(checkpoint, device="cpu")
+def pipe(tiny_pipe):
+    return tiny_pipe()
 
 
 def library(pipe, req: dict):

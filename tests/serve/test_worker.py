@@ -22,22 +22,26 @@ LONG = {"segments": [{"prompt": "a person walks", "seconds": 60}, {"prompt": "a 
 SHORT = {"prompt": "a person walks", "seconds": 2, "seed": 1, "steps": 1}
 
 
+async def until_health(client, ready: bool = True, seen: list | None = None, polls: int = 1200) -> dict:
+    """Poll /v1/health until it is (not) ready; a safety net of ``polls`` x 0.1 s (the states are what is
+    checked); ``seen`` collects (status code, status, warm) of every poll."""
+    for _ in range(polls):
+        r = await client.get("/v1/health")
+        body = r.json()
+        if seen is not None:
+            seen.append((r.status_code, body["status"], body["worker"]["warm"]))
+        if (r.status_code == 200) == ready:
+            return body
+        await asyncio.sleep(0.1)
+    raise AssertionError(f"health never became {'ready' if ready else 'not ready'}: {body}")
+
+
 def test_a_killed_worker_is_restarted_and_its_request_gets_503(pipe, checkpoint):
     worker = ProcessWorker(WorkerSpec(str(checkpoint), "cpu", threads=1), pipe.config)
     app = create_app(worker)
 
-    async def health(client):
-        r = await client.get("/v1/health")
-        return r.status_code, r.json()
-
     async def until_ready(client, seen):
-        for _ in range(1200):  # at most 120 s
-            code, body = await health(client)
-            seen.append((code, body["status"], body["worker"]["warm"]))
-            if code == 200:
-                return body
-            await asyncio.sleep(0.1)
-        raise AssertionError(f"not ready: {seen[-1]}")
+        return await until_health(client, True, seen)
 
     async def go():
         transport = httpx.ASGITransport(app=app)
@@ -136,14 +140,7 @@ def test_a_stopped_worker_is_found_by_its_heartbeat_answered_503_and_restarted(p
 
     worker = ProcessWorker(WorkerSpec(str(checkpoint), "cpu", threads=1), pipe.config)
     app = create_app(worker)
-
-    async def until(client, ready: bool, polls: int = 1200):
-        for _ in range(polls):  # a safety net of 120 s: the states are what is checked
-            r = await client.get("/v1/health")
-            if (r.status_code == 200) == ready:
-                return r.json()
-            await asyncio.sleep(0.1)
-        raise AssertionError(f"health never became {'ready' if ready else 'not ready'}: {r.json()}")
+    until = until_health
 
     async def go():
         transport = httpx.ASGITransport(app=app)

@@ -89,7 +89,9 @@ async def run(base: str, bodies: list[dict], one_by_one: bool = True, passes: in
     is instant, vs about 1,000 with aiohttp)."""
     async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(limit=0)) as session:
         await concurrent_pass(session, base, bodies)  # warm-up, untimed
-        runs = [await concurrent_pass(session, base, bodies) for _ in range(passes)]
+        # each pass its own seeds: the server keeps its last motions by request, and must not answer from them
+        runs = [await concurrent_pass(session, base, [{**b, "seed": b["seed"] + (k + 1) * len(bodies)} for b in bodies])
+                for k in range(passes)]
         concurrent = {**max(runs, key=lambda r: r["throughput_rps"]),
                       "passes_rps": [r["throughput_rps"] for r in runs]}
         async with session.get(base + "/v1/health") as r:

@@ -73,8 +73,7 @@ class DynamicBatcher:
         while True:
             groups: dict[tuple, list] = defaultdict(list)
             for job, future in await self._gather():
-                key = ("timeline", id(future)) if job.segments is not None else (job.guidance, job.steps,
-                                                                                 job.footskate)
+                key = ("timeline", id(future)) if job.segments is not None else job.sampling
                 groups[key].append((job, future))
             for items in groups.values():
                 await self._run_group(items)

@@ -40,6 +40,11 @@ class Job:
     footskate: str = FOOTSKATE
     segments: tuple[tuple[str, float], ...] | None = None
 
+    @property
+    def sampling(self) -> tuple:
+        """How the job samples (its settings: guidance, steps, footskate): jobs alike are generated in one call."""
+        return (self.guidance, self.steps, self.footskate)
+
 
 @dataclass(frozen=True)
 class Failure:
@@ -50,8 +55,8 @@ class Failure:
 
 
 def generate_jobs(pipe, jobs: list[Job], max_batch: int) -> list:
-    """Jobs sharing guidance, steps and footskate mode as one pipeline call (one seed per job), or one
-    timeline."""
+    """Jobs of one ``sampling`` (guidance, steps, footskate) as one pipeline call (one seed per job), or
+    timelines one by one."""
     first = jobs[0]
     if first.segments is not None:
         return [pipe.timeline(list(j.segments), guidance_scale=j.guidance, steps=j.steps, seed=j.seed,

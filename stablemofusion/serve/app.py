@@ -82,6 +82,8 @@ async def answer(request: Request, batcher: DynamicBatcher, job: Job, format: st
     gone = asyncio.ensure_future(_until_disconnected(request))
     try:
         await asyncio.wait({work, gone}, return_when=asyncio.FIRST_COMPLETED)
+    except asyncio.CancelledError:  # the server is stopping: uvicorn cancels what outlives its graceful shutdown
+        return error(503, "the server is shutting down; retry shortly")
     finally:
         gone.cancel()
         if not work.done():

@@ -9,6 +9,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import httpx
@@ -90,7 +91,7 @@ def test_serve_reads_the_config_and_loads_no_pipeline_in_the_parent(checkpoint, 
     assert isinstance(worker, ProcessWorker) and worker.config.fps == 20.0 and worker.health()["state"] == "stopped"
 
 
-def test_sigterm_stops_the_worker_promptly(checkpoint, tmp_path):
+def test_sigterm_stops_the_worker_and_answers_requests_in_flight_in_json(checkpoint, tmp_path):
     port = free_port()
     code = "import sys; from stablemofusion.cli.main import main; sys.exit(main())"
     server = subprocess.Popen([sys.executable, "-c", code, "serve", "--checkpoint", str(checkpoint), "--port",
@@ -108,8 +109,24 @@ def test_sigterm_stops_the_worker_promptly(checkpoint, tmp_path):
                 pid = r.json()["worker"]["pid"]
                 break
         assert pid is not None, "the server did not become ready"
+        answers = []
+
+        def request():  # longer than the graceful shutdown: cancelled by uvicorn, answered by us
+            r = httpx.post(f"http://127.0.0.1:{port}/v1/timeline", json={**LONG, "footskate": "loop"}, timeout=120)
+            answers.append((r.status_code, r.headers["content-type"], r.json()))
+        clients = [threading.Thread(target=request) for _ in range(6)]  # together far longer than the 5 s grace
+        for c in clients:
+            c.start()
+        while not httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=5).json()["worker"]["busy"]:
+            time.sleep(0.05)
         server.send_signal(signal.SIGTERM)
         server.wait(120)  # raises if it does not stop (a safety net, not a speed figure)
+        for c in clients:
+            c.join(60)
+        # every request in flight at SIGTERM is answered in JSON: its motion, or a 503 (never a plain-text 500)
+        assert len(answers) == 6 and all(ct == "application/json" for _, ct, _ in answers), answers
+        assert all(code == 200 or (code == 503 and "shutting down" in body["error"]) for code, _, body in answers)
+        assert any(code == 503 for code, _, _ in answers)
         for _ in range(50):
             if not _alive(pid):
                 break

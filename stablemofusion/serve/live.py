@@ -87,10 +87,13 @@ def run_stream_jobs(pipe, streams: dict, jobs: list[StreamJob]) -> list:
     :class:`StreamFrames`, None for a close, or a :class:`Failure`); the windows in one batched call."""
     out: list = [None] * len(jobs)
     live = []
+    closing = {job.sid for job in jobs if job.close}  # a stream closed in this call makes no window in it
     for i, job in enumerate(jobs):
         try:
             if job.close:
                 streams.pop(job.sid, None)
+            elif job.sid in closing:
+                continue  # its client has gone: None, as for the close
             elif job.new:
                 streams[job.sid] = pipe.stream(job.prompt, seed=job.seed, guidance_scale=job.guidance)
                 live.append(i)

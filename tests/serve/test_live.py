@@ -239,3 +239,20 @@ def test_a_page_of_another_site_cannot_open_a_stream(server):
     with ws_client.connect(url, origin=url.replace("ws://", "http://").rsplit("/v1", 1)[0]) as ws:  # our viewer
         ws.send(json.dumps({"prompt": "a person walks", "seed": 0}))
         assert frames(ws, 1)[0]["start"] == 0
+
+
+def test_a_window_and_the_close_of_its_stream_in_one_call_make_no_window_and_no_error(pipe, caplog):
+    """A client that sends a prompt and leaves at once: its window and its close can reach the worker in one
+    call; the window is not made (None, like the close), the other streams' windows are, nothing is logged."""
+    from stablemofusion.serve.live import StreamFrames, StreamJob, run_stream_jobs
+
+    streams: dict = {}
+    opened = run_stream_jobs(pipe, streams, [StreamJob(1, "a person walks", seed=0, new=True),
+                                             StreamJob(2, "a person waves", seed=1, new=True)])
+    assert all(isinstance(o, StreamFrames) for o in opened) and set(streams) == {1, 2}
+    caplog.set_level("WARNING")
+    out = run_stream_jobs(pipe, streams, [StreamJob(1), StreamJob(2), StreamJob(1, close=True),
+                                          StreamJob(3, "a person bows", seed=2, new=True), StreamJob(3, close=True)])
+    assert out[0] is None and out[2] is None and out[3] is None and out[4] is None
+    assert isinstance(out[1], StreamFrames) and set(streams) == {2}
+    assert [r for r in caplog.records if r.levelname in ("WARNING", "ERROR")] == []

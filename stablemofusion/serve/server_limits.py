@@ -56,7 +56,8 @@ STREAM_JOIN_S = 0.6  # a stream with less than STREAM_AHEAD_S + this made ahead 
 STREAM_MESSAGE_FRAMES = 2  # frames are sent when this many are due (10 messages a second at 20 fps), or more
 STREAM_GATHER_S = 0.002  # the stream hub gathers the windows asked for within this into one worker call
 MAX_STREAM_SECONDS = 1800.0  # a stream ends (with an error message) after this much motion
-STREAM_START_TIMEOUT_S = 30.0  # the first prompt must arrive within this after connecting
+STREAM_START_TIMEOUT_S = 5.0  # the first prompt must arrive within this after connecting (the viewer sends it on open;
+# a silent connection holds a stream slot no longer than this)
 MAX_STREAM_MESSAGE_BYTES = 4096  # one client message (uvicorn's ws_max_size: larger ones close the socket)
 MAX_STREAM_MESSAGES = 20  # client messages per STREAM_MESSAGE_WINDOW_S; more are answered with an error
 STREAM_MESSAGE_WINDOW_S = 1.0

@@ -1,5 +1,7 @@
 """The server's gate (pure ASGI middleware), checked before any route runs:
 
+- the request line and headers together are at most MAX_HEADER_BYTES (431), however they arrived (uvicorn's own
+  bound only holds while the headers are incomplete: a large block sent in one write passes it);
 - the Host header names this machine (loopback names, plus ``--allow-host``): no DNS rebinding;
 - a request with both Content-Length and Transfer-Encoding, or a malformed length, is refused (400);
 - the body is read here, whatever its transfer encoding (chunked included), and refused (413) as soon as it
@@ -17,7 +19,7 @@ import asyncio
 import json
 
 from .http_errors import ServeError
-from .server_limits import BODY_TIMEOUT_S, CLIENT_HEADER, LOOPBACK_HOSTS, MAX_UPLOAD_BYTES
+from .server_limits import BODY_TIMEOUT_S, CLIENT_HEADER, LOOPBACK_HOSTS, MAX_HEADER_BYTES, MAX_UPLOAD_BYTES
 
 UPLOAD_PATHS = ("/v1/convert",)
 JSON_PATHS = ("/v1/generate", "/v1/timeline")
@@ -40,6 +42,10 @@ class Guard:
         self.hosts = {host_name(h) for h in (*LOOPBACK_HOSTS, *allowed_hosts)}
 
     async def __call__(self, scope, receive, send):
+        if scope["type"] in ("http", "websocket") and header_bytes(scope) > MAX_HEADER_BYTES:
+            if scope["type"] == "websocket":
+                return await send({"type": "websocket.close", "code": 1009})
+            return await send_error(send, 431, f"request line and headers larger than {MAX_HEADER_BYTES} bytes")
         if scope["type"] == "websocket":
             if not self._websocket_allowed(_headers(scope)):
                 return await send({"type": "websocket.close", "code": 1008})
@@ -109,6 +115,12 @@ class Guard:
             chunks.append(chunk)
             if not message.get("more_body", False):
                 return b"".join(chunks)
+
+
+def header_bytes(scope) -> int:
+    """About the size of the request line and headers as sent: names, values, separators, the path and query."""
+    line = len(scope.get("raw_path") or scope.get("path", "").encode()) + len(scope.get("query_string", b"")) + 16
+    return line + sum(len(name) + len(value) + 4 for name, value in scope.get("headers", ()))
 
 
 def _headers(scope) -> dict[bytes, list[bytes]]:

@@ -389,3 +389,15 @@ def test_convert_answers_every_malformed_npy_with_a_4xx(pipe, data, words):
 def test_convert_reads_a_fortran_order_npy(pipe):
     r = post_raw(create_app(pipe), "/v1/convert?filename=m.npy", _npy(np.asfortranarray(_WALK)), OCTETS)
     assert r.status_code == 200 and np.allclose(r.json()["joints"], _WALK, atol=1e-4)
+
+
+def test_a_header_block_over_the_limit_sent_in_one_write_is_refused(pipe):
+    """uvicorn bounds headers only while they are incomplete: 100 kB of headers in one write reached the app."""
+    from stablemofusion.serve.server_limits import MAX_HEADER_BYTES
+
+    filler = {f"X-Filler-{i}": "a" * 1000 for i in range(100)}  # 100 kB, sent by httpx in one write
+    with live_server(create_app(pipe)) as url:
+        big = httpx.get(url + "/v1/health", headers=filler, timeout=60)
+        small = httpx.get(url + "/v1/health", headers={"X-Small": "a" * 1000}, timeout=60)
+    assert big.status_code == 431 and f"larger than {MAX_HEADER_BYTES} bytes" in big.json()["error"]
+    assert small.status_code != 431

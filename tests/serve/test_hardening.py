@@ -401,3 +401,35 @@ def test_a_header_block_over_the_limit_sent_in_one_write_is_refused(pipe):
         small = httpx.get(url + "/v1/health", headers={"X-Small": "a" * 1000}, timeout=60)
     assert big.status_code == 431 and f"larger than {MAX_HEADER_BYTES} bytes" in big.json()["error"]
     assert small.status_code != 431
+
+
+def test_idle_connections_cannot_lock_everyone_out(pipe):
+    """300 connections that never finish their headers (more than the 256 the server serves at once, all from one
+    address): the oldest of them are closed as new ones come, so health and a generate request are answered."""
+    with live_server(create_app(pipe)) as url:
+        port = int(url.rsplit(":", 1)[1])
+        for _ in range(600):  # the worker warms first (a safety net of 60 s)
+            if httpx.get(url + "/v1/health", timeout=30).status_code == 200:
+                break
+            time.sleep(0.1)
+        socks = []
+        try:
+            for i in range(300):
+                s = socket.create_connection(("127.0.0.1", port))
+                if i % 2:
+                    s.sendall(b"GET /v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\n")  # half its headers
+                socks.append(s)
+            time.sleep(0.5)
+            health = httpx.get(url + "/v1/health", timeout=30)
+            made = httpx.post(url + "/v1/generate", json={"prompt": "a person walks", "seconds": 2, "steps": 1},
+                              timeout=60)
+            closed = 0
+            for s in socks[:40]:  # the oldest were closed by the server
+                s.settimeout(30)
+                closed += s.recv(100) == b""
+        finally:
+            for s in socks:
+                s.close()
+    assert health.status_code == 200 and health.json()["status"] == "ok"
+    assert made.status_code == 200 and made.json()["frames"] == 40
+    assert closed == 40

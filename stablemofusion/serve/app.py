@@ -32,7 +32,7 @@ from .convert import check_suffix, convert_upload
 from .http_errors import ServeError, log_event
 from .guard import Guard
 from .. import limits
-from .server_limits import MAX_BODY_BYTES, MAX_STREAMS, RECENT_RESULTS
+from .server_limits import MAX_BODY_BYTES, MAX_STREAMS, RECENT_RESULTS, UPLOAD_BUDGET_BYTES
 from .responses import motion_response
 from .live import StreamHub, ThreadStreamWorker, serve_stream
 from .worker import Job, ThreadWorker
@@ -121,7 +121,7 @@ def _install_error_handlers(app: FastAPI) -> None:
 
 def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.0, max_queue: int = 256,
                max_body_bytes: int = MAX_BODY_BYTES, allowed_hosts: tuple[str, ...] = (), streams=None,
-               max_streams: int = MAX_STREAMS) -> FastAPI:
+               max_streams: int = MAX_STREAMS, upload_budget: int = UPLOAD_BUDGET_BYTES) -> FastAPI:
     """The ASGI app; ``model`` is a worker (serve/worker.py: `smf serve` gives a supervised
     :class:`~stablemofusion.serve.worker.ProcessWorker`) or a pipeline (generated on a thread). ``streams``
     the live streams' worker (serve/live.py; default: a thread with ``model`` when it is a pipeline, else
@@ -151,7 +151,8 @@ def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.
     app = FastAPI(title="stablemofusion", summary="Text to human motion", docs_url=None, redoc_url=None,
                   openapi_url=None, lifespan=lifespan)
     app.state.batcher, app.state.worker, app.state.streams = batcher, worker, hub
-    app.add_middleware(Guard, max_body_bytes=max_body_bytes, allowed_hosts=tuple(allowed_hosts))
+    app.add_middleware(Guard, max_body_bytes=max_body_bytes, allowed_hosts=tuple(allowed_hosts),
+                       upload_budget=upload_budget)
     _install_error_handlers(app)
 
     @app.get("/v1/health")

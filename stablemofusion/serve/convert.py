@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from .http_errors import ServeError
-from .server_limits import (MAX_ABS_METRES, MAX_ABS_VALUE, MAX_CONVERT_SECONDS, MAX_FRAME_TIME_S, MIN_FRAME_TIME_S)
+from .server_limits import (MAX_ABS_METRES, MAX_ABS_VALUE, MAX_CONVERT_FRAMES, MAX_CONVERT_SECONDS, MAX_CONVERT_VALUES,
+                            MAX_FRAME_TIME_S, MAX_HIERARCHY_BYTES, MIN_FRAME_TIME_S)
 from ..output import joints_json_bytes
 
 SUFFIXES = (".bvh", ".npy")
@@ -58,6 +59,12 @@ def _check_bvh(data: bytes, filename: str) -> None:
     if not 0 < frames * frame_time <= MAX_CONVERT_SECONDS:
         raise ServeError(422, f"{filename}: the viewer shows motions of up to {MAX_CONVERT_SECONDS:g} s, got "
                               f"{frames} frames of {frame_time:g} s")
+    if m.start() > MAX_HIERARCHY_BYTES:
+        raise ServeError(422, f"{filename}: its HIERARCHY has {m.start()} bytes, at most {MAX_HIERARCHY_BYTES}")
+    channels = sum(int(n) for n in re.findall(rb"CHANNELS[ \t]+(\d{1,3})", data[:m.start()]))
+    if frames > MAX_CONVERT_FRAMES or frames * max(channels, 1) > MAX_CONVERT_VALUES:
+        raise ServeError(422, f"{filename}: {frames} frames of {channels} channels is more than the viewer reads "
+                              f"(at most {MAX_CONVERT_FRAMES} frames and {MAX_CONVERT_VALUES} values)")
 
 
 def _check_npy(data: bytes, filename: str) -> None:

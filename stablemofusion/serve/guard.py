@@ -9,6 +9,9 @@
 - a WebSocket (/v1/stream) must name the server in its Host header too, and a browser's Origin header (if
   sent) must name an allowed host: a page of another site cannot open a stream (WebSockets skip CORS);
   refused before the handshake completes (HTTP 403);
+- uploads (/v1/convert) are held against one budget for all clients (UPLOAD_BUDGET_BYTES): each reserves its
+  declared size (or the largest allowed) before a byte is read and gives it back when answered; past the budget,
+  503 at once, so many large uploads cannot take the server's memory;
 - a POST of a file (/v1/convert) must be ``application/octet-stream`` or carry our own header, and a JSON
   route ``application/json``: a web page cannot send either without a CORS preflight, which is not answered.
 """
@@ -19,7 +22,8 @@ import asyncio
 import json
 
 from .http_errors import ServeError
-from .server_limits import BODY_TIMEOUT_S, CLIENT_HEADER, LOOPBACK_HOSTS, MAX_HEADER_BYTES, MAX_UPLOAD_BYTES
+from .server_limits import (BODY_TIMEOUT_S, CLIENT_HEADER, LOOPBACK_HOSTS, MAX_HEADER_BYTES, MAX_UPLOAD_BYTES,
+                            UPLOAD_BUDGET_BYTES)
 
 UPLOAD_PATHS = ("/v1/convert",)
 JSON_PATHS = ("/v1/generate", "/v1/timeline")
@@ -37,9 +41,11 @@ class Guard:
     """Wraps an ASGI app with the checks above; ``max_body_bytes`` for JSON routes, MAX_UPLOAD_BYTES for
     uploads; ``allowed_hosts`` is added to the loopback names."""
 
-    def __init__(self, app, *, max_body_bytes: int, allowed_hosts: tuple[str, ...] = ()):
+    def __init__(self, app, *, max_body_bytes: int, allowed_hosts: tuple[str, ...] = (),
+                 upload_budget: int = UPLOAD_BUDGET_BYTES):
         self.app, self.max_body_bytes = app, max_body_bytes
         self.hosts = {host_name(h) for h in (*LOOPBACK_HOSTS, *allowed_hosts)}
+        self.upload_budget, self.uploads_held = upload_budget, 0  # bytes reserved by uploads being handled
 
     async def __call__(self, scope, receive, send):
         if scope["type"] in ("http", "websocket") and header_bytes(scope) > MAX_HEADER_BYTES:
@@ -52,15 +58,35 @@ class Guard:
             return await self.app(scope, receive, send)
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
+        reserved = 0
         try:
             headers = _headers(scope)
             self._check_headers(scope, headers)
+            if scope["path"] in UPLOAD_PATHS:
+                reserved = self._reserve(headers)
             body = await asyncio.wait_for(self._read(receive, self._limit(scope["path"])), BODY_TIMEOUT_S)
         except ServeError as e:
+            self.uploads_held -= reserved
             return await send_error(send, e.status, e.message)
         except asyncio.TimeoutError:
+            self.uploads_held -= reserved
             return await send_error(send, 408, f"the request body did not arrive within {BODY_TIMEOUT_S:g} s")
-        await self.app(scope, _replay(body, receive), send)
+        except BaseException:
+            self.uploads_held -= reserved
+            raise
+        try:
+            await self.app(scope, _replay(body, receive), send)
+        finally:
+            self.uploads_held -= reserved
+
+    def _reserve(self, headers: dict[bytes, list[bytes]]) -> int:
+        """Reserve an upload's declared size (or the largest allowed) against the budget, or 503."""
+        lengths = headers.get(b"content-length", [])
+        size = int(lengths[0]) if lengths else MAX_UPLOAD_BYTES
+        if self.uploads_held + size > self.upload_budget:
+            raise ServeError(503, f"the server is reading other uploads ({self.uploads_held} bytes); retry shortly")
+        self.uploads_held += size
+        return size
 
     def _websocket_allowed(self, headers: dict[bytes, list[bytes]]) -> bool:
         """One allowed Host; no Origin (a program) or one whose host is allowed (our own page)."""

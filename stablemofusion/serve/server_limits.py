@@ -7,6 +7,8 @@ from ..limits import MAX_SECONDS
 # request bodies (enforced while reading, for every transfer encoding: serve/guard.py)
 MAX_BODY_BYTES = 16 * 1024  # a JSON request
 MAX_UPLOAD_BYTES = 16 * 1024 * 1024  # a dropped .bvh / .npy (POST /v1/convert)
+UPLOAD_BUDGET_BYTES = 4 * MAX_UPLOAD_BYTES  # uploads held at once, all clients together (their declared or largest
+# size is reserved before a byte is read); an upload past it gets 503 at once
 BODY_TIMEOUT_S = 30.0  # the whole body must arrive within this
 # connections (uvicorn settings: serve/server.py)
 HEADER_TIMEOUT_S = 10.0  # a connection must send a request's complete headers within this
@@ -25,6 +27,9 @@ RECENT_RESULTS = 8  # motions kept by their request, so that asking again in ano
 # POST /v1/convert (serve/convert.py): a file shown by the viewer
 MAX_CONVERT_SECONDS = MAX_SECONDS  # as long as the longest motion
 MIN_FRAME_TIME_S = 1e-3  # a BVH between 1 and 1000 frames per second
+MAX_CONVERT_FRAMES = 120 * 120  # frames of an uploaded BVH (120 s at 120 fps), checked before any is decoded ...
+MAX_CONVERT_VALUES = 4_000_000  # ... and frames x channels (32 MB as float64)
+MAX_HIERARCHY_BYTES = 256 * 1024  # a BVH's HIERARCHY section, checked before it is parsed
 MAX_FRAME_TIME_S = 1.0
 MAX_ABS_VALUE = 1e6  # any number of an uploaded file (metres, centimetres, millimetres or degrees)
 MAX_ABS_METRES = 1e4  # any joint position shown

@@ -433,3 +433,45 @@ def test_idle_connections_cannot_lock_everyone_out(pipe):
     assert health.status_code == 200 and health.json()["status"] == "ok"
     assert made.status_code == 200 and made.json()["frames"] == 40
     assert closed == 40
+
+
+def test_uploads_are_held_against_one_budget(pipe):
+    """Uploads reserve their size before a byte is read: past the server-wide budget, 503 at once; each upload
+    gives its share back when answered."""
+    import stablemofusion.serve.app as app_module
+
+    started = []
+
+    def slow(data, filename):
+        started.append(len(data))
+        time.sleep(0.5)
+        return b"{}"
+    app = create_app(pipe, upload_budget=3 * 1000)
+    original = app_module.convert_upload
+    app_module.convert_upload = slow
+    try:
+        async def go():
+            transport = httpx.ASGITransport(app=app)
+            async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as c:
+                post = lambda: c.post("/v1/convert?filename=a.bvh", content=b"x" * 1000, headers=OCTETS)  # noqa: E731
+                first = await asyncio.gather(*[post() for _ in range(5)])
+                again = await post()  # the budget is back once the first were answered
+                return first, again
+        first, again = asyncio.run(go())
+    finally:
+        app_module.convert_upload = original
+    codes = sorted(r.status_code for r in first)
+    assert codes == [200, 200, 200, 503, 503] and again.status_code == 200
+    assert all("other uploads" in r.json()["error"] for r in first if r.status_code == 503)
+
+
+def test_a_bvh_of_too_many_frames_or_too_large_a_hierarchy_is_refused_before_parsing(pipe):
+    from stablemofusion.serve.server_limits import MAX_CONVERT_FRAMES, MAX_HIERARCHY_BYTES
+
+    head = b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation\n}\n"
+    many = head + f"MOTION\nFrames: {MAX_CONVERT_FRAMES + 1}\nFrame Time: 0.001\n".encode() + b"0 0 0 0 0 0\n" * 10
+    deep = b"HIERARCHY\n" + b"{" * (MAX_HIERARCHY_BYTES + 1) + b"\nMOTION\nFrames: 10\nFrame Time: 0.05\n"
+    app = create_app(pipe)
+    assert "more than the viewer reads" in post_raw(app, "/v1/convert?filename=m.bvh", many, OCTETS).json()["error"]
+    r = post_raw(app, "/v1/convert?filename=m.bvh", deep, OCTETS)
+    assert r.status_code == 422 and "HIERARCHY has" in r.json()["error"]

@@ -25,6 +25,9 @@ def add_parser(sub, name: str) -> None:
                    help="denoising engine of the worker (default auto; 'compiled' pays on a CPU server: a one-off "
                         "compilation per shape, docs/inference.md)")
     p.add_argument("--max-batch", type=int, default=BATCH_SIZE, help="most requests in one sampling call")
+    p.add_argument("--max-request-cost", type=float, default=None,
+                   help="most work one request may ask for, in seconds x steps (default 2000: a 120 s timeline of "
+                        "the shipped student with footskate loop; raise it on a faster machine)")
     p.add_argument("--wait-ms", type=float, default=5.0, help="how long to gather requests for a batch (default 5)")
     p.add_argument("--max-queue", type=int, default=256, help="waiting requests before 503 (default 256)")
     p.add_argument("--threads", type=int, default=2, help="torch threads of the generating process (default 2)")
@@ -54,13 +57,16 @@ def run(args: argparse.Namespace) -> None:
     max_streams = MAX_STREAMS if args.max_streams is None else args.max_streams
     if max_streams < 0:
         raise SMFError(f"--max-streams must be 0 or more, got {max_streams}")
+    if args.max_request_cost is not None and not args.max_request_cost > 0:
+        raise SMFError(f"--max-request-cost must be positive, got {args.max_request_cost}")
+    cost = {} if args.max_request_cost is None else {"max_request_cost": args.max_request_cost}
     checkpoint = model_folder(args.checkpoint, teacher=args.teacher)
     config = read_config(checkpoint)  # checks the folder; the worker process loads the model itself
     spec = WorkerSpec(str(checkpoint), args.device, args.threads, args.engine)
     streams = StreamProcessWorker(spec, config) if max_streams else None
     app = create_app(ProcessWorker(spec, config), max_batch=args.max_batch, wait_ms=args.wait_ms,
                      max_queue=args.max_queue, allowed_hosts=tuple(args.allow_host), streams=streams,
-                     max_streams=max_streams)
+                     max_streams=max_streams, **cost)
     sock = listening_socket(args.host, args.port)  # a busy port is one line, before anything starts
     logging.basicConfig(level=logging.INFO, format="smf serve: %(levelname)s %(message)s")
     print(f"smf serve: http://{args.host}:{args.port} (POST /v1/generate, WebSocket /v1/stream, GET /v1/health; "

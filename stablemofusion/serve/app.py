@@ -32,7 +32,7 @@ from .convert import check_suffix, convert_upload
 from .http_errors import ServeError, log_event
 from .guard import Guard
 from .. import limits
-from .server_limits import MAX_BODY_BYTES, MAX_STREAMS, RECENT_RESULTS, UPLOAD_BUDGET_BYTES
+from .server_limits import MAX_BODY_BYTES, MAX_REQUEST_COST, MAX_STREAMS, RECENT_RESULTS, UPLOAD_BUDGET_BYTES
 from .responses import motion_response
 from .live import StreamHub, ThreadStreamWorker, serve_stream
 from .worker import Job, ThreadWorker
@@ -121,7 +121,8 @@ def _install_error_handlers(app: FastAPI) -> None:
 
 def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.0, max_queue: int = 256,
                max_body_bytes: int = MAX_BODY_BYTES, allowed_hosts: tuple[str, ...] = (), streams=None,
-               max_streams: int = MAX_STREAMS, upload_budget: int = UPLOAD_BUDGET_BYTES) -> FastAPI:
+               max_streams: int = MAX_STREAMS, upload_budget: int = UPLOAD_BUDGET_BYTES,
+               max_request_cost: float = MAX_REQUEST_COST) -> FastAPI:
     """The ASGI app; ``model`` is a worker (serve/worker.py: `smf serve` gives a supervised
     :class:`~stablemofusion.serve.worker.ProcessWorker`) or a pipeline (generated on a thread). ``streams``
     the live streams' worker (serve/live.py; default: a thread with ``model`` when it is a pipeline, else
@@ -132,7 +133,7 @@ def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.
     hub = StreamHub(streams, max_streams if streams is not None else 0)
     batcher = DynamicBatcher(worker, max_batch=max_batch, wait_ms=wait_ms, max_queue=max_queue)
     cfg = worker.config
-    checks = RequestChecks(cfg.fps)
+    checks = RequestChecks(cfg, max_request_cost)
     recent = RecentResults()
     converting = asyncio.Semaphore(1)  # one upload parsed at a time, on a thread
 

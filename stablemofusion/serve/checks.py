@@ -12,6 +12,7 @@ from .. import limits
 from ..errors import SMFError
 from .http_errors import ServeError
 from .responses import MOTION_FORMATS
+from .server_limits import MAX_REQUEST_COST
 from .worker import Job
 
 FORMATS = tuple(MOTION_FORMATS)  # json, bvh, npy, glb
@@ -104,8 +105,25 @@ class RequestChecks:
     """Turns request bodies into jobs for a model of frame rate ``fps``, with the limits of every door
     (:mod:`stablemofusion.limits`)."""
 
-    def __init__(self, fps: float):
-        self.fps = fps
+    def __init__(self, config, max_cost: float = MAX_REQUEST_COST):
+        """``config``: the model's CheckpointConfig (frame rate, window, default steps and guidance); ``max_cost``
+        the most work one request may ask for."""
+        self.fps, self.max_cost = config.fps, max_cost
+        self.window_s = config.max_frames / config.fps
+        self.default_steps = config.distil.sample_steps if config.student else limits.STEPS
+        self.default_guidance = limits.GUIDANCE if config.guidance is None else config.guidance
+        self.student = config.student
+
+    def _check_cost(self, seconds: float | None, body) -> None:
+        """422 for a request whose work (limits.request_cost) is more than MAX_REQUEST_COST."""
+        steps = body.steps or self.default_steps
+        guidance = self.default_guidance if body.guidance is None else body.guidance
+        cost = limits.request_cost(seconds or self.window_s, steps, not self.student and guidance != 1.0,
+                                   body.footskate)
+        if cost > self.max_cost:
+            raise ServeError(422, f"this request asks for {cost:.0f} units of work, the server takes at most "
+                                  f"{self.max_cost:.0f} (seconds x steps, more with guidance and footskate "
+                                  "cleanup): ask for fewer seconds or steps, or footskate 'post'")
 
     def _common(self, body) -> tuple[int, float | None, int | None]:
         checked(limits.check_guidance, body.guidance)
@@ -116,6 +134,7 @@ class RequestChecks:
         prompt = check_prompt(body.prompt, "prompt")
         checked(limits.check_seconds, body.seconds)
         seed, guidance, steps = self._common(body)
+        self._check_cost(body.seconds, body)
         return Job(prompt, body.seconds, seed, guidance, steps, body.footskate)
 
     def timeline(self, body: TimelineRequest) -> Job:
@@ -127,4 +146,5 @@ class RequestChecks:
                                       f"got {seconds:g}")
         checked(limits.check_seconds, sum(sec for _, sec in segments), "a timeline's total seconds")
         seed, guidance, steps = self._common(body)
+        self._check_cost(sum(sec for _, sec in segments), body)
         return Job("; ".join(p for p, _ in segments), None, seed, guidance, steps, body.footskate, segments)

@@ -22,6 +22,10 @@ CLIENT_HEADER = "x-smf-client"  # a request with this header (or an octet-stream
 
 # generation requests: the limits of every door, stablemofusion/limits.py (checked in serve/checks.py)
 
+# the most work one request may ask for (stablemofusion.limits.request_cost, step-seconds): a 120 s timeline of the
+# shipped student at 1 step with footskate 'loop' (1,920, about 2.6 s on one thread) is admitted, the same at 6
+# steps (2,520, 5.9 s) is refused with 422, so a light request never waits long behind a heavy one
+MAX_REQUEST_COST = 2000.0
 RECENT_RESULTS = 8  # motions kept by their request, so that asking again in another format converts, not generates
 
 # POST /v1/convert (serve/convert.py): a file shown by the viewer

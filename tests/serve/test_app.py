@@ -222,3 +222,16 @@ def test_timeline_endpoint(pipe):
     assert bad_total.status_code == 422 and "at most 120 s" in bad_total.json()["error"]
     assert bad_empty.status_code == 422 and "segments" in bad_empty.json()["error"]
     assert bad_prompt.status_code == 422 and "segments.0.prompt" in bad_prompt.json()["error"]
+
+
+def test_a_request_over_the_work_budget_is_refused_before_it_runs(pipe):
+    """A request's work (seconds x steps, guidance and cleanup) is known before it runs: past the budget, 422."""
+    from stablemofusion import limits
+    from stablemofusion.serve.server_limits import MAX_REQUEST_COST
+
+    heavy = {"segments": [{"prompt": "a person walks", "seconds": 7.5}] * 16, "steps": 50, "footskate": "loop"}
+    light = {**heavy, "steps": 1, "footskate": "post"}
+    assert limits.request_cost(120, 50, True, "loop") > MAX_REQUEST_COST >= limits.request_cost(120, 1, False, "post")
+    over, ok = call(create_app(pipe), ("POST", "/v1/timeline", heavy), ("POST", "/v1/timeline", light))
+    assert over.status_code == 422 and "units of work" in over.json()["error"]
+    assert ok.status_code == 200 and ok.json()["frames"] == 2400

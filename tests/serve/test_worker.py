@@ -21,6 +21,7 @@ from serve_helpers import free_port
 LONG = {"segments": [{"prompt": "a person walks", "seconds": 60}, {"prompt": "a person runs", "seconds": 60}],
         "steps": 50, "seed": 0}
 SHORT = {"prompt": "a person walks", "seconds": 2, "seed": 1, "steps": 1}
+ANY_COST = 1e9  # LONG keeps the worker busy: far more work than the server takes by default (MAX_REQUEST_COST)
 
 
 async def until_health(client, ready: bool = True, seen: list | None = None, polls: int = 1200) -> dict:
@@ -39,7 +40,7 @@ async def until_health(client, ready: bool = True, seen: list | None = None, pol
 
 def test_a_killed_worker_is_restarted_and_its_request_gets_503(pipe, checkpoint):
     worker = ProcessWorker(WorkerSpec(str(checkpoint), "cpu", threads=1), pipe.config)
-    app = create_app(worker)
+    app = create_app(worker, max_request_cost=ANY_COST)
 
     async def until_ready(client, seen):
         return await until_health(client, True, seen)
@@ -95,7 +96,7 @@ def test_sigterm_stops_the_worker_and_answers_requests_in_flight_in_json(checkpo
     port = free_port()
     code = "import sys; from stablemofusion.cli.main import main; sys.exit(main())"
     server = subprocess.Popen([sys.executable, "-c", code, "serve", "--checkpoint", str(checkpoint), "--port",
-                               str(port), "--threads", "1"], env={**os.environ, "OMP_NUM_THREADS": "1"},
+                               str(port), "--threads", "1", "--max-request-cost", str(ANY_COST)], env={**os.environ, "OMP_NUM_THREADS": "1"},
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         pid = None
@@ -156,7 +157,7 @@ def test_a_stopped_worker_is_found_by_its_heartbeat_answered_503_and_restarted(p
     from stablemofusion.serve.server_limits import WORKER_BEAT_TIMEOUT_S
 
     worker = ProcessWorker(WorkerSpec(str(checkpoint), "cpu", threads=1), pipe.config)
-    app = create_app(worker)
+    app = create_app(worker, max_request_cost=ANY_COST)
     until = until_health
 
     async def go():

@@ -4,8 +4,8 @@ attack and the generation worker is killed once.
 Starts `smf serve` on 127.0.0.1 only (a free port; the shipped model unless --checkpoint), waits until
 /v1/health is ready, and then, at the same time:
 - sends N normal /v1/generate requests (distinct seeds, 4 s, at most --concurrency at once);
-- sends every hostile case of tests/serve/test_hardening.py (each must get a 4xx), opens half-open connections (the server must
-  close them) and abandons long timelines (the server must drop them before they run);
+- sends every hostile case of tests/serve/test_hardening.py (each must get a 4xx), opens half-open connections
+  (the server must close them) and abandons long timelines (the server must drop them before they run);
 - kills the worker process (SIGKILL) once, after a quarter of the normal requests are answered;
 - samples /v1/health (its answer must match the worker: 200 only while the worker process is alive and
   ready) and the resident memory of the server and all its child processes (never above 1.5x idle).

@@ -57,7 +57,8 @@ def sweep(door, steps_range) -> dict:
             ok.append(steps)
             for s, h in got:
                 speed, height = max(speed, s), max(height, h)
-    return {"answered": _ranges(ok), "refused": _ranges(refused), "refusals": sorted(lines), "max_root_speed_m_s": round(speed, 2),
+    return {"answered": _ranges(ok), "refused": _ranges(refused), "refusals": sorted(lines),
+            "max_root_speed_m_s": round(speed, 2),
             "max_joint_height_m": round(height, 2)}
 
 

@@ -9,7 +9,8 @@ augmentation, EMA) for each ``--recipe`` in turn, ``--rounds`` times interleaved
 each alike), and prints the median of `smf train`'s own samples/s (log.csv) over the steps after the first
 few. Recipes: ``fp32`` (fp32, captions perturbed with probability 0.5), ``balanced`` (bf16 autocast, captions
 perturbed with probability 0.1, label balancing), ``shipped`` (the shipped teacher's: bf16, captions perturbed with
-probability 0.5, short crops 0.5) and ``shipped-lean`` (``shipped`` with captions perturbed with probability 0.1). ``--recipe NAME@CHECKOUT`` runs that recipe with the code of another checkout (e.g. ``git
+probability 0.5, short crops 0.5) and ``shipped-lean`` (``shipped`` with captions perturbed with probability
+0.1). ``--recipe NAME@CHECKOUT`` runs that recipe with the code of another checkout (e.g. ``git
 worktree add --detach /tmp/old COMMIT``), so a speed-up in the code is measured against the code before it.
 The text cache is warmed first, so no run pays for encoding the corpus's captions.
 """

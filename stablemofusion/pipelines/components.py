@@ -114,7 +114,8 @@ class Components:
                                                                   rigid=rigid)
         if s.steps > self.max_steps:
             raise SMFError(f"steps must be at most {self.max_steps} for this model (a distilled student: more steps "
-                           f"drift into motions no human makes), got {s.steps}; its teacher (--teacher) takes up to {MAX_STEPS}")
+                           f"drift into motions no human makes), got {s.steps}; its teacher (--teacher) takes up to "
+                           f"{MAX_STEPS}")
         engine = resolve_engine(s.engine or self.engine, self.device, s.sampler,
                                 hooks=hooks or s.footskate == "loop")
         return replace(s, engine=engine)

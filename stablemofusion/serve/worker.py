@@ -242,8 +242,8 @@ class ProcessWorker:
         # between the worker's death and the supervisor noticing it, it is not ready (never a stale "ready")
         state = "restarting" if self._state == "ready" and not alive else self._state
         state = "unresponsive" if state == "ready" and self._silent() else state
-        return {"state": state, "pid": self._proc.pid if alive else None, "model_loaded": self._loaded, "warm": self._warm,
-                "busy": self._busy, "restarts": self._restarts}
+        return {"state": state, "pid": self._proc.pid if alive else None, "model_loaded": self._loaded,
+                "warm": self._warm, "busy": self._busy, "restarts": self._restarts}
 
     def close(self) -> None:
         """Stop the worker now (what SIGTERM leads to): jobs still waiting get a 503."""

@@ -308,6 +308,12 @@ class StreamHub:
             self.inviting = False
             while not self._queue.empty():
                 items.append(self._queue.get_nowait())
+            # a window whose stream has ended meanwhile (its client left: the window's future cancelled, or the
+            # stream closed) is not made; closes always go through
+            items = [(j, f) for j, f in items
+                     if j.close or (f is not None and not f.done() and j.sid in self.active)]
+            if not items:
+                continue
             jobs = [j for j, _ in items]
             began = time.monotonic()
             try:

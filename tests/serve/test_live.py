@@ -256,3 +256,41 @@ def test_a_window_and_the_close_of_its_stream_in_one_call_make_no_window_and_no_
     assert out[0] is None and out[2] is None and out[3] is None and out[4] is None
     assert isinstance(out[1], StreamFrames) and set(streams) == {2}
     assert [r for r in caplog.records if r.levelname in ("WARNING", "ERROR")] == []
+
+
+def test_the_hub_makes_no_window_for_a_stream_that_ended_before_its_call():
+    """A window asked for and then abandoned (its client left: the future cancelled, the stream closed) before the
+    gathering call starts never reaches the worker; the close does."""
+    import asyncio
+    from concurrent.futures import Future
+
+    from stablemofusion.serve.live import StreamHub, StreamJob
+
+    class Recorder:
+        def __init__(self):
+            self.calls = []
+
+        def submit(self, jobs, max_batch):
+            self.calls.append(list(jobs))
+            done = Future()
+            done.set_result([None] * len(jobs))
+            return done
+
+        def health(self):
+            return {}
+
+    async def run(worker):
+        hub = StreamHub(worker, max_streams=4)
+        gone, stays = hub.open(), hub.open()
+        left = asyncio.ensure_future(hub.window(StreamJob(gone, "a person walks", new=True)))
+        kept = asyncio.ensure_future(hub.window(StreamJob(stays, "a person waves", new=True)))
+        await asyncio.sleep(0)
+        left.cancel()
+        hub.close(gone)
+        await kept
+        hub.stop()
+
+    worker = Recorder()
+    asyncio.run(run(worker))
+    sent = [j for call in worker.calls for j in call]
+    assert [(j.sid, j.close) for j in sent] == [(2, False), (1, True)]

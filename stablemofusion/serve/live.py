@@ -28,7 +28,6 @@ import asyncio
 import json
 import logging
 import math
-import time
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
@@ -44,6 +43,11 @@ from .server_limits import (MAX_STREAM_MESSAGE_BYTES, MAX_STREAM_MESSAGES, MAX_S
                             STREAM_MESSAGE_FRAMES, STREAM_MESSAGE_WINDOW_S, STREAM_RECENT_WINDOWS, STREAM_SEND_LEAD_S,
                             STREAM_START_TIMEOUT_S, STREAM_SWITCH_FACTOR, WARM_STEPS)
 from .worker import Failure, ProcessWorker, child_loop
+
+def _now() -> float:
+    """The event loop's clock (time.monotonic in a real loop; tests run the streams on a virtual one)."""
+    return asyncio.get_running_loop().time()
+
 
 TRY_LATER = 1013  # WebSocket close code: the server is at its stream limit
 SERVER_ERROR = 1011  # WebSocket close code: the stream cannot go on
@@ -315,7 +319,7 @@ class StreamHub:
             if not items:
                 continue
             jobs = [j for j, _ in items]
-            began = time.monotonic()
+            began = _now()
             try:
                 outcomes = await asyncio.wrap_future(self.worker.submit(jobs, len(jobs)))
             except ServeError as e:
@@ -327,7 +331,7 @@ class StreamHub:
             self.windows += windows
             if windows:
                 self.batches.append(windows)
-                self.call_s.append(time.monotonic() - began)
+                self.call_s.append(_now() - began)
             for (_, future), outcome in zip(items, outcomes):
                 if future is not None and not future.done():
                     future.set_result(outcome)
@@ -379,7 +383,7 @@ class StreamSession:
         self.wake.set()
 
     def _take(self, message: dict) -> None:
-        now = time.monotonic()
+        now = _now()
         self._recent.append(now)
         while self._recent and self._recent[0] < now - STREAM_MESSAGE_WINDOW_S:
             self._recent.popleft()
@@ -433,26 +437,28 @@ class StreamSession:
         if self.start is None or buf.made >= MAX_STREAM_SECONDS * self.fps:
             return None
         ahead = buf.made / self.fps - (now - self.start)
-        if ahead < STREAM_AHEAD_S or (self.hub.inviting and ahead < STREAM_AHEAD_S + STREAM_JOIN_S):
+        # (at the wake time play() computes, ahead is STREAM_AHEAD_S up to rounding: a microsecond's grace, or
+        # the loop would wake at once again until the clock moved on)
+        if ahead < STREAM_AHEAD_S + 1e-6 or (self.hub.inviting and ahead < STREAM_AHEAD_S + STREAM_JOIN_S):
             return StreamJob(self.sid)
         return None
 
     async def play(self) -> None:
         """Wait for the first prompt, then make windows ahead and send their frames, until the client stops or
         leaves (or the stream reaches MAX_STREAM_SECONDS)."""
-        deadline = time.monotonic() + STREAM_START_TIMEOUT_S
+        deadline = _now() + STREAM_START_TIMEOUT_S
         while self.pending is None and not self.stopped:
-            if time.monotonic() > deadline:
+            if _now() > deadline:
                 await self.error(f"no prompt within {STREAM_START_TIMEOUT_S:g} s of connecting; closing")
                 return
             self.wake.clear()
-            await self._sleep(deadline - time.monotonic())
+            await self._sleep(deadline - _now())
         buf, fps = self.buffer, self.fps
         window: tuple[asyncio.Future, float, int] | None = None  # the window asked for: (outcome, when, index)
         try:
             while not self.stopped:
                 self.wake.clear()
-                now = time.monotonic()
+                now = _now()
                 if window is not None and window[0].done():  # 1. a window made: its frames wait to be sent
                     outcome, asked, index = window[0].result(), window[1], window[2]
                     window = None
@@ -475,7 +481,7 @@ class StreamSession:
                     if buf.sent >= MAX_STREAM_SECONDS * fps:
                         await self.error(f"a stream lasts at most {MAX_STREAM_SECONDS:g} s; start a new one")
                         return
-                    now = time.monotonic()
+                    now = _now()
                 if window is None:  # 3. the next window: one at a time
                     job = self._next_job(now)
                     if job is not None:
@@ -487,7 +493,7 @@ class StreamSession:
                     wake.append(self.start + min(buf.sent + STREAM_MESSAGE_FRAMES, buf.made) / fps - STREAM_SEND_LEAD_S)
                 if self.start is not None and window is None and buf.made < MAX_STREAM_SECONDS * fps:
                     wake.append(self.start + buf.made / fps - STREAM_AHEAD_S)
-                await self._sleep(min(wake) - time.monotonic() if wake else None)
+                await self._sleep(min(wake) - _now() if wake else None)
         finally:
             if window is not None:
                 window[0].cancel()

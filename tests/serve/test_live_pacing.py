@@ -1,12 +1,12 @@
 """A live stream's pacing (serve/live.py) on its own: the frame buffer, the send and cut rules, and one
-connection's session driven by a fake WebSocket and a fake stream worker (a window takes 50 ms), on the real
-clock: frames sent never beyond the send lead, the frames made and not sent bounded, a new prompt cut in."""
+connection's session driven by a fake WebSocket and a fake stream worker (a window takes 50 ms), on a virtual
+clock (serve_helpers.VirtualClockLoop: no wall clock, no real waiting): frames sent never beyond the send lead, the
+frames made and not sent bounded, a new prompt cut in."""
 
 from __future__ import annotations
 
 import asyncio
 import json
-import time
 
 import numpy as np
 import pytest
@@ -16,6 +16,8 @@ from stablemofusion.serve.http_errors import ServeError
 from stablemofusion.serve.server_limits import (STREAM_AHEAD_S, STREAM_JOIN_S, STREAM_MESSAGE_FRAMES,
                                                 STREAM_SEND_LEAD_S, STREAM_SWITCH_FACTOR)
 from stablemofusion.serve.live import FrameBuffer, StreamFrames, StreamSession, cut_frame, due_frames
+
+from serve_helpers import run_virtual
 
 FPS = 20
 
@@ -66,7 +68,7 @@ class FakeWebSocket:
 
     async def send_text(self, text: str) -> None:
         m = json.loads(text)
-        self.sent.append((time.monotonic() - self.session.start, m))
+        self.sent.append((asyncio.get_running_loop().time() - self.session.start, m))
         self.unsent.append(len(self.session.buffer))
 
     async def receive(self) -> dict:
@@ -86,7 +88,7 @@ class FakeHub:
         self.session: StreamSession | None = None
 
     async def window(self, job):
-        self.jobs.append((time.monotonic(), job, self.session.buffer.sent))
+        self.jobs.append((asyncio.get_running_loop().time(), job, self.session.buffer.sent))
         if job.cut is not None:
             assert job.cut >= self.session.buffer.sent and job.cut <= self.made
             self.made = job.cut
@@ -105,7 +107,7 @@ def test_a_session_sends_frames_within_the_send_lead_keeps_the_buffer_bounded_an
         player = asyncio.ensure_future(session.play())
         await ws.incoming.put({"type": "websocket.receive", "text": json.dumps({"prompt": "a person walks"})})
         await asyncio.sleep(2.5)
-        prompted = time.monotonic() - session.start
+        prompted = asyncio.get_running_loop().time() - session.start
         await ws.incoming.put({"type": "websocket.receive", "text": json.dumps({"prompt": "a person waves"})})
         await asyncio.sleep(2.0)
         await ws.incoming.put({"type": "websocket.receive", "text": json.dumps({"stop": True})})
@@ -113,7 +115,7 @@ def test_a_session_sends_frames_within_the_send_lead_keeps_the_buffer_bounded_an
         reader.cancel()
         return ws, hub, prompted
 
-    ws, hub, prompted = asyncio.run(run())
+    ws, hub, prompted = run_virtual(run())
     messages = [m for _, m in ws.sent]
     assert all(m["type"] == "frames" for m in messages)
     # never sent beyond the send lead (on the server's own play clock), and a few frames a message
@@ -137,20 +139,20 @@ def test_a_session_sends_frames_within_the_send_lead_keeps_the_buffer_bounded_an
 
 
 class FakeWorker:
-    """The stream worker's interface on a thread: every call takes 0.1 s; windows as FakeHub's."""
+    """The stream worker's interface: every call takes 0.1 s (of the loop's clock); windows as FakeHub's."""
 
     def __init__(self):
-        from concurrent.futures import ThreadPoolExecutor
-
-        self.pool = ThreadPoolExecutor(max_workers=1)
         self.made: dict[int, int] = {}
         self.calls: list[list] = []
 
     def submit(self, jobs, max_batch):
-        return self.pool.submit(self._run, jobs)
+        from concurrent.futures import Future
+
+        done = Future()
+        asyncio.get_running_loop().call_later(0.1, lambda: done.set_result(self._run(jobs)))
+        return done
 
     def _run(self, jobs):
-        time.sleep(0.1)
         self.calls.append(jobs)
         out = []
         for job in jobs:
@@ -176,7 +178,7 @@ def test_streams_join_the_worker_call_that_starts_so_their_windows_are_batched()
             pass
 
         async def send_text(self, text: str) -> None:
-            self.sent.append((time.monotonic(), json.loads(text)))
+            self.sent.append((asyncio.get_running_loop().time(), json.loads(text)))
 
     async def run(worker):
         hub = StreamHub(worker, max_streams=2)
@@ -194,7 +196,7 @@ def test_streams_join_the_worker_call_that_starts_so_their_windows_are_batched()
         return sockets
 
     worker = FakeWorker()
-    sockets = asyncio.run(run(worker))
+    sockets = run_virtual(run(worker))
     windows = [sum(not j.close for j in jobs) for jobs in worker.calls]
     later = windows[len(windows) // 2:]  # once both streams run (each first fills its lead alone)
     assert sum(w == 2 for w in later) >= 0.8 * len(later), str(windows)

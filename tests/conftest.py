@@ -103,17 +103,20 @@ def tiny_checkpoint(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def tiny_pipe(tiny_checkpoint):
-    """A function giving a pipeline of ``tiny_checkpoint`` (one thread; a new one per call: tests may change it)."""
-    def make(tiny_checkpoint_path: Path | None = None):
-        import torch
+def checkpoint(tiny_checkpoint) -> Path:
+    """The tiny checkpoint, for the modules that do not define a ``checkpoint`` of their own."""
+    return tiny_checkpoint
 
-        from stablemofusion.pipeline import MotionPipeline
 
-        torch.set_num_threads(1)
-        return MotionPipeline.from_pretrained(tiny_checkpoint_path or tiny_checkpoint, device="cpu")
+@pytest.fixture(scope="module")
+def pipe(checkpoint):
+    """A pipeline of ``checkpoint`` on one thread, one per module (tests may change it)."""
+    import torch
 
-    return make
+    from stablemofusion.pipeline import MotionPipeline
+
+    torch.set_num_threads(1)
+    return MotionPipeline.from_pretrained(checkpoint, device="cpu")
 
 
 @pytest.fixture(scope="session")

@@ -26,16 +26,6 @@ TABLE = [
 PROMPT = "a person walks forward"
 
 
-@pytest.fixture(scope="module")
-def checkpoint(tiny_checkpoint):
-    return tiny_checkpoint
-
-
-@pytest.fixture(scope="module")
-def pipe(tiny_pipe):
-    return tiny_pipe()
-
-
 def library(pipe, req: dict):
     kw = {"seconds": req["seconds"], "seed": req.get("seed", 0), "guidance_scale": req.get("guidance"),
           "steps": req.get("steps", 1)}

@@ -170,13 +170,8 @@ class Components:
         """A requested duration in frames, a multiple of ``LENGTH_MULTIPLE``, at least the model's shortest
         (warning if changed); lengths past ``max_frames`` are kept: they are generated window by window (timelines)."""
         if frames is None:
-            seconds = DEFAULT_SECONDS if seconds is None else seconds
-            if not np.isfinite(seconds) or seconds <= 0:
-                raise SMFError(f"seconds must be a positive number, got {seconds}")
-            frames = int(round(seconds * self.fps))
-        check_seconds(frames / self.fps, "the length")
-        if frames <= 0:
-            raise SMFError(f"frames must be positive, got {frames}")
+            frames = int(round(check_seconds(DEFAULT_SECONDS if seconds is None else seconds) * self.fps))
+        check_seconds(frames / self.fps, "the length")  # more than 0 frames, at most MAX_SECONDS
         n = max(frames, self.min_frames) // LENGTH_MULTIPLE * LENGTH_MULTIPLE
         if n != frames:
             warnings.warn(f"length {frames} frames ({frames / self.fps:.2f} s) clamped to {n} frames "

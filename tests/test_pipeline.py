@@ -9,7 +9,7 @@ import torch
 from stablemofusion.cli.main import main
 from stablemofusion.diffusion.schedulers import make_sampler, sampler_names
 from stablemofusion.errors import SMFError
-from stablemofusion.pipeline import LengthClampedWarning, MotionPipeline
+from stablemofusion.pipeline import LengthClampedWarning, MotionPipeline, Settings
 
 
 @pytest.fixture(scope="module")
@@ -187,3 +187,18 @@ def test_pipeline_is_importable_from_the_package_top():
     assert top is MotionPipeline and stablemofusion.MotionResult.__name__ == "MotionResult"
     with pytest.raises(AttributeError):
         stablemofusion.nothing_here  # noqa: B018
+
+
+def test_an_engine_asked_for_by_name_that_cannot_run_hooks_is_replaced_visibly(pipe):
+    """Footskate 'loop' changes every step: 'compiled' cannot run it, so 'fast' does, with an EngineWarning (never
+    silently); 'auto' picks 'fast' without a word."""
+    import warnings
+
+    from stablemofusion.pipeline import EngineWarning
+
+    with pytest.warns(EngineWarning, match="'compiled' cannot run"):
+        pipe(["a person walks"], frames=40, steps=2, seed=0, footskate="loop", engine="compiled")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EngineWarning)
+        pipe(["a person walks"], frames=40, steps=2, seed=0, footskate="loop", engine="auto")
+    assert pipe.settings(Settings(footskate="loop", engine="auto")).engine == "fast"

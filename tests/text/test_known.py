@@ -250,3 +250,15 @@ def test_example_embeddings_are_read_from_the_model_folder_when_they_match(tmp_p
     assert stale._emb is None and stale.check("a person bows deeply").closest[0] == ("bow", pytest.approx(1.0, abs=1e-5))
     (tmp_path / EMBEDDINGS_FILE).write_bytes(b"not safetensors")
     assert KnownActions.load(tmp_path / ACTIONS_FILE, cache)._emb is None
+
+
+def test_the_warning_names_one_figure_the_one_the_decision_used():
+    """'a boxer throws punches' was flagged at 0.49 while the line also said 'punch (0.91)': one figure now."""
+    import re
+
+    from stablemofusion.text.known import DomainCheck
+
+    check = DomainCheck(0.49, (("punch", 0.91), ("kick", 0.8)), True)
+    message = check.message("a boxer throws punches")
+    assert re.findall(r"\d+\.\d+", message) == ["0.49"] and "in-domain score 0.49" in message
+    assert "punch, kick" in message and check.to_dict("x")["warning"] == message.replace("a boxer throws punches", "x")

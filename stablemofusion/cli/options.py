@@ -31,6 +31,7 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
                    help="random seed (default: a fresh one, printed with each motion so that it can be made again)")
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
     add_teacher_flag(p)
+    add_adapter_flag(p)
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     p.add_argument("--threads", type=int, default=None,
                    help="CPU threads for torch (default: OMP_NUM_THREADS if set, else the idle cores: the cores less "
@@ -43,6 +44,12 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
                         "post by default: the raw motion skates about 3 times as much as real motion "
                         "(docs/footskate.md)")
     add_contact_arguments(p)
+
+
+def add_adapter_flag(p: argparse.ArgumentParser) -> None:
+    """--adapter FILE (repeatable): adapters made by `smf adapt`, merged into the model at load."""
+    p.add_argument("--adapter", type=Path, action="append", default=None,
+                   help="an adapter file from `smf adapt` (your moves); repeat it to load several")
 
 
 def add_contact_arguments(p: argparse.ArgumentParser) -> None:
@@ -119,7 +126,8 @@ def load_pipeline(args):
     from ..pipeline import MotionPipeline
 
     set_threads(args)
-    pipe = MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device, engine=args.engine)
+    pipe = MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device, engine=args.engine,
+                                          adapter=args.adapter)
     pipe.text_cache.encoder.load()  # now, under the status line, not inside the first generation
     status.done()
     return pipe
@@ -150,7 +158,8 @@ def output_meta(args, pipe, *, edit: bool = False) -> dict:
     from ..pipelines.settings import Settings
 
     s = pipe.settings(Settings(guidance_scale=args.guidance, steps=args.steps, sampler=args.sampler), edit=edit)
-    return {"sampler": s.sampler, "steps": s.steps, "guidance": s.guidance_scale, "student": pipe.student}
+    return {"sampler": s.sampler, "steps": s.steps, "guidance": s.guidance_scale, "student": pipe.student,
+            "adapters": list(pipe.adapters)}
 
 
 @contextlib.contextmanager

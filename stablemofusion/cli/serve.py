@@ -20,6 +20,9 @@ def add_parser(sub, name: str) -> None:
                         "when clients reach the server by another name or address)")
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
     add_teacher_flag(p)
+    p.add_argument("--adapter", type=Path, action="append", default=None,
+                   help="an adapter file from `smf adapt`, served beside the model: requests name it with "
+                        "\"adapter\" (repeatable)")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     p.add_argument("--engine", default="auto", choices=("auto",) + ENGINES,
                    help="denoising engine of the worker (default auto; 'compiled' pays on a CPU server: a one-off "
@@ -62,9 +65,11 @@ def run(args: argparse.Namespace) -> None:
     cost = {} if args.max_request_cost is None else {"max_request_cost": args.max_request_cost}
     checkpoint = model_folder(args.checkpoint, teacher=args.teacher)
     config = read_config(checkpoint)  # checks the folder; the worker process loads the model itself
-    spec = WorkerSpec(str(checkpoint), args.device, args.threads, args.engine)
-    streams = StreamProcessWorker(spec, config) if max_streams else None
-    app = create_app(ProcessWorker(spec, config), max_batch=args.max_batch, wait_ms=args.wait_ms,
+    adapters = served_adapters(args.adapter or [], checkpoint, config)
+    spec = WorkerSpec(str(checkpoint), args.device, args.threads, args.engine, tuple(str(a) for a in args.adapter or ()))
+    streams = StreamProcessWorker(WorkerSpec(str(checkpoint), args.device, args.threads, args.engine), config) \
+        if max_streams else None
+    app = create_app(ProcessWorker(spec, config, adapters), max_batch=args.max_batch, wait_ms=args.wait_ms,
                      max_queue=args.max_queue, allowed_hosts=tuple(args.allow_host), streams=streams,
                      max_streams=max_streams, **cost)
     sock = listening_socket(args.host, args.port)  # a busy port is one line, before anything starts
@@ -72,6 +77,17 @@ def run(args: argparse.Namespace) -> None:
     print(f"smf serve: http://{args.host}:{args.port} (POST /v1/generate, WebSocket /v1/stream, GET /v1/health; "
           "the model loads in the worker: /v1/health says when it is ready)", flush=True)
     uvicorn.Server(uvicorn_config(app, args.host, args.port)).run(sockets=[sock])
+
+
+def served_adapters(paths: list[Path], checkpoint: Path, config) -> tuple[str, ...]:
+    """The names of the adapter files to serve, each checked against the model before the worker starts."""
+    from ..adapters.file import load_adapters
+
+    part = "student" if config.student else "teacher"
+    adapters = load_adapters(paths)
+    for a in adapters:
+        a.check_base(part, checkpoint)
+    return tuple(a.info.name for a in adapters)
 
 
 def listening_socket(host: str, port: int):

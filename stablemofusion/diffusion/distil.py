@@ -272,10 +272,10 @@ def distil(data: str | Path, out: str | Path, cfg: DistilConfig, *, resume: bool
                 eps = (noise * mask.cpu()[..., None]).to(device)
                 step_noise = torch.randn((cfg.sample_steps,) + tuple(eps.shape), generator=g).to(device)
                 with torch.no_grad(), accelerator.autocast():
-                    target_f = _teacher_sample(teacher_model, eps, tokens, tmask, drop, mask, w, teacher_table).float()
+                    target_f = teacher_sample(teacher_model, eps, tokens, tmask, drop, mask, w, teacher_table).float()
                 student.train(cfg.dropout)
                 with accelerator.autocast():
-                    pred_f = _student_sample(student, eps, tokens, tmask, drop, mask, w, student_table, step_noise)
+                    pred_f = student_sample(student, eps, tokens, tmask, drop, mask, w, student_table, step_noise)
             if cfg.loss == "l2":
                 loss = masked_mse(pred_f.float(), target_f, mask)
             else:
@@ -346,7 +346,7 @@ def _teacher_ddim(teacher, x, t_hi, t_lo, ab, tokens, tmask, drop, mask, w) -> t
     return a_lo.sqrt() * x0 + (1 - a_lo).sqrt() * eps
 
 
-def _teacher_sample(teacher, eps, tokens, tmask, drop, mask, w, table) -> torch.Tensor:
+def teacher_sample(teacher, eps, tokens, tmask, drop, mask, w, table) -> torch.Tensor:
     """The teacher's sample (B, T, D) from noise ``eps`` by the sampler of ``table``, under classifier-free
     guidance at scale ``w`` (B,): one pass where every w is 1."""
     cond = teacher.condition(tokens, tmask, drop)
@@ -355,7 +355,7 @@ def _teacher_sample(teacher, eps, tokens, tmask, drop, mask, w, table) -> torch.
     return run_solver(denoiser, table, eps * table.init_sigma, None)
 
 
-def _student_sample(student, eps, tokens, tmask, drop, mask, w, table, step_noise) -> torch.Tensor:
+def student_sample(student, eps, tokens, tmask, drop, mask, w, table, step_noise) -> torch.Tensor:
     """The student's sample (B, T, D) from noise ``eps`` at guidance input ``w`` (B,), as the pipeline draws it
     (``table``: the student's sampler and steps; ``step_noise`` (K, B, T, D) its re-noising), with gradients."""
     cond = student.condition(tokens, tmask, drop, w)
@@ -370,4 +370,5 @@ def _consistency(model, x, t, tokens, tmask, drop, mask, w) -> torch.Tensor:
 
 
 __all__ = ["DistilConfig", "METHODS", "check_distil_config", "distil", "distil_lr", "masked_huber", "skip_grid",
+           "student_sample", "teacher_sample",
            "student_from_teacher"]

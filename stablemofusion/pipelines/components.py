@@ -72,14 +72,19 @@ class Components:
         self.rigid = rigid
         self.known_actions: KnownActions | None = None  # from the folder's actions.json
         self.length_estimator: LengthEstimator | None = None  # from the folder's length.safetensors
+        self.adapters: tuple[str, ...] = ()  # names of the adapters merged into the weights
+        self.path: Path | None = None  # the model folder it was loaded from
+        self.variants: dict[str, Components] = {}  # adapted copies offered by name (add_variants), e.g. by a server
 
     @classmethod
     def from_pretrained(cls, path: str | Path | None = None, *, teacher: bool = False,
-                        device: str | torch.device | None = None, dtype: torch.dtype | None = None, **kwargs):
+                        device: str | torch.device | None = None, dtype: torch.dtype | None = None,
+                        adapter=None, **kwargs):
         """Load a checkpoint folder (or a training run folder); ``None`` = the shipped default model (a distilled
         student); ``teacher``: the teacher that model names instead (:func:`model_folder`). The known actions and
         the length estimator are the folder's, or for a teacher shipped inside its student's folder the
-        student's (:func:`~stablemofusion.diffusion.checkpoint.companion_file`).
+        student's (:func:`~stablemofusion.diffusion.checkpoint.companion_file`). ``adapter``: one adapter file
+        (``smf adapt``) or several, merged into the weights at load (their actions join the known actions).
         On CUDA the model runs in float16 unless ``dtype`` says otherwise; on CPU in float32."""
         path = model_folder(path, teacher=teacher)
         device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
@@ -87,6 +92,7 @@ class Components:
             dtype = torch.float16 if device.type == "cuda" else torch.float32
         ck = load_checkpoint(path)
         c = cls(ck.model, ck.mean, ck.std, ck.config, device=device, dtype=dtype, **kwargs)
+        c.path = ck.path
         actions = companion_file(ck.path, ACTIONS_FILE)
         if actions is not None:
             c.known_actions = KnownActions.load(actions, c.text_cache)
@@ -96,7 +102,52 @@ class Components:
             if c.length_estimator.config.text_encoder != ck.config.text_encoder:
                 raise SMFError(f"{length.parent}: the length estimator was trained with the text encoder "
                                f"{c.length_estimator.config.text_encoder}, the model uses {ck.config.text_encoder}")
-        return c
+        return c.with_adapters(adapter) if adapter else c
+
+    def with_adapters(self, adapters) -> "Components":
+        """This model with adapters (``smf adapt`` files or loaded :class:`~stablemofusion.adapters.file.Adapter`)
+        merged into a copy of its weights; text cache, length estimator and solver tables are shared. Their
+        actions join the known actions. SMFError for an adapter of another base model."""
+        import copy
+
+        from ..adapters.file import load_adapters
+        from ..adapters.lora import merge_into
+
+        adapters = load_adapters(adapters)
+        if not adapters:
+            return self
+        if self.path is None:
+            raise SMFError("adapters need a model loaded from its folder (from_pretrained)")
+        part = "student" if self.student else "teacher"
+        model = copy.deepcopy(self.model)
+        for a in adapters:
+            a.check_base(part, self.path)
+            merge_into(model, a.deltas(part))
+        new = copy.copy(self)
+        new.model, new._engines, new.variants = model, {}, {}
+        new.adapters = self.adapters + tuple(a.info.name for a in adapters)
+        if self.known_actions is not None:
+            new.known_actions = self.known_actions.with_taught([a.info.actions for a in adapters])
+        return new
+
+    def add_variants(self, adapters) -> None:
+        """Offer each adapter (file or loaded) as a copy of this model of its own, by the adapter's name
+        (:meth:`variant`): a server serves the base model and each adapter side by side."""
+        from ..adapters.file import load_adapters
+
+        for a in load_adapters(adapters):
+            if a.info.name in self.variants:
+                raise SMFError(f"two adapters are named {a.info.name!r}")
+            self.variants[a.info.name] = self.with_adapters([a])
+
+    def variant(self, name: str | None) -> "Components":
+        """The adapted copy named ``name`` (:meth:`add_variants`), or this model for None."""
+        if name is None:
+            return self
+        if name not in self.variants:
+            loaded = ", ".join(self.variants) or "none"
+            raise SMFError(f"no adapter named {name!r} is loaded (loaded: {loaded})")
+        return self.variants[name]
 
     @property
     def student(self) -> bool:

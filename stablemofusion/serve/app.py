@@ -133,7 +133,7 @@ def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.
     hub = StreamHub(streams, max_streams if streams is not None else 0)
     batcher = DynamicBatcher(worker, max_batch=max_batch, wait_ms=wait_ms, max_queue=max_queue)
     cfg = worker.config
-    checks = RequestChecks(cfg, max_request_cost)
+    checks = RequestChecks(cfg, max_request_cost, getattr(worker, "adapters", ()))
     recent = RecentResults()
     converting = asyncio.Semaphore(1)  # one upload parsed at a time, on a thread
 
@@ -164,7 +164,7 @@ def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.
         return JSONResponse(
             {"status": "ok" if ready else state["state"], "worker": state, "fps": cfg.fps,
              "seconds": [cfg.min_frames / cfg.fps, limits.MAX_SECONDS], "limits": limits.table(),
-             "max_batch": max_batch, "waiting": batcher.waiting,
+             "max_batch": max_batch, "waiting": batcher.waiting, "adapters": list(checks.adapters),
              "batches": len(sizes), "largest_batch": max(sizes, default=0), "dropped": batcher.dropped,
              "streams": hub.health() if streams is not None else {"state": "off", "active": 0, "max": 0}},
             status_code=200 if ready else 503)

@@ -30,6 +30,7 @@ class GenerateRequest(BaseModel):
     guidance: float | None = None  # None: the model's
     steps: int | None = None  # None: the model's
     footskate: Literal["off", "post", "loop"] = limits.FOOTSKATE
+    adapter: str | None = None  # None: the base model; else the name of an adapter the server loaded
 
 
 class Segment(BaseModel):
@@ -51,6 +52,7 @@ class TimelineRequest(BaseModel):
     guidance: float | None = None
     steps: int | None = None
     footskate: Literal["off", "post", "loop"] = limits.FOOTSKATE
+    adapter: str | None = None
 
 
 def parse_body(data: bytes, model: type[BaseModel]) -> BaseModel:
@@ -105,10 +107,10 @@ class RequestChecks:
     """Turns request bodies into jobs for a model of frame rate ``fps``, with the limits of every door
     (:mod:`stablemofusion.limits`)."""
 
-    def __init__(self, config, max_cost: float = MAX_REQUEST_COST):
+    def __init__(self, config, max_cost: float = MAX_REQUEST_COST, adapters: tuple[str, ...] = ()):
         """``config``: the model's CheckpointConfig (frame rate, window, default steps and guidance); ``max_cost``
-        the most work one request may ask for."""
-        self.fps, self.max_cost = config.fps, max_cost
+        the most work one request may ask for; ``adapters`` the names of the adapters loaded beside the model."""
+        self.fps, self.max_cost, self.adapters = config.fps, max_cost, tuple(adapters)
         self.window_s = config.max_frames / config.fps
         self.default_steps = config.distil.sample_steps if config.student else limits.STEPS
         self.default_guidance = limits.GUIDANCE if config.guidance is None else config.guidance
@@ -125,6 +127,12 @@ class RequestChecks:
                                   f"{self.max_cost:.0f} (seconds x steps, more with guidance and footskate "
                                   "cleanup): ask for fewer seconds or steps, or footskate 'post'")
 
+    def _adapter(self, body) -> str | None:
+        if body.adapter is not None and body.adapter not in self.adapters:
+            raise ServeError(422, f"adapter: no adapter named {body.adapter[:60]!r} is loaded (loaded: "
+                                  f"{', '.join(self.adapters) or 'none'})")
+        return body.adapter
+
     def _common(self, body) -> tuple[int, float | None, int | None]:
         checked(limits.check_guidance, body.guidance)
         checked(limits.check_steps, body.steps)
@@ -135,7 +143,7 @@ class RequestChecks:
         checked(limits.check_seconds, body.seconds)
         seed, guidance, steps = self._common(body)
         self._check_cost(body.seconds, body)
-        return Job(prompt, body.seconds, seed, guidance, steps, body.footskate)
+        return Job(prompt, body.seconds, seed, guidance, steps, body.footskate, adapter=self._adapter(body))
 
     def timeline(self, body: TimelineRequest) -> Job:
         segments = tuple((check_prompt(s.prompt, f"segments.{i}.prompt"), s.seconds)
@@ -147,4 +155,5 @@ class RequestChecks:
         checked(limits.check_seconds, sum(sec for _, sec in segments), "a timeline's total seconds")
         seed, guidance, steps = self._common(body)
         self._check_cost(sum(sec for _, sec in segments), body)
-        return Job("; ".join(p for p, _ in segments), None, seed, guidance, steps, body.footskate, segments)
+        return Job("; ".join(p for p, _ in segments), None, seed, guidance, steps, body.footskate, segments,
+                   adapter=self._adapter(body))

@@ -39,11 +39,13 @@ class Job:
     steps: int | None = None  # None: the model's (a distilled student's own count)
     footskate: str = FOOTSKATE
     segments: tuple[tuple[str, float], ...] | None = None
+    adapter: str | None = None  # None: the base model; else a loaded adapter's name
 
     @property
     def sampling(self) -> tuple:
-        """How the job samples (its settings: guidance, steps, footskate): jobs alike are generated in one call."""
-        return (self.guidance, self.steps, self.footskate)
+        """How the job samples (its model and settings: adapter, guidance, steps, footskate): jobs alike are
+        generated in one call."""
+        return (self.adapter, self.guidance, self.steps, self.footskate)
 
 
 @dataclass(frozen=True)
@@ -58,6 +60,7 @@ def generate_jobs(pipe, jobs: list[Job], max_batch: int) -> list:
     """Jobs of one ``sampling`` (guidance, steps, footskate) as one pipeline call (one seed per job), or
     timelines one by one."""
     first = jobs[0]
+    pipe = pipe.variant(first.adapter)
     if first.segments is not None:
         return [pipe.timeline(list(j.segments), guidance_scale=j.guidance, steps=j.steps, seed=j.seed,
                               footskate=j.footskate) for j in jobs]
@@ -113,6 +116,7 @@ class ThreadWorker:
 
     def __init__(self, pipe):
         self.pipe, self.config = pipe, pipe.config
+        self.adapters = tuple(pipe.variants)  # the adapters requests may name
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="smf-generate")
         self._warm: Future | None = None
 
@@ -147,6 +151,7 @@ class WorkerSpec:
     device: str | None = None
     threads: int = 2
     engine: str = "auto"
+    adapters: tuple[str, ...] = ()  # adapter files, each served as a model of its own beside the base
 
 
 def call_deadline(jobs: list) -> float:
@@ -185,6 +190,7 @@ def child_loop(conn, spec: WorkerSpec, name: str, warm_up, handle, beat=None) ->
     logging.basicConfig(level=logging.INFO, format=f"smf serve {name}: %(levelname)s %(message)s")
     torch.set_num_threads(spec.threads)
     pipe = MotionPipeline.from_pretrained(spec.checkpoint, device=spec.device, engine=spec.engine)
+    pipe.add_variants(spec.adapters)
     conn.send(("loaded", None))
     warm_up(pipe)
     conn.send(("ready", None))
@@ -211,8 +217,9 @@ class ProcessWorker:
     """A supervised worker process: started (and restarted after it dies) by a supervising thread; jobs in
     flight when it dies fail with a 503; after ``WORKER_MAX_FAILED_STARTS`` deaths before ready it gives up."""
 
-    def __init__(self, spec: WorkerSpec, config):
+    def __init__(self, spec: WorkerSpec, config, adapters: tuple[str, ...] = ()):
         self.spec, self.config = spec, config  # config: the checkpoint's CheckpointConfig (frame rate, range)
+        self.adapters = tuple(adapters)  # the names of spec.adapters: what requests may name
         self._inbox: queue.Queue = queue.Queue()
         self._state, self._loaded, self._warm, self._restarts, self._busy = "stopped", False, False, 0, False
         self._proc = None

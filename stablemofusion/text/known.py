@@ -29,6 +29,9 @@ from .frozen import sentence_embedding
 ACTIONS_FILE = "actions.json"
 EMBEDDINGS_FILE = "actions.safetensors"
 MAX_EMBEDDINGS_BYTES = 64 * 2**20  # a larger embeddings file is not read (the examples are encoded instead)
+# a prompt this similar (cosine of sentence embeddings) to a caption an adapter was taught is in domain
+# (benchmarks/adapt_check.py measures it on held-out prompts of the taught action and on foreign ones)
+TAUGHT_SIMILARITY = 0.6
 
 
 @dataclass(frozen=True)
@@ -68,6 +71,24 @@ class KnownActions:
         self.detector = detector
         self._emb: torch.Tensor | None = None
         self._owner = torch.tensor([i for i, examples in enumerate(actions.values()) for _ in examples])
+        self.taught: dict[str, list[str]] = {}  # actions adapters added: label -> their captions
+        self._taught_emb: torch.Tensor | None = None
+
+    def with_taught(self, taught: list[dict[str, list[str]]]) -> "KnownActions":
+        """A copy that also knows adapters' actions (each a dict label -> captions): a prompt at least
+        TAUGHT_SIMILARITY similar (cosine) to one of their captions is in domain, and they count among the
+        closest actions."""
+        import copy
+
+        new = copy.copy(self)
+        new.taught = {k: list(v) for k, v in self.taught.items()}
+        for actions in taught:
+            for label, captions in actions.items():
+                if not captions:
+                    raise SMFError(f"adapter action {label!r} has no captions")
+                new.taught.setdefault(label, []).extend(captions)
+        new._taught_emb = None
+        return new
 
     @classmethod
     def load(cls, path: str | Path, text_cache) -> "KnownActions":
@@ -157,18 +178,32 @@ class KnownActions:
         best = torch.full((len(emb), len(self.actions)), -1.0)
         return best.scatter_reduce(1, self._owner.expand(len(emb), -1), sims, reduce="amax")
 
+    def taught_similarities(self, emb: torch.Tensor) -> torch.Tensor:
+        """(B, A') largest cosine similarity of sentence embeddings ``emb`` to each taught action's captions."""
+        if self._taught_emb is None:
+            self._taught_emb = self.embed([c for caps in self.taught.values() for c in caps])
+        owner = torch.tensor([i for i, caps in enumerate(self.taught.values()) for _ in caps])
+        best = torch.full((len(emb), len(self.taught)), -1.0)
+        return best.scatter_reduce(1, owner.expand(len(emb), -1), emb @ self._taught_emb.T, reduce="amax")
+
     def check_many(self, prompts: list[str]) -> list[DomainCheck]:
         self.examples_embedding()  # the examples first (when not stored): their encoding batches stay as they were
         emb = self.embed(list(prompts))
         sims = self._similarities(emb)
         scores = None if self.detector is None else self.detector.scores(emb)
         labels = list(self.actions)
+        if self.taught:  # an adapter's actions: known when a prompt is close to one of their captions
+            sims = torch.cat([sims, self.taught_similarities(emb)], dim=1)
+            labels += list(self.taught)
         out = []
         for b, row in enumerate(sims):
             order = torch.argsort(row, descending=True)[: self.top]
             closest = tuple((labels[int(i)], float(row[i])) for i in order)
             score = closest[0][1] if scores is None else float(scores[b])
-            out.append(DomainCheck(score, closest, score < self.threshold))
+            out_of_domain = score < self.threshold
+            if out_of_domain and self.taught and float(row[len(self.actions):].max()) >= TAUGHT_SIMILARITY:
+                out_of_domain = False  # the score stays the base model's: the adapter's caption decided
+            out.append(DomainCheck(score, closest, out_of_domain))
         return out
 
     def check(self, prompt: str) -> DomainCheck:

@@ -213,7 +213,7 @@ def test_distil_refuses_bad_inputs(teacher, student, corpus, text_cache, tmp_pat
 def test_regression_targets_and_predictions_are_the_pipelines_samples(teacher, student):
     """What regression distillation compares is what the pipeline draws: the teacher's deterministic sample and
     the student's consistency sample from the same noise (so the student learns the teacher's noise-to-motion map)."""
-    from stablemofusion.diffusion.distil import _student_sample, _teacher_sample
+    from stablemofusion.diffusion.distil import student_sample, teacher_sample
     from stablemofusion.diffusion.sampling import Noise
     from stablemofusion.pipeline import MotionPipeline
 
@@ -231,9 +231,9 @@ def test_regression_targets_and_predictions_are_the_pipelines_samples(teacher, s
         drop, ws = torch.zeros(2, dtype=torch.bool), torch.full((2,), w)
         with torch.no_grad():
             if pipe.student:
-                got = _student_sample(c.model, eps, tokens, tmask, drop, mask, ws, table, step_noise)
+                got = student_sample(c.model, eps, tokens, tmask, drop, mask, ws, table, step_noise)
             else:
-                got = _teacher_sample(c.model, eps, tokens, tmask, drop, mask, ws, table)
+                got = teacher_sample(c.model, eps, tokens, tmask, drop, mask, ws, table)
         got = c.denormalise(got)
         for i, n in enumerate(lengths):
             assert torch.allclose(got[i, :n], want[i, :n], atol=1e-4), (folder.name, sampler)
@@ -319,8 +319,8 @@ def test_length_mix_samples_teacher_and_student_at_the_drawn_length(teacher, stu
             return fn(model, eps, tokens, tmask, drop, mask, *rest)
         return wrapped
 
-    monkeypatch.setattr(D, "_teacher_sample", spy("teacher", D._teacher_sample))
-    monkeypatch.setattr(D, "_student_sample", spy("student", D._student_sample))
+    monkeypatch.setattr(D, "teacher_sample", spy("teacher", D.teacher_sample))
+    monkeypatch.setattr(D, "student_sample", spy("student", D.student_sample))
     assert main(_regression_args(teacher, student, corpus, text_cache, tmp_path / "mix", "--steps", "8",
                                  "--length-mix", "0.5")) == 0
     cfg = read_config(tmp_path / "mix")

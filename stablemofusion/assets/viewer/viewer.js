@@ -210,6 +210,7 @@ $('form').addEventListener('submit', async (ev) => {
   if ($('live').checked) { livePrompt($('prompt').value); return; }
   const common = { footskate: $('footskate').value };
   if ($('seed').value.trim() !== '') common.seed = Number($('seed').value);  // else the server draws one
+  if ($('adapter').value !== '') common.adapter = $('adapter').value;  // else the base model
   state.ready = false;
   $('generate').disabled = true;
   status('generating...');
@@ -423,3 +424,16 @@ $('live').addEventListener('change', () => {
     liveStop();
   }
 });
+
+// the adapters the server loaded (smf serve --adapter): offered beside the base model
+(async () => {
+  try {
+    const health = await (await fetch('/v1/health')).json();
+    for (const name of health.adapters || []) {
+      const option = document.createElement('option');
+      option.value = option.textContent = name;
+      $('adapter').append(option);
+    }
+    $('adapter-label').hidden = !(health.adapters || []).length;
+  } catch (e) { /* no health: the base model only */ }
+})();

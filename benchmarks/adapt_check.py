@@ -1,0 +1,135 @@
+"""What an adapter taught and what it kept: a model with and without it (and optionally another beside them).
+
+    python benchmarks/adapt_check.py --base checkpoints/no-run --adapter RUN.safetensors \
+        --classifier CL --data CORPUS [--compare stablemofusion/assets/default_model] [--strips docs/images/x.png]
+
+For each model (the base, the base with the adapter, and ``--compare`` if given):
+- **taught action**: the held-out prompts of ``--prompts`` (benchmarks/adapt/run-prompts.txt: about running,
+  written before any measurement), ``--samples`` seeds each, 4 s, footskate post; the motion classifier names
+  each motion's content among dataset 2's: the share named ``--action``; the root's mean speed;
+- **other actions**: the free-form dev set (benchmarks/prompts_freeform.jsonl) without the taught action's
+  prompts: content accuracy (3 samples, 4 s, post);
+- **skate**: the skate ratio of the taught-action motions (post), beside real test-split clips of that action;
+- **out of domain**: the share of taught-action prompts warned, and of the held-out foreign prompts
+  (benchmarks/ood_heldout.txt);
+- **speed**: one 4 s motion (batch 1) and 32 at once, text cached, footskate off, best of ``--repeats``.
+Prints one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+HERE = Path(__file__).parent
+
+
+def read_lines(path: Path) -> list[str]:
+    return [s.strip() for s in path.read_text(encoding="utf-8").splitlines() if s.strip() and not s.startswith("#")]
+
+
+def speed(pipe, repeats: int) -> dict:
+    """Best seconds of one 4 s motion and of 32 (text cached, footskate off)."""
+    prompts = ["a person runs forward"] * 32
+    pipe.encode_text(prompts[:1])
+    out = {}
+    for n in (1, 32):
+        pipe(prompts[:n], seconds=4, seed=list(range(n)), footskate="off")  # warm
+        best = float("inf")
+        for _ in range(repeats):
+            t = time.perf_counter()
+            pipe(prompts[:n], seconds=4, seed=list(range(n)), footskate="off")
+            best = min(best, time.perf_counter() - t)
+        out[f"batch_{n}_ms"] = round(best * 1000, 1)
+    return out
+
+
+def real_clips(data: Path, action: str, split: str = "test") -> list[np.ndarray]:
+    """Joints of the corpus's dataset-2 clips of ``action`` in ``split``."""
+    import csv
+
+    ids = set((data / f"{split}.txt").read_text().split())
+    rows = [r for r in csv.DictReader(open(data / "clips.csv")) if r["content"] == action and r["dataset"] == "2"]
+    return [np.load(data / "new_joints" / f"{r['id']}.npy") for r in rows if r["id"] in ids]
+
+
+def main() -> None:
+    from stablemofusion.data.labels import corpus_labels
+    from stablemofusion.eval.classifier import dataset_labels, load_classifier
+    from stablemofusion.eval.prompts import load_prompts, prompt_accuracy
+    from stablemofusion.footskate.metrics import mean_metrics
+    from stablemofusion.pipeline import MotionPipeline
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--base", type=Path, default=None, help="the model the adapter was made for (default: shipped)")
+    ap.add_argument("--adapter", type=Path, action="append", required=True)
+    ap.add_argument("--compare", type=Path, default=None, help="another model folder measured beside them")
+    ap.add_argument("--classifier", type=Path, required=True)
+    ap.add_argument("--data", type=Path, required=True, help="the labelled corpus (real clips for the skate figure)")
+    ap.add_argument("--action", default="run")
+    ap.add_argument("--prompts", type=Path, default=HERE / "adapt" / "run-prompts.txt")
+    ap.add_argument("--samples", type=int, default=3)
+    ap.add_argument("--others", type=Path, default=HERE / "prompts_freeform.jsonl")
+    ap.add_argument("--skip-others", action="store_true")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--strips", type=Path, default=None, help="PNG: three taught-action prompts, a row per model")
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    warnings.simplefilter("ignore")
+    classifier = load_classifier(args.classifier)
+    labels = corpus_labels(args.data)
+    allowed = dataset_labels(labels, 2)
+    prompts = read_lines(args.prompts)
+    foreign = read_lines(HERE / "ood_heldout.txt")
+    others = [it for it in load_prompts(args.others) if args.action not in it.contents and not it.ood]
+    base = MotionPipeline.from_pretrained(args.base, device="cpu")
+    models = {"base": base, "base+adapter": base.with_adapters(args.adapter)}
+    if args.compare is not None:
+        models["compare"] = MotionPipeline.from_pretrained(args.compare, device="cpu")
+    report: dict = {"prompts": len(prompts), "samples": args.samples, "others": len(others),
+                    "real_skate": mean_metrics(real_clips(args.data, args.action))["skate_ratio"], "models": {}}
+    seeds = [k for _ in prompts for k in range(args.samples)]
+    rep = [p for p in prompts for _ in range(args.samples)]
+    strips = []
+    for name, pipe in models.items():
+        t0 = time.perf_counter()
+        res = []
+        for a in range(0, len(rep), 32):
+            res += pipe(rep[a:a + 32], seconds=4, seed=seeds[a:a + 32], footskate="post")
+        pred = classifier.predict([r.features for r in res], [allowed] * len(res))
+        hit = [p[0] == args.action for p in pred]
+        speeds = [float(np.linalg.norm(np.diff(r.joints[:, 0, [0, 2]], axis=0), axis=1).mean() * r.fps) for r in res]
+        row = {"taught_accuracy": round(float(np.mean(hit)), 3),
+               "per_prompt": {p: round(float(np.mean(hit[i * args.samples:(i + 1) * args.samples])), 2)
+                              for i, p in enumerate(prompts)},
+               "predicted": {c: sum(p[0] == c for p in pred) for c in sorted({p[0] for p in pred})},
+               "root_speed_m_s": round(float(np.mean(speeds)), 3),
+               "skate_post": round(mean_metrics([r.joints for r in res])["skate_ratio"], 4),
+               "warned_taught": round(float(np.mean([pipe.known_actions.check(p).out_of_domain for p in prompts])), 3),
+               "warned_foreign": round(float(np.mean([pipe.known_actions.check(p).out_of_domain for p in foreign])), 3)}
+        if not args.skip_others:
+            acc = prompt_accuracy(pipe, classifier, others, labels, samples=3, seconds=4.0, footskate="post")
+            row["others_content_accuracy"] = {k: round(v["content_acc"], 3) for k, v in acc.items()
+                                              if isinstance(v, dict) and "content_acc" in v}
+        row["speed"] = speed(pipe, args.repeats)
+        row["seconds"] = round(time.perf_counter() - t0, 1)
+        report["models"][name] = row
+        strips += [(f"{name}: {p}", r.joints) for p, r in zip(prompts[:3], res[::args.samples][:3])]
+        print(name, json.dumps(row), flush=True)
+    if args.strips is not None:
+        from stablemofusion.render import render_strip
+
+        order = [s for k in range(3) for s in strips[k::3]]
+        render_strip(order, [0, 16, 32, 48, 64, 79], args.strips, size=180)
+    print(json.dumps(report, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,149 @@
+"""The adapter file: one ``.safetensors`` holding the low-rank weights of a student and its teacher, with what
+they were taught (the actions and their captions), the base model they fit (sha256 of its weights files) and
+the licence the user states for their clips.
+
+Tensors: ``student/<layer>.lora_A.weight``, ``student/<layer>.lora_B.weight``, the same under ``teacher/``
+(float16). Metadata (strings): ``format`` = ``stablemofusion-adapter``, ``info`` = :class:`AdapterInfo` as
+JSON. An adapter never changes the base model's files: it is merged into a loaded copy
+(:func:`stablemofusion.adapters.lora.merge_into`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+
+from ..errors import SMFError
+from .lora import LoraConfig, layer_deltas
+
+FORMAT = "stablemofusion-adapter"
+VERSION = 1
+MAX_ADAPTER_BYTES = 256 * 2**20  # a larger file is not an adapter of the models this package runs
+PARTS = ("student", "teacher")
+
+
+def weights_hash(folder: str | Path) -> str:
+    """sha256 of the weights file a model folder loads (its EMA weights if it has them): what an adapter records
+    of its base and checks at load."""
+    from ..diffusion.checkpoint import EMA, MODEL, resolve
+
+    folder = resolve(folder)
+    path = folder / EMA if (folder / EMA).is_file() else folder / MODEL
+    if not path.is_file():
+        raise SMFError(f"{folder}: no weights file {MODEL}")
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+@dataclass
+class AdapterInfo:
+    """What an adapter is: ``actions`` label -> the captions it was taught (the out-of-domain check knows
+    them); ``clips`` (file, caption) pairs; ``base`` part -> sha256 of the base weights it fits;
+    ``guidance`` the student's guidance scale it was distilled at; ``training`` figures of the run."""
+
+    name: str
+    actions: dict[str, list[str]]
+    clips: list[tuple[str, str]]
+    licence: str
+    base: dict[str, str]
+    lora: LoraConfig
+    guidance: float | None = None
+    training: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["clips"] = [list(c) for c in self.clips]
+        return d
+
+    @staticmethod
+    def from_dict(d: dict) -> "AdapterInfo":
+        d = dict(d)
+        d["lora"] = LoraConfig(**d["lora"])
+        d["clips"] = [tuple(c) for c in d["clips"]]
+        return AdapterInfo(**d)
+
+
+@dataclass
+class Adapter:
+    """An adapter in memory: its info and, per part (student, teacher), its LoRA weights."""
+
+    info: AdapterInfo
+    weights: dict[str, dict[str, torch.Tensor]]
+
+    def deltas(self, part: str) -> dict[str, torch.Tensor]:
+        """Dense weight updates of ``part`` (layer weight name -> tensor); SMFError when it has none."""
+        if part not in self.weights or not self.weights[part]:
+            raise SMFError(f"adapter {self.info.name!r} has no {part} weights")
+        return layer_deltas(self.weights[part], self.info.lora.scale)
+
+    def check_base(self, part: str, folder: str | Path) -> None:
+        """SMFError unless ``folder`` holds the very weights this adapter's ``part`` was trained on."""
+        want = self.info.base.get(part)
+        if want is None or weights_hash(folder) != want:
+            raise SMFError(f"adapter {self.info.name!r} was trained on another base model than {folder} "
+                           f"(its {part} weights differ); adapt this model again with `smf adapt --base {folder}`")
+
+    def save(self, path: str | Path) -> Path:
+        """Write the adapter file atomically (float16 weights)."""
+        from safetensors.torch import save_file
+
+        from ..io import atomic_path
+
+        tensors = {f"{part}/{k}": v.to(torch.float16).contiguous() for part, w in self.weights.items()
+                   for k, v in w.items()}
+        path = Path(path)
+        with atomic_path(path) as tmp:
+            save_file(tensors, str(tmp), metadata={"format": FORMAT, "version": str(VERSION),
+                                                   "info": json.dumps(self.info.to_dict())})
+            tmp.chmod(0o644)
+        return path
+
+    @staticmethod
+    def load(path: str | Path) -> "Adapter":
+        """Read an adapter file; a one-line SMFError for anything that is not one."""
+        from safetensors import SafetensorError, safe_open
+
+        path = Path(path)
+        if not path.is_file():
+            raise SMFError(f"no such adapter file: {path}")
+        if path.stat().st_size > MAX_ADAPTER_BYTES:
+            raise SMFError(f"{path}: {path.stat().st_size / 2**20:.0f} MB is too large for an adapter")
+        try:
+            with safe_open(str(path), framework="pt", device="cpu") as f:
+                meta = f.metadata() or {}
+                if meta.get("format") != FORMAT:
+                    raise SMFError(f"{path}: not a stablemofusion adapter (make one with `smf adapt`)")
+                if int(meta.get("version", 0)) > VERSION:
+                    raise SMFError(f"{path}: adapter format {meta['version']} is newer than this version reads")
+                info = AdapterInfo.from_dict(json.loads(meta["info"]))
+                weights: dict[str, dict[str, torch.Tensor]] = {p: {} for p in PARTS}
+                for key in f.keys():
+                    part, _, name = key.partition("/")
+                    if part not in weights:
+                        raise SMFError(f"{path}: unexpected tensor {key}")
+                    weights[part][name] = f.get_tensor(key).float()
+        except (SafetensorError, OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
+            raise SMFError(f"{path}: not a readable adapter file ({str(e).splitlines()[0]})") from None
+        return Adapter(info, weights)
+
+
+def load_adapters(paths) -> list[Adapter]:
+    """Adapters from file paths (one path or several); their names must differ."""
+    if paths is None:
+        return []
+    paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    adapters = [a if isinstance(a, Adapter) else Adapter.load(a) for a in paths]
+    names = [a.info.name for a in adapters]
+    if len(set(names)) != len(names):
+        raise SMFError(f"two adapters share a name ({', '.join(names)}); name them apart with `smf adapt --name`")
+    return adapters
+
+
+__all__ = ["Adapter", "AdapterInfo", "FORMAT", "load_adapters", "weights_hash"]

@@ -1,0 +1,116 @@
+"""Low-rank adapters (LoRA, Hu et al. 2021) of a denoiser: which layers, how they are trained, how they merge.
+
+Training wraps the chosen layers with ``peft``'s LoRA layers (the base weights frozen); an adapter is the
+``lora_A``/``lora_B`` pairs of those layers. Loading merges them into a plain denoiser once:
+``W <- W + (alpha / rank) * B @ A`` for a linear layer; for a 1-D convolution (A: (r, in, k), B: (out, r, 1))
+``W[o, i, k] += (alpha / rank) * sum_r B[o, r] A[r, i, k]``. The merged model is the base model's class with
+other weights, so every engine and runtime runs it at the base model's speed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+
+from ..errors import SMFError
+
+# the layers an adapter may change: every Linear and Conv1d of the denoiser except the text transformer's
+# attention output projections (nn.MultiheadAttention reads their weight directly, so a wrapper would be skipped)
+SKIPPED = ("self_attn.out_proj",)
+LORA_A, LORA_B = ".lora_A.weight", ".lora_B.weight"
+
+
+@dataclass(frozen=True)
+class LoraConfig:
+    """Rank and scale of the low-rank updates (``alpha / rank`` multiplies B @ A)."""
+
+    rank: int = 16
+    alpha: float = 16.0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @property
+    def scale(self) -> float:
+        return self.alpha / self.rank
+
+
+def target_layers(model: nn.Module) -> list[str]:
+    """Names of the layers an adapter trains (Linear and Conv1d, except :data:`SKIPPED`)."""
+    return [n for n, m in model.named_modules()
+            if isinstance(m, (nn.Linear, nn.Conv1d)) and not any(n.endswith(s) for s in SKIPPED)]
+
+
+def add_lora(model: nn.Module, cfg: LoraConfig) -> nn.Module:
+    """Wrap ``model``'s target layers with trainable LoRA layers (B zero-initialised, so the model starts as
+    the base); every base weight is frozen. Changes ``model`` in place and returns it."""
+    from peft import LoraConfig as PeftLoraConfig
+    from peft import inject_adapter_in_model
+
+    peft_cfg = PeftLoraConfig(r=cfg.rank, lora_alpha=cfg.alpha, target_modules=target_layers(model), lora_dropout=0.0)
+    return inject_adapter_in_model(peft_cfg, model)
+
+
+@contextlib.contextmanager
+def no_fast_path():
+    """Within it, nn.TransformerEncoderLayer runs its layers as modules: its inference fast path reads the
+    linear weights directly and would skip the LoRA wrappers of a wrapped model (merged models need no care)."""
+    before = torch.backends.mha.get_fastpath_enabled()
+    torch.backends.mha.set_fastpath_enabled(False)
+    try:
+        yield
+    finally:
+        torch.backends.mha.set_fastpath_enabled(before)
+
+
+def lora_state(model: nn.Module) -> dict[str, torch.Tensor]:
+    """The LoRA weights of a wrapped model: ``<layer>.lora_A.weight`` and ``<layer>.lora_B.weight``."""
+    from peft import get_peft_model_state_dict
+
+    return {k: v.detach().cpu().clone() for k, v in get_peft_model_state_dict(model).items()}
+
+
+def load_lora_state(model: nn.Module, state: dict[str, torch.Tensor]) -> None:
+    """Put saved LoRA weights back into a wrapped model (resuming)."""
+    from peft import set_peft_model_state_dict
+
+    result = set_peft_model_state_dict(model, state)
+    if getattr(result, "unexpected_keys", None):
+        raise SMFError(f"adapter weights do not fit the model (e.g. {result.unexpected_keys[0]})")
+
+
+def layer_deltas(state: dict[str, torch.Tensor], scale: float) -> dict[str, torch.Tensor]:
+    """``<layer>.weight`` -> the dense update ``scale * B @ A`` of each adapted layer (shape of the weight)."""
+    out = {}
+    for key in state:
+        if not key.endswith(LORA_A):
+            continue
+        layer = key[: -len(LORA_A)]
+        a, b = state[key].float(), state.get(layer + LORA_B)
+        if b is None:
+            raise SMFError(f"adapter layer {layer} has lora_A but no lora_B")
+        b = b.float()
+        if a.ndim == 2:  # linear: (r, in), (out, r)
+            delta = b @ a
+        else:  # conv1d: (r, in, k), (out, r, 1)
+            delta = torch.einsum("or,rik->oik", b[..., 0], a)
+        out[layer + ".weight"] = scale * delta
+    return out
+
+
+def merge_into(model: nn.Module, deltas: dict[str, torch.Tensor]) -> None:
+    """Add dense updates (:func:`layer_deltas`) to a plain model's weights, in place."""
+    params = dict(model.named_parameters())
+    for name, delta in deltas.items():
+        p = params.get(name)
+        if p is None or p.shape != delta.shape:
+            raise SMFError(f"the adapter changes {name}, which this model {'lacks' if p is None else 'shapes differently'}"
+                           " (an adapter fits only the base model it was trained on)")
+        with torch.no_grad():
+            p.add_(delta.to(device=p.device, dtype=p.dtype))
+
+
+__all__ = ["LoraConfig", "add_lora", "no_fast_path", "layer_deltas", "load_lora_state", "lora_state", "merge_into", "target_layers"]

@@ -1,0 +1,96 @@
+"""`smf adapt --data DIR --out ADAPTER.safetensors --licence TEXT [--base MODEL] [--joint-map NAME|FILE] ...`."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..adapters.train import AdaptConfig
+from .flags import add_config_flags, apply_threads, config_from_args
+
+_FLAGS = {  # AdaptConfig field -> help
+    "rank": "rank of the low-rank updates", "alpha": "their scale is alpha / rank",
+    "teacher_steps": "steps of the teacher's adaptation (diffusion loss on the clips)",
+    "student_steps": "steps of the student's adaptation (regression on the adapted teacher)",
+    "batch_size": "motions per step", "teacher_lr": "AdamW learning rate of the teacher's updates",
+    "student_lr": "AdamW learning rate of the student's updates",
+    "replay": "share of each batch replaying what the base model already does (keeps its other actions)",
+    "replay_prompts": "prompts of the base's known actions replayed", "pool": "student targets per side",
+    "cond_drop": "share of the teacher's items trained without text", "grad_clip": "gradient norm clip",
+    "seed": "random seed", "checkpoint_every": "steps between resumable checkpoints",
+}
+
+
+def add_parser(sub, name: str) -> None:
+    p = sub.add_parser(name, description="Teach a model your moves: a folder of BVH clips (any rig, through a joint "
+                                         "map) and their captions become a small adapter file, loaded with "
+                                         "`--adapter` by generate, edit and serve. Resumable with --resume.")
+    p.add_argument("--data", type=Path, required=True, help="folder of .bvh clips (searched recursively)")
+    p.add_argument("--out", type=Path, required=True, help="the adapter file to write (.safetensors)")
+    p.add_argument("--licence", required=True,
+                   help="the licence of your clips, carried in the adapter (e.g. 'CC BY 4.0', 'proprietary')")
+    p.add_argument("--base", type=Path, default=None, help="the model to adapt (default: the shipped model)")
+    p.add_argument("--joint-map", default="bandai-namco",
+                   help="built-in joint map name (bandai-namco, mixamo, humanml3d) or a JSON file")
+    p.add_argument("--captions", type=Path, default=None,
+                   help="CSV with header 'file,caption' (default: DATA/captions.csv)")
+    p.add_argument("--caption", default=None, help="one caption for every clip")
+    p.add_argument("--captions-from-names", action="store_true",
+                   help="captions from the file names ('kick_high_02.bvh' -> 'a person kick high')")
+    p.add_argument("--name", default=None, help="the adapter's name and its action's label (default: --out's stem)")
+    p.add_argument("--unit", default="auto", choices=["auto", "m", "cm", "mm", "inch"],
+                   help="length unit of the BVH files")
+    p.add_argument("--work", type=Path, default=None, help="resumable work folder (default: OUT.work)")
+    p.add_argument("--resume", action="store_true", help="continue an interrupted run from its work folder")
+    p.add_argument("--report", type=Path, default=None,
+                   help="folder for the report (default: OUT.report): captions, figures, a strip per caption")
+    p.add_argument("--no-report", action="store_true", help="write no report")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing adapter file")
+    p.add_argument("--threads", type=int, default=None, help="CPU threads for torch (default: torch's choice)")
+    p.add_argument("--no-progress", action="store_true")
+    add_config_flags(p, AdaptConfig, _FLAGS)
+    p.add_argument("--stop-after", type=int, nargs=2, default=None, help=argparse.SUPPRESS)  # simulate a kill (tests)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> None:
+    import sys
+    import time
+
+    from ..errors import SMFError
+
+    cfg = config_from_args(AdaptConfig, args, _FLAGS).check()
+    if args.out.exists() and not args.overwrite:
+        raise SMFError(f"{args.out} exists; pass --overwrite to replace it")
+    if args.out.suffix != ".safetensors":
+        raise SMFError(f"--out must end in .safetensors, got {args.out.name}")
+    if not args.licence.strip():
+        raise SMFError("--licence must say under which terms your clips may be used")
+    apply_threads(args.threads)
+    t0 = time.perf_counter()
+    from ..adapters.clips import read_clips
+    from ..adapters.train import adapt
+    from ..pipelines.components import model_folder
+    from ..diffusion.checkpoint import read_config
+
+    base = model_folder(args.base)
+    config = read_config(base)
+    clips, source = read_clips(args.data, args.joint_map, captions=args.captions, caption=args.caption,
+                               from_names=args.captions_from_names, min_frames=config.min_frames, unit=args.unit,
+                               skeleton=config.skeleton, progress=not args.no_progress)
+    seconds = sum(c.frames for c in clips) / config.fps
+    print(f"smf adapt: {len(clips)} clips ({seconds:.0f} s of motion), captions from {source}", file=sys.stderr)
+    adapter = adapt(args.base, clips, args.out, cfg, name=args.name or args.out.stem, licence=args.licence.strip(),
+                    work=args.work, resume=args.resume, progress=not args.no_progress,
+                    stop_after=tuple(args.stop_after) if args.stop_after else None, source=source)
+    if adapter is None:
+        print(f"stopped; resume with --resume (work folder {args.work or str(args.out) + '.work'})")
+        return
+    size = args.out.stat().st_size / 2**20
+    print(f"wrote {args.out} ({size:.1f} MB) in {time.perf_counter() - t0:.0f} s; use it with "
+          f"`smf generate --adapter {args.out} \"...\"`")
+    if not args.no_report:
+        from ..adapters.report import write_report
+
+        report = write_report(adapter, args.out, args.base, args.report or Path(str(args.out) + ".report"))
+        print(f"report: {report}")

@@ -1,0 +1,172 @@
+"""`smf adapt` end to end on real clips and a tiny student/teacher pair: the file, loading it, resuming exactly,
+the clip checks, the command line."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from stablemofusion.adapters.clips import caption_from_name, read_clips
+from stablemofusion.adapters.file import Adapter, weights_hash
+from stablemofusion.adapters.train import AdaptConfig, adapt
+from stablemofusion.errors import SMFError
+
+CLIPS = ("dataset-2_walk-turn-left_normal_001", "dataset-1_walk_normal_001", "dataset-2_wave-left-hand_active_001")
+CFG = AdaptConfig(rank=2, teacher_steps=4, student_steps=3, batch_size=4, pool=6, replay_prompts=4,
+                  checkpoint_every=2)
+
+
+@pytest.fixture(scope="module")
+def clip_folder(bandai_mini_source, tmp_path_factory) -> Path:
+    """Three real BVH clips as a user's folder, with a captions.csv."""
+    out = tmp_path_factory.mktemp("clips")
+    for name in CLIPS:
+        src = next(bandai_mini_source.rglob(f"{name}.bvh"))
+        shutil.copy(src, out / f"{name}.bvh")
+    (out / "captions.csv").write_text("file,caption\n" + "".join(
+        f"{n}.bvh,a person {n.split('_')[1]}s\n" for n in CLIPS) + f"{CLIPS[0]}.bvh,\"someone walks, then turns left\"\n")
+    return out
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory, save_tiny_checkpoint, save_tiny_student) -> Path:
+    """A tiny student with its teacher in teacher/ and known actions (what `smf adapt` replays)."""
+    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.text.known import KnownActions
+
+    folder = tmp_path_factory.mktemp("base") / "model"
+    mean, std = np.zeros(263), np.full(263, 0.5)
+    mean[3] = 0.9
+    teacher = save_tiny_checkpoint(folder / "teacher", mean, std)
+    save_tiny_student(folder / "staging", teacher, name="teacher")
+    for f in (folder / "staging").iterdir():
+        f.rename(folder / f.name)
+    pipe = MotionPipeline.from_pretrained(folder, device="cpu")
+    KnownActions({"wave": ["a person waves", "someone waves a hand"], "bow": ["a person bows"]}, 0.5,
+                 pipe.text_cache).save(folder)
+    return folder
+
+
+def test_clips_are_read_with_their_captions(clip_folder):
+    clips, source = read_clips(clip_folder, "bandai-namco")
+    assert source.endswith("captions.csv")
+    assert [c.file for c in clips] == sorted(f"{n}.bvh" for n in CLIPS)
+    turn = next(c for c in clips if "turn" in c.file)
+    assert turn.captions == ("a person walk-turn-lefts", "someone walks, then turns left")
+    assert all(c.features.shape[1] == 263 and c.frames >= 40 for c in clips)
+    one, source = read_clips(clip_folder, "bandai-namco", caption="a person moves")
+    assert all(c.captions == ("a person moves",) for c in one) and "--caption" in source
+    assert caption_from_name("kick_high_02.bvh") == "a person kick high"
+
+
+def test_bad_clip_folders_are_one_line_errors(clip_folder, bandai_mini_source, tmp_path):
+    with pytest.raises(SMFError, match="no .bvh files"):
+        read_clips(tmp_path, "bandai-namco")
+    folder = tmp_path / "clips"
+    shutil.copytree(clip_folder, folder)
+    with pytest.raises(SMFError, match="one source of captions"):
+        read_clips(folder, "bandai-namco", caption="x", from_names=True)
+    (folder / "captions.csv").write_text("file,caption\n" + f"{CLIPS[0]}.bvh,a person runs\n")
+    with pytest.raises(SMFError, match="no caption in"):
+        read_clips(folder, "bandai-namco")
+    (folder / "captions.csv").write_text("file,caption\nmissing.bvh,a person runs\n")
+    with pytest.raises(SMFError, match="not .bvh files under"):
+        read_clips(folder, "bandai-namco")
+    (folder / "captions.csv").unlink()
+    with pytest.raises(SMFError, match="no captions for"):
+        read_clips(folder, "bandai-namco")
+    short = tmp_path / "short"
+    short.mkdir()
+    shutil.copy(next(bandai_mini_source.rglob("dataset-1_run_normal_001.bvh")), short)  # 0.80 s
+    with pytest.raises(SMFError, match="run_normal_001.bvh: 0.80 s is too short"):
+        read_clips(short, "bandai-namco", caption="a person runs")
+    with pytest.raises(SMFError, match="lacks|lack"):  # a rig the joint map does not fit
+        read_clips(folder, "mixamo", caption="x")
+
+
+def test_replay_leaves_out_what_is_taught(base):
+    from stablemofusion.adapters.train import replay_prompts
+    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.text.frozen import sentence_embedding
+
+    pipe = MotionPipeline.from_pretrained(base, device="cpu")
+
+    def embed(texts):
+        tokens, mask = pipe.text_cache.get_or_compute(texts)
+        return sentence_embedding(tokens.float(), mask)
+
+    known = {"walk": ["a person walks", "a man walks ahead"], "wave": ["a person waves"], "bow": ["a person bows"]}
+    got = replay_prompts(known, ["a person waves a hand"], embed, limit=10)
+    assert got == ["a person walks", "a person bows", "a man walks ahead"]  # in turn from each action
+    assert replay_prompts(known, ["a person waves a hand"], embed, limit=2) == ["a person walks", "a person bows"]
+
+
+def _weights(a: Adapter) -> dict[str, torch.Tensor]:
+    return {f"{p}/{k}": v for p, w in a.weights.items() for k, v in w.items()}
+
+
+def test_adapt_writes_an_adapter_that_loads_and_resumes_exactly(base, clip_folder, tmp_path):
+    from stablemofusion.pipeline import MotionPipeline
+
+    torch.set_num_threads(1)
+    clips, _ = read_clips(clip_folder, "bandai-namco")
+    full = adapt(base, clips, tmp_path / "run.safetensors", CFG, name="run", licence="CC BY-NC 4.0", progress=False)
+    loaded = Adapter.load(tmp_path / "run.safetensors")
+    assert loaded.info.name == "run" and loaded.info.licence == "CC BY-NC 4.0"
+    assert loaded.info.base == {"student": weights_hash(base), "teacher": weights_hash(base / "teacher")}
+    assert set(loaded.info.actions["run"]) == {c for clip in clips for c in clip.captions}
+    assert loaded.info.training["replay_prompts"] == 2  # "a person waves" is the taught wave clip's: not replayed
+    assert set(loaded.weights) == {"student", "teacher"} and all(loaded.weights.values())
+    assert (tmp_path / "run.safetensors").stat().st_size < 1 << 20
+
+    # resumed after an interruption in each stage: the same adapter as the uninterrupted run
+    for stop in ((1, 2), (2, 2)):
+        out = tmp_path / f"resumed-{stop[0]}.safetensors"
+        assert adapt(base, clips, out, CFG, name="run", licence="x", progress=False, stop_after=stop) is None
+        assert not out.exists()
+        again = adapt(base, clips, out, CFG, name="run", licence="x", progress=False, resume=True)
+        differ = [k for k, v in _weights(full).items() if not torch.equal(_weights(again)[k], v)]
+        assert not differ, (stop, len(differ), differ[:5])
+    with pytest.raises(SMFError, match="other clips"):
+        adapt(base, clips[:1], tmp_path / "resumed-1.safetensors", CFG, name="run", licence="x", progress=False,
+              resume=True, work=tmp_path / "resumed-1.safetensors.work")
+
+    # merged at load: the adapted student differs from the base, its teacher too; the taught captions are known
+    pipe = MotionPipeline.from_pretrained(base, device="cpu")
+    adapted = MotionPipeline.from_pretrained(base, device="cpu", adapter=tmp_path / "run.safetensors")
+    assert adapted.adapters == ("run",) and pipe.adapters == ()
+    a = pipe.denoise(["a person runs"], [40], seed=0)
+    b = adapted.denoise(["a person runs"], [40], seed=0)
+    assert (a - b).abs().max() > 1e-4
+    teacher = MotionPipeline.from_pretrained(base, teacher=True, device="cpu", adapter=tmp_path / "run.safetensors")
+    assert teacher.adapters == ("run",)
+    assert "run" in adapted.known_actions.taught and not pipe.known_actions.taught
+    from safetensors.torch import load_file, save_file
+
+    other = tmp_path / "other"  # the base with one weight changed: another model
+    shutil.copytree(base, other)
+    weights = load_file(other / "model.safetensors")
+    first = next(iter(weights))
+    save_file({**weights, first: weights[first] + 1}, str(other / "model.safetensors"))
+    with pytest.raises(SMFError, match="another base model"):
+        MotionPipeline.from_pretrained(other, device="cpu", adapter=tmp_path / "run.safetensors")
+
+
+def test_the_command_line_checks_before_it_trains(clip_folder, tmp_path):
+    def smf(*args):
+        return subprocess.run([sys.executable, "-m", "stablemofusion.cli.main", "adapt", *args], capture_output=True,
+                              text=True, timeout=120)
+
+    r = smf("--data", str(clip_folder), "--out", str(tmp_path / "a.safetensors"))
+    assert r.returncode == 2 and "--licence" in r.stderr
+    (tmp_path / "a.safetensors").write_bytes(b"")
+    r = smf("--data", str(clip_folder), "--out", str(tmp_path / "a.safetensors"), "--licence", "mine")
+    assert r.returncode == 2 and "--overwrite" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    r = smf("--data", str(tmp_path), "--out", str(tmp_path / "b.safetensors"), "--licence", "mine")
+    assert r.returncode == 2 and "no .bvh files" in r.stderr and "Traceback" not in r.stderr

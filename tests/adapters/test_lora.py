@@ -1,0 +1,103 @@
+"""Low-rank updates: the merged plain model computes what the wrapped one does; the adapter file round-trips."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from stablemofusion.adapters.file import Adapter, AdapterInfo, load_adapters, weights_hash
+from stablemofusion.adapters.lora import (LoraConfig, add_lora, layer_deltas, lora_state, merge_into, no_fast_path,
+                                          target_layers)
+from stablemofusion.diffusion.checkpoint import load_checkpoint
+from stablemofusion.errors import SMFError
+
+
+def _random_lora(model: torch.nn.Module, seed: int = 1) -> None:
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for name, p in model.named_parameters():
+            if "lora_" in name:
+                p.copy_(torch.randn(p.shape, generator=g) * 0.05)
+
+
+def _inputs(model, B: int = 3, T: int = 24):
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(B, T, 263, generator=g)
+    t = torch.tensor([10, 500, 990])
+    tokens = torch.randn(B, 5, model.text_config.in_dim, generator=g)
+    tmask = torch.ones(B, 5, dtype=torch.bool)
+    mask = torch.ones(B, T, dtype=torch.bool)
+    mask[1, 20:] = False
+    return x, t, tokens, tmask, torch.zeros(B, dtype=torch.bool), mask
+
+
+def test_merged_weights_compute_what_the_wrapped_model_does(tiny_checkpoint):
+    wrapped = load_checkpoint(tiny_checkpoint).model
+    plain = load_checkpoint(tiny_checkpoint).model
+    layers = target_layers(wrapped)
+    assert any(isinstance(m, torch.nn.Conv1d) for n, m in wrapped.named_modules() if n in layers)
+    assert not any(n.endswith("self_attn.out_proj") for n in layers)
+    cfg = LoraConfig(rank=4, alpha=8.0)
+    add_lora(wrapped, cfg)
+    _random_lora(wrapped)
+    state = lora_state(wrapped)
+    assert {k.rsplit(".lora_", 1)[0] for k in state} == set(layers)
+    with torch.no_grad(), no_fast_path():  # the wrapped model as it trains (its text layers through the wrappers)
+        want = wrapped.eval()(*_inputs(wrapped))
+        before = plain.eval()(*_inputs(plain))
+        merge_into(plain, layer_deltas(state, cfg.scale))
+        got = plain(*_inputs(plain))
+    assert (want - before).abs().max() > 1e-3  # the updates change the output
+    torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-5)
+
+
+def test_new_lora_layers_leave_the_model_unchanged_and_train_only_themselves(tiny_checkpoint):
+    model = load_checkpoint(tiny_checkpoint).model.eval()
+    with torch.no_grad():
+        before = model(*_inputs(model))
+    add_lora(model, LoraConfig(rank=2))
+    with torch.no_grad():
+        after = model(*_inputs(model))
+    torch.testing.assert_close(after, before)
+    trainable = [n for n, p in model.named_parameters() if p.requires_grad]
+    assert trainable and all("lora_" in n for n in trainable)
+
+
+def _adapter(tiny_checkpoint, name: str = "kick") -> Adapter:
+    model = load_checkpoint(tiny_checkpoint).model
+    add_lora(model, LoraConfig(rank=2))
+    _random_lora(model)
+    info = AdapterInfo(name=name, actions={name: ["a person kicks"]}, clips=[("kick_01.bvh", "a person kicks")],
+                       licence="CC BY 4.0", base={"student": "0" * 64, "teacher": weights_hash(tiny_checkpoint)},
+                       lora=LoraConfig(rank=2), guidance=2.5, training={"seconds": 1.0})
+    return Adapter(info, {"student": {}, "teacher": lora_state(model)})
+
+
+def test_adapter_file_round_trips_and_checks_its_base(tiny_checkpoint, tmp_path):
+    a = _adapter(tiny_checkpoint)
+    path = a.save(tmp_path / "kick.safetensors")
+    b = Adapter.load(path)
+    assert b.info == a.info
+    for k, v in a.weights["teacher"].items():
+        torch.testing.assert_close(b.weights["teacher"][k], v.half().float())
+    b.check_base("teacher", tiny_checkpoint)  # the weights it was made on
+    with pytest.raises(SMFError, match="another base model"):
+        b.check_base("student", tiny_checkpoint)
+    with pytest.raises(SMFError, match="no student weights"):
+        b.deltas("student")
+
+
+def test_bad_adapter_files_are_one_line_errors(tiny_checkpoint, tmp_path):
+    from safetensors.torch import save_file
+
+    with pytest.raises(SMFError, match="no such adapter file"):
+        Adapter.load(tmp_path / "absent.safetensors")
+    (tmp_path / "junk.safetensors").write_bytes(b"\x00" * 100)
+    with pytest.raises(SMFError, match="not a readable adapter file"):
+        Adapter.load(tmp_path / "junk.safetensors")
+    save_file({"w": torch.zeros(2)}, str(tmp_path / "other.safetensors"))
+    with pytest.raises(SMFError, match="not a stablemofusion adapter"):
+        Adapter.load(tmp_path / "other.safetensors")
+    a = _adapter(tiny_checkpoint).save(tmp_path / "a.safetensors")
+    with pytest.raises(SMFError, match="share a name"):
+        load_adapters([a, a])

@@ -139,3 +139,31 @@ def _save_tiny_student(path: Path, teacher: Path, name: str | None = None, sampl
                      distil=DistilConfig(teacher=str(teacher) if name is None else name, sample_steps=sample_steps))
     save_checkpoint(path, model=student_from_teacher(ck), config=config, mean=ck.mean, std=ck.std)
     return path
+
+
+@pytest.fixture(scope="session")
+def save_random_adapter():
+    """The function below, for tests in any folder."""
+    return _save_random_adapter
+
+
+def _save_random_adapter(path: Path, checkpoint: Path, name: str = "kick", seed: int = 1) -> Path:
+    """An adapter file of random low-rank updates (rank 2) for the (non-student) ``checkpoint``, saved at ``path``:
+    it fits that model and changes its motions; its action ``name`` has the caption "a person <name>s"."""
+    import torch
+
+    from stablemofusion.adapters.file import Adapter, AdapterInfo, weights_hash
+    from stablemofusion.adapters.lora import LoraConfig, add_lora, lora_state
+    from stablemofusion.diffusion.checkpoint import load_checkpoint
+
+    model = load_checkpoint(checkpoint).model
+    add_lora(model, LoraConfig(rank=2))
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for n, p in model.named_parameters():
+            if "lora_" in n:
+                p.copy_(torch.randn(p.shape, generator=g) * 0.05)
+    info = AdapterInfo(name=name, actions={name: [f"a person {name}s"]}, clips=[(f"{name}_01.bvh", f"a person {name}s")],
+                       licence="CC BY 4.0", base={"student": "0" * 64, "teacher": weights_hash(checkpoint)},
+                       lora=LoraConfig(rank=2), guidance=2.5, training={"seconds": 1.0})
+    return Adapter(info, {"student": {}, "teacher": lora_state(model)}).save(path)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from stablemofusion.adapters.file import Adapter, AdapterInfo, load_adapters, weights_hash
+from stablemofusion.adapters.file import Adapter, load_adapters
 from stablemofusion.adapters.lora import (LoraConfig, add_lora, layer_deltas, lora_state, merge_into, no_fast_path,
                                           target_layers)
 from stablemofusion.diffusion.checkpoint import load_checkpoint
@@ -63,23 +63,16 @@ def test_new_lora_layers_leave_the_model_unchanged_and_train_only_themselves(tin
     assert trainable and all("lora_" in n for n in trainable)
 
 
-def _adapter(tiny_checkpoint, name: str = "kick") -> Adapter:
-    model = load_checkpoint(tiny_checkpoint).model
-    add_lora(model, LoraConfig(rank=2))
-    _random_lora(model)
-    info = AdapterInfo(name=name, actions={name: ["a person kicks"]}, clips=[("kick_01.bvh", "a person kicks")],
-                       licence="CC BY 4.0", base={"student": "0" * 64, "teacher": weights_hash(tiny_checkpoint)},
-                       lora=LoraConfig(rank=2), guidance=2.5, training={"seconds": 1.0})
-    return Adapter(info, {"student": {}, "teacher": lora_state(model)})
-
-
-def test_adapter_file_round_trips_and_checks_its_base(tiny_checkpoint, tmp_path):
-    a = _adapter(tiny_checkpoint)
-    path = a.save(tmp_path / "kick.safetensors")
+def test_adapter_file_round_trips_and_checks_its_base(tiny_checkpoint, save_random_adapter, tmp_path):
+    path = save_random_adapter(tmp_path / "kick.safetensors", tiny_checkpoint)
     b = Adapter.load(path)
-    assert b.info == a.info
-    for k, v in a.weights["teacher"].items():
-        torch.testing.assert_close(b.weights["teacher"][k], v.half().float())
+    assert b.info.name == "kick" and b.info.licence == "CC BY 4.0" and b.info.lora == LoraConfig(rank=2)
+    assert all(v.dtype == torch.float32 and v.abs().max() > 0 for v in b.weights["teacher"].values())
+    b.save(tmp_path / "again.safetensors")
+    c = Adapter.load(tmp_path / "again.safetensors")
+    assert c.info == b.info
+    for k, v in b.weights["teacher"].items():
+        torch.testing.assert_close(c.weights["teacher"][k], v, rtol=0, atol=0)  # float16 values round-trip
     b.check_base("teacher", tiny_checkpoint)  # the weights it was made on
     with pytest.raises(SMFError, match="another base model"):
         b.check_base("student", tiny_checkpoint)
@@ -87,7 +80,7 @@ def test_adapter_file_round_trips_and_checks_its_base(tiny_checkpoint, tmp_path)
         b.deltas("student")
 
 
-def test_bad_adapter_files_are_one_line_errors(tiny_checkpoint, tmp_path):
+def test_bad_adapter_files_are_one_line_errors(tiny_checkpoint, save_random_adapter, tmp_path):
     from safetensors.torch import save_file
 
     with pytest.raises(SMFError, match="no such adapter file"):
@@ -98,6 +91,6 @@ def test_bad_adapter_files_are_one_line_errors(tiny_checkpoint, tmp_path):
     save_file({"w": torch.zeros(2)}, str(tmp_path / "other.safetensors"))
     with pytest.raises(SMFError, match="not a stablemofusion adapter"):
         Adapter.load(tmp_path / "other.safetensors")
-    a = _adapter(tiny_checkpoint).save(tmp_path / "a.safetensors")
+    a = save_random_adapter(tmp_path / "a.safetensors", tiny_checkpoint)
     with pytest.raises(SMFError, match="share a name"):
         load_adapters([a, a])

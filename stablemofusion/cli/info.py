@@ -10,6 +10,7 @@ def add_parser(sub, name: str) -> None:
     p = sub.add_parser(name)
     p.add_argument("--preset", action="append", default=None, help="preset name (repeatable; default: all)")
     p.add_argument("--checkpoint", type=Path, default=None, help="describe a checkpoint folder instead")
+    p.add_argument("--adapter", type=Path, default=None, help="describe an adapter file (smf adapt) instead")
     p.set_defaults(func=run)
 
 
@@ -17,6 +18,20 @@ def run(args: argparse.Namespace) -> None:
     from ..models.base import build_denoiser
     from ..models.presets import PRESETS, describe, get_preset
 
+    if args.adapter is not None:
+        from ..adapters.file import Adapter
+
+        a = Adapter.load(args.adapter)
+        i, t = a.info, a.info.training
+        print(f"{args.adapter}: adapter {i.name!r}, rank {i.lora.rank}, {len(i.clips)} clip captions from "
+              f"{t.get('clips', '?')} clips ({t.get('motion_seconds', '?')} s of motion), trained in {t.get('seconds', '?')} s")
+        print(f"licence of the clips: {i.licence}")
+        print(f"base model weights (sha256): student {i.base.get('student', '-')[:12]}, teacher "
+              f"{i.base.get('teacher', '-')[:12]}")
+        for label, captions in i.actions.items():
+            print(f"action {label!r}: " + "; ".join(captions[:8]) + (f"; ... ({len(captions)} captions)"
+                                                                     if len(captions) > 8 else ""))
+        return
     if args.checkpoint is not None:
         from ..diffusion.checkpoint import load_checkpoint
         from ..pipelines.settings import model_defaults

@@ -158,9 +158,10 @@ def test_adapt_writes_an_adapter_that_loads_and_resumes_exactly(base, clip_folde
         MotionPipeline.from_pretrained(other, device="cpu", adapter=tmp_path / "run.safetensors")
 
 
-def test_the_command_line_checks_before_it_trains(clip_folder, tmp_path):
-    def smf(*args):
-        return subprocess.run([sys.executable, "-m", "stablemofusion.cli.main", "adapt", *args], capture_output=True,
+def test_the_command_line_checks_before_it_trains_and_describes_adapters(clip_folder, tiny_checkpoint,
+                                                                           save_random_adapter, tmp_path):
+    def smf(*args, command="adapt"):
+        return subprocess.run([sys.executable, "-m", "stablemofusion.cli.main", command, *args], capture_output=True,
                               text=True, timeout=120)
 
     r = smf("--data", str(clip_folder), "--out", str(tmp_path / "a.safetensors"))
@@ -170,3 +171,6 @@ def test_the_command_line_checks_before_it_trains(clip_folder, tmp_path):
     assert r.returncode == 2 and "--overwrite" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     r = smf("--data", str(tmp_path), "--out", str(tmp_path / "b.safetensors"), "--licence", "mine")
     assert r.returncode == 2 and "no .bvh files" in r.stderr and "Traceback" not in r.stderr
+    r = smf("--adapter", str(save_random_adapter(tmp_path / "kick.safetensors", tiny_checkpoint)), command="info")
+    assert r.returncode == 0 and "adapter 'kick'" in r.stdout and "licence of the clips: CC BY 4.0" in r.stdout
+    assert "action 'kick': a person kicks" in r.stdout

@@ -16,10 +16,12 @@ from pathlib import Path
 def add_parser(sub, name: str) -> None:
     from ..limits import SAMPLER, STEPS, STUDENT_SAMPLER
     from .flags import add_teacher_flag
+    from .options import add_adapter_flag
 
     p = sub.add_parser(name)
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
     add_teacher_flag(p)
+    add_adapter_flag(p)
     p.add_argument("--preset", default=None, help="time an untrained preset instead of a checkpoint")
     p.add_argument("--sampler", action="append", default=None, help=f"repeatable (default: the model's: {SAMPLER}, a "
                                                                       f"distilled student {STUDENT_SAMPLER})")
@@ -44,11 +46,12 @@ def _pipeline(args):
     from ..pipeline import MotionPipeline
 
     if args.preset is None:
-        return MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device)
-    if args.teacher or args.checkpoint is not None:
+        return MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device,
+                                              adapter=args.adapter)
+    if args.teacher or args.checkpoint is not None or args.adapter:
         from ..errors import SMFError
 
-        raise SMFError("--preset times an untrained preset: not with --checkpoint or --teacher")
+        raise SMFError("--preset times an untrained preset: not with --checkpoint, --teacher or --adapter")
     import numpy as np
 
     from ..diffusion.config import CheckpointConfig

@@ -47,7 +47,7 @@ def test_teacher_flag_errors_that_need_no_model(tmp_path, capsys):
     assert main(["evaluate", "--data", str(tmp_path), "--checkpoint", "none", "--teacher"]) == 2
     assert "--teacher needs a model" in capsys.readouterr().err
     assert main(["bench", "--preset", "tiny", "--teacher"]) == 2
-    assert "not with --checkpoint or --teacher" in capsys.readouterr().err
+    assert "not with --checkpoint, --teacher or --adapter" in capsys.readouterr().err
 
 
 def test_teacher_flag_samples_with_the_students_teacher(student, tmp_path):

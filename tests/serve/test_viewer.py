@@ -22,8 +22,9 @@ FLAGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory, save_tiny_checkpoint):
-    """The app on a tiny random-weight checkpoint, served by uvicorn on a free loopback port."""
+def server(tmp_path_factory, save_tiny_checkpoint, save_random_adapter):
+    """The app on a tiny random-weight checkpoint with an adapter ("kick") offered beside it, served by uvicorn on a
+    free loopback port."""
     import uvicorn
 
     from stablemofusion.pipeline import MotionPipeline
@@ -33,7 +34,9 @@ def server(tmp_path_factory, save_tiny_checkpoint):
     mean, std = np.zeros(263), np.full(263, 0.1)
     mean[3] = 0.9
     ck = save_tiny_checkpoint(tmp_path_factory.mktemp("viewer-ckpt") / "checkpoint", mean, std)
-    app = create_app(MotionPipeline.from_pretrained(ck, device="cpu"))
+    pipe = MotionPipeline.from_pretrained(ck, device="cpu")
+    pipe.add_variants([save_random_adapter(tmp_path_factory.mktemp("viewer-adapter") / "kick.safetensors", ck)])
+    app = create_app(pipe)
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -148,6 +151,32 @@ def test_one_generation_per_click_the_servers_limits_and_a_fresh_seed(page, serv
     page.wait_for_function("document.getElementById('status').className === 'error'", timeout=30_000)
     assert "seconds must be more than 0 and at most 120 s" in page.inner_text("#status")
     page.fill("#seconds", "2")
+
+
+def test_the_adapters_the_server_offers_can_be_chosen(page, server):
+    """The menu lists the server's adapters; with one chosen, the motion is that adapter's (the server's answer
+    to the same request with "adapter")."""
+    import httpx
+
+    assert page.eval_on_selector_all("#adapter option", "os => os.map((o) => o.textContent)") == ["base", "kick"]
+    assert page.is_visible("#adapter")
+    page.fill("#prompt", "a person kicks")
+    page.fill("#seconds", "2")
+    page.fill("#seed", "5")
+    page.select_option("#footskate", "off")
+    shown = {}
+    for choice in ("kick", ""):
+        page.select_option("#adapter", choice)
+        page.evaluate("window.smf.ready = false")
+        page.click("#generate")
+        page.wait_for_function("window.smf.ready", timeout=60_000)
+        shown[choice] = np.asarray(page.evaluate("Array.from(window.smf.joints)")).reshape(40, 22, 3)
+    body = {"prompt": "a person kicks", "seconds": 2, "seed": 5, "footskate": "off"}
+    kick = httpx.post(server + "/v1/generate", json={**body, "adapter": "kick"}).json()["joints"]
+    base = httpx.post(server + "/v1/generate", json=body).json()["joints"]
+    assert np.abs(shown["kick"] - np.asarray(kick)).max() < 1e-3
+    assert np.abs(shown[""] - np.asarray(base)).max() < 1e-3
+    assert np.abs(shown["kick"] - shown[""]).max() > 1e-2
 
 
 def test_the_out_of_domain_warning_is_shown(page):

@@ -86,6 +86,7 @@ function resize() {
   camera.updateProjectionMatrix();
 }
 window.addEventListener('resize', resize);
+new ResizeObserver(resize).observe(view);  // the header may wrap to two lines (e.g. when the adapter menu appears)
 resize();
 
 // motion

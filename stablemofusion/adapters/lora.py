@@ -25,10 +25,12 @@ LORA_A, LORA_B = ".lora_A.weight", ".lora_B.weight"
 
 @dataclass(frozen=True)
 class LoraConfig:
-    """Rank and scale of the low-rank updates (``alpha / rank`` multiplies B @ A)."""
+    """Rank and scale of the low-rank updates (``alpha / rank`` multiplies B @ A); ``text``: the trainable text
+    transformer's layers too (else the denoiser's only)."""
 
     rank: int = 16
     alpha: float = 16.0
+    text: bool = True
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -38,10 +40,12 @@ class LoraConfig:
         return self.alpha / self.rank
 
 
-def target_layers(model: nn.Module) -> list[str]:
-    """Names of the layers an adapter trains (Linear and Conv1d, except :data:`SKIPPED`)."""
+def target_layers(model: nn.Module, text: bool = True) -> list[str]:
+    """Names of the layers an adapter trains (Linear and Conv1d, except :data:`SKIPPED`; without ``text`` not
+    those of the text transformer either)."""
     return [n for n, m in model.named_modules()
-            if isinstance(m, (nn.Linear, nn.Conv1d)) and not any(n.endswith(s) for s in SKIPPED)]
+            if isinstance(m, (nn.Linear, nn.Conv1d)) and not any(n.endswith(s) for s in SKIPPED)
+            and (text or not n.startswith("text."))]
 
 
 def add_lora(model: nn.Module, cfg: LoraConfig) -> nn.Module:
@@ -50,7 +54,8 @@ def add_lora(model: nn.Module, cfg: LoraConfig) -> nn.Module:
     from peft import LoraConfig as PeftLoraConfig
     from peft import inject_adapter_in_model
 
-    peft_cfg = PeftLoraConfig(r=cfg.rank, lora_alpha=cfg.alpha, target_modules=target_layers(model), lora_dropout=0.0)
+    peft_cfg = PeftLoraConfig(r=cfg.rank, lora_alpha=cfg.alpha, target_modules=target_layers(model, cfg.text),
+                              lora_dropout=0.0)
     return inject_adapter_in_model(peft_cfg, model)
 
 

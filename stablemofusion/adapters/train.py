@@ -5,9 +5,9 @@ The default path runs a 1-step student distilled from a teacher; a student canno
 
 1. **Teacher.** LoRA layers (:mod:`.lora`) on the frozen teacher, trained with its own diffusion loss (x0
    prediction, masked MSE, condition drop) on random crops of the user's clips. Half of each batch is
-   *replay*: the base teacher's own samples for the actions the base knows (its ``actions.json`` examples,
-   except those close to the taught captions), so that what it knew stays (prior preservation, as in
-   DreamBooth).
+   *replay*: the base teacher's own samples for captions of the actions the base knows (from the caption
+   lexicon of its corpus, or its ``actions.json`` examples), except an action most taught captions name, so
+   that what it knew stays (prior preservation, as in DreamBooth).
 2. **Student.** LoRA layers on the frozen student, regressed (as ``smf distil --method regression``) onto a
    fixed pool of targets: for the taught captions, the adapted teacher's deterministic samples from drawn
    noise; for the replay captions, the base student's own outputs from drawn noise (so it keeps them exactly).
@@ -40,7 +40,7 @@ from .lora import LoraConfig, add_lora, load_lora_state, lora_state, no_fast_pat
 
 STATE_FILE = "state.pt"
 LOG_HEADER = "stage,step,loss,lr,seconds"
-REPLAY_DROP = 0.7  # a replay example at least this similar (cosine, sentence embedding) to a taught caption is dropped
+REPLAY_MATCH = 0.75  # a taught caption this similar (cosine of sentence embeddings) to a known example names its action
 
 
 @dataclass
@@ -49,14 +49,18 @@ class AdaptConfig:
 
     rank: int = 16
     alpha: float = 16.0
+    # adapt the text transformer's layers too: off, measured (docs/adapters.md): with them the taught captions
+    # pull the base's other actions towards the taught one (walks became runs)
+    text_layers: bool = False
     teacher_steps: int = 500
     student_steps: int = 300
     batch_size: int = 32
     teacher_lr: float = 1e-3
     student_lr: float = 5e-4
     replay: float = 0.5
-    replay_prompts: int = 64  # base actions' examples replayed (spread over its actions)
-    pool: int = 256  # student targets per side (taught captions, replay)
+    replay_prompts: int = 512  # captions of the base's actions replayed (spread over its actions)
+    lexicon: str = "bandai"  # the base corpus's caption lexicon (replayed captions); "": its known-action examples
+    pool: int = 512  # student targets per side (taught captions, replay)
     cond_drop: float = 0.1
     grad_clip: float = 1.0
     seed: int = 0
@@ -99,17 +103,42 @@ def _frames(n: int, lo: int, hi: int) -> int:
     return max(lo, min(hi, n)) // LENGTH_MULTIPLE * LENGTH_MULTIPLE
 
 
-def replay_prompts(known: dict[str, list[str]], taught: list[str], embed: Callable, limit: int) -> list[str]:
-    """Up to ``limit`` example sentences of the base's known actions, taken in turn from each action, without
-    those at least REPLAY_DROP similar to a taught caption (the base's answer to them is what is taught anew)."""
+def retaught_actions(known: dict[str, list[str]], taught: list[str], embed: Callable) -> set[str]:
+    """The known actions that most taught captions name (the adapter teaches them anew, so the base's answer to
+    them is not replayed): a caption names the action of its closest example sentence when their similarity
+    (cosine of sentence embeddings) is at least REPLAY_MATCH."""
     examples = [(a, e) for a, ex in known.items() for e in ex]
-    if not examples:
-        return []
+    if not examples or not taught:
+        return set()
     sims = embed([e for _, e in examples]) @ embed(taught).T  # (E, C) cosine: unit embeddings
-    keep = [ae for ae, s in zip(examples, sims.max(dim=1).values.tolist()) if s < REPLAY_DROP]
+    best, which = sims.max(dim=0)
+    votes: dict[str, int] = {}
+    for s, i in zip(best.tolist(), which.tolist()):
+        if s >= REPLAY_MATCH:
+            votes[examples[i][0]] = votes.get(examples[i][0], 0) + 1
+    return {a for a, n in votes.items() if 2 * n >= len(taught)}
+
+
+def lexicon_replay(lexicon: str, per_pair: int = 2, seed: str = "replay") -> list[tuple[str, str]]:
+    """(content, caption) for every (content, style) pair of the base's corpus lexicon: ``per_pair`` captions
+    each, from the caption grammar its training captions came from (subjects, styles and details as users write
+    them), the pairs' first captions first."""
+    from ..data.captions import captions_for
+    from ..data.lexicon import load_lexicon
+
+    lex = load_lexicon(lexicon)
+    pairs = [[(c, text) for text, _ in captions_for(c, s, per_pair, seed=f"{seed}-{d}", lexicon=lexicon)]
+             for d, (contents, styles) in lex.datasets.items() for c in contents for s in styles]
+    return [p[k] for k in range(per_pair) for p in pairs if k < len(p)]
+
+
+def replay_prompts(candidates: list[tuple[str, str]], skip: set[str], limit: int) -> list[str]:
+    """Up to ``limit`` distinct captions of ``candidates`` ((action, caption) pairs), taken in turn from each
+    action, without the actions in ``skip``."""
     by_action: dict[str, list[str]] = {}
-    for a, e in keep:
-        by_action.setdefault(a, []).append(e)
+    for a, text in candidates:
+        if a not in skip and text not in by_action.get(a, []):
+            by_action.setdefault(a, []).append(text)
     out, i = [], 0
     while len(out) < limit and any(i < len(v) for v in by_action.values()):
         out += [v[i] for v in by_action.values() if i < len(v)]
@@ -208,10 +237,20 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
     motions = [(torch.from_numpy(c.features).float() - mean) / std for c in clips]
     taught = sorted({cap for c in clips for cap in c.captions})
     text = student_pipe.text_cache
+    rows: dict[str, torch.Tensor] = {}  # caption -> its frozen token states, encoded once in a fixed order
+
+    def encode(captions: list[str]) -> None:
+        """Encode captions not seen yet, in batches of a fixed order (a resumed run encodes them alike)."""
+        new = list(dict.fromkeys(c for c in captions if c not in rows))
+        for a in range(0, len(new), 64):
+            tokens, tmask = text.get_or_compute(new[a:a + 64])
+            for i, c in enumerate(new[a:a + 64]):
+                rows[c] = tokens[i, :int(tmask[i].sum())].float().cpu()
 
     def tokens_of(captions: list[str]):
-        tokens, tmask = text.get_or_compute(list(captions))
-        return tokens.float().to(device), tmask.to(device)
+        from ..text.cache import pad_rows
+
+        return pad_rows([rows[c] for c in captions], next(iter(rows.values())).shape[-1], device)
 
     def embed(texts: list[str]) -> torch.Tensor:
         from ..text.frozen import sentence_embedding
@@ -220,7 +259,10 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
         return sentence_embedding(tokens.float().cpu(), tmask.cpu())
 
     known = student_pipe.known_actions.actions if student_pipe.known_actions is not None else {}
-    replay = replay_prompts(known, taught, embed, cfg.replay_prompts) if cfg.replay > 0 else []
+    candidates = lexicon_replay(cfg.lexicon) if cfg.lexicon else [(a, e) for a, ex in known.items() for e in ex]
+    retaught = retaught_actions(known, taught, embed)
+    replay = replay_prompts(candidates, retaught, cfg.replay_prompts) if cfg.replay > 0 else []
+    encode(taught + replay)
     replay_frames = [_frames(round(s * student_pipe.fps), lo, hi) for s in student_pipe.predict_seconds(replay)] \
         if replay and student_pipe.length_estimator is not None else [_frames(80, lo, hi)] * len(replay)
     replay_motion = []
@@ -233,7 +275,7 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
     n_replay = int(round(cfg.batch_size * cfg.replay))
     teacher = teacher_pipe.model.float().to(device)
     student = student_pipe.model.float().to(device)
-    lora = LoraConfig(cfg.rank, cfg.alpha)
+    lora = LoraConfig(cfg.rank, cfg.alpha, text=cfg.text_layers)
     torch.manual_seed(cfg.seed)  # the LoRA A matrices' initial weights
     add_lora(teacher, lora)
     add_lora(student, lora)
@@ -389,6 +431,7 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
                        training={"config": cfg.to_dict(), "clips": len(clips),
                                  "motion_seconds": round(sum(c.frames for c in clips) / student_pipe.fps, 1),
                                  "captions_from": source, "replay_prompts": len(replay),
+                                 "not_replayed": sorted(retaught),
                                  "teacher_loss": _ends(losses[1]), "student_loss": _ends(losses[2]),
                                  "seconds": round(seconds, 1), "teacher_guidance": teacher_guidance})
     adapter = Adapter(info, {"student": lora_state(student), "teacher": lora_state(teacher)})
@@ -407,4 +450,4 @@ def _ends(values: list[float], n: int = 20) -> list[float]:
     return [round(float(np.mean(values[:n])), 5), round(float(np.mean(values[-n:])), 5)]
 
 
-__all__ = ["AdaptConfig", "adapt", "replay_prompts"]
+__all__ = ["AdaptConfig", "adapt", "lexicon_replay", "replay_prompts", "retaught_actions"]

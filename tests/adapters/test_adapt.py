@@ -90,8 +90,8 @@ def test_bad_clip_folders_are_one_line_errors(clip_folder, bandai_mini_source, t
         read_clips(folder, "mixamo", caption="x")
 
 
-def test_replay_leaves_out_what_is_taught(base):
-    from stablemofusion.adapters.train import replay_prompts
+def test_replay_leaves_out_an_action_that_is_taught_anew(base):
+    from stablemofusion.adapters.train import lexicon_replay, replay_prompts, retaught_actions
     from stablemofusion.pipeline import MotionPipeline
     from stablemofusion.text.frozen import sentence_embedding
 
@@ -101,10 +101,17 @@ def test_replay_leaves_out_what_is_taught(base):
         tokens, mask = pipe.text_cache.get_or_compute(texts)
         return sentence_embedding(tokens.float(), mask)
 
-    known = {"walk": ["a person walks", "a man walks ahead"], "wave": ["a person waves"], "bow": ["a person bows"]}
-    got = replay_prompts(known, ["a person waves a hand"], embed, limit=10)
-    assert got == ["a person walks", "a person bows", "a man walks ahead"]  # in turn from each action
-    assert replay_prompts(known, ["a person waves a hand"], embed, limit=2) == ["a person walks", "a person bows"]
+    known = {"walk": ["a person walks", "a man walks ahead"], "run": ["a person runs", "a person jogs"],
+             "bow": ["a person bows"]}
+    assert retaught_actions(known, ["a person runs", "a person jogs slowly"], embed) == {"run"}
+    # an action only some taught captions name is still replayed: the adapter teaches something else
+    assert retaught_actions(known, ["a person runs", "a person hops on one leg", "someone hops"], embed) == set()
+    candidates = [(a, e) for a, ex in known.items() for e in ex]
+    assert replay_prompts(candidates, {"run"}, 10) == ["a person walks", "a person bows", "a man walks ahead"]
+    assert replay_prompts(candidates, set(), 2) == ["a person walks", "a person runs"]  # in turn from each action
+    lexicon = lexicon_replay("bandai")
+    assert {a for a, _ in lexicon} >= {"walk", "run", "bow", "wave-both-hands", "kick"}
+    assert len(lexicon) > 600 and lexicon == lexicon_replay("bandai")  # two captions per (content, style) pair
 
 
 def _weights(a: Adapter) -> dict[str, torch.Tensor]:
@@ -121,7 +128,7 @@ def test_adapt_writes_an_adapter_that_loads_and_resumes_exactly(base, clip_folde
     assert loaded.info.name == "run" and loaded.info.licence == "CC BY-NC 4.0"
     assert loaded.info.base == {"student": weights_hash(base), "teacher": weights_hash(base / "teacher")}
     assert set(loaded.info.actions["run"]) == {c for clip in clips for c in clip.captions}
-    assert loaded.info.training["replay_prompts"] == 2  # "a person waves" is the taught wave clip's: not replayed
+    assert loaded.info.training["replay_prompts"] == 4 and loaded.info.training["not_replayed"] == []
     assert set(loaded.weights) == {"student", "teacher"} and all(loaded.weights.values())
     assert (tmp_path / "run.safetensors").stat().st_size < 1 << 20
 

@@ -60,7 +60,8 @@ def generate_jobs(pipe, jobs: list[Job], max_batch: int) -> list:
     """Jobs of one ``sampling`` (guidance, steps, footskate) as one pipeline call (one seed per job), or
     timelines one by one."""
     first = jobs[0]
-    pipe = pipe.variant(first.adapter)
+    if first.adapter is not None:
+        pipe = pipe.variant(first.adapter)
     if first.segments is not None:
         return [pipe.timeline(list(j.segments), guidance_scale=j.guidance, steps=j.steps, seed=j.seed,
                               footskate=j.footskate) for j in jobs]

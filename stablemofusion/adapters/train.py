@@ -189,7 +189,7 @@ def _fingerprint(clips: list[Clip], base: dict[str, str], cfg: AdaptConfig) -> s
 
 def adapt(base: str | Path | None, clips: list[Clip], out: str | Path, cfg: AdaptConfig = AdaptConfig(), *,
           name: str, licence: str, work: str | Path | None = None, resume: bool = False, progress: bool = True,
-          stop_after: tuple[int, int] | None = None, source: str = "") -> Adapter:
+          stop_after: tuple[int, int] | None = None, source: str = "") -> Adapter | None:
     """Adapt the model folder ``base`` (None: the shipped model) to ``clips``; writes the adapter file ``out``
     and returns it. ``work``: the resumable work folder (default ``<out>.work``). ``stop_after`` (stage, step)
     ends the run there as if interrupted right after a checkpoint (for tests)."""

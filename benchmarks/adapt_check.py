@@ -66,6 +66,11 @@ def hops_on_one_leg(joints: np.ndarray, lifted: float = 0.05) -> bool:
     return bool(max(left.mean(), right.mean()) >= 0.7 and bob >= 0.3)
 
 
+def root_speed(joints: np.ndarray, fps: float) -> float:
+    """Mean horizontal speed of the root (m/s) of joints (T, 22, 3)."""
+    return float(np.linalg.norm(np.diff(joints[:, 0, [0, 2]], axis=0), axis=1).mean() * fps)
+
+
 def real_clips(data: Path, action: str | None, split: str = "test") -> list[np.ndarray]:
     """Joints of the corpus's dataset-2 clips of ``action`` (None: every action) in ``split``."""
     import csv
@@ -126,7 +131,9 @@ def main() -> None:
                 [hops_on_one_leg(w) for w in windows])), 3)
             report["real_skate"] = mean_metrics(windows)["skate_ratio"]
     else:
-        report["real_skate"] = mean_metrics(real_clips(args.data, args.action))["skate_ratio"]
+        real = real_clips(args.data, args.action)
+        report["real_skate"] = mean_metrics(real)["skate_ratio"]
+        report["real_root_speed_m_s"] = round(float(np.mean([root_speed(j, 20.0) for j in real])), 3)
     seeds = [k for _ in prompts for k in range(args.samples)]
     rep = [p for p in prompts for _ in range(args.samples)]
     strips = []
@@ -137,7 +144,7 @@ def main() -> None:
             res += pipe(rep[a:a + 32], seconds=4, seed=seeds[a:a + 32], footskate="post")
         pred = classifier.predict([r.features for r in res], [allowed] * len(res))
         hit = [hops_on_one_leg(r.joints) for r in res] if args.action == "hop" else [p[0] == args.action for p in pred]
-        speeds = [float(np.linalg.norm(np.diff(r.joints[:, 0, [0, 2]], axis=0), axis=1).mean() * r.fps) for r in res]
+        speeds = [root_speed(r.joints, r.fps) for r in res]
         row = {"taught_accuracy": round(float(np.mean(hit)), 3),
                "per_prompt": {p: round(float(np.mean(hit[i * args.samples:(i + 1) * args.samples])), 2)
                               for i, p in enumerate(prompts)},

@@ -25,9 +25,8 @@ def _speed(joints: np.ndarray, fps: float) -> tuple[float, float]:
     return float(step.mean() * fps), float(np.linalg.norm(xz[-1] - xz[0]))
 
 
-def write_report(adapter: Adapter, adapter_path: str | Path, base: str | Path | None, out: str | Path,
-                 seed: int = 0) -> Path:
-    """Write ``out/report.md`` and its strips for ``adapter`` (saved at ``adapter_path``) on model ``base``."""
+def write_report(adapter: Adapter, base: str | Path | None, out: str | Path, seed: int = 0) -> Path:
+    """Write ``out/report.md`` and its strips for ``adapter`` on model ``base``."""
     import warnings
 
     from ..pipeline import MotionPipeline
@@ -36,7 +35,8 @@ def write_report(adapter: Adapter, adapter_path: str | Path, base: str | Path | 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     info, t = adapter.info, adapter.info.training
-    pipes = {"base": MotionPipeline.from_pretrained(base), "adapted": MotionPipeline.from_pretrained(base, adapter=adapter_path)}
+    base_pipe = MotionPipeline.from_pretrained(base)
+    pipes = {"base": base_pipe, "adapted": base_pipe.with_adapters([adapter])}
     captions = [c for caps in info.actions.values() for c in caps][:REPORT_CAPTIONS]
     lines = [f"# Adapter {info.name!r}", "",
              f"- Clips: {t.get('clips')} ({t.get('motion_seconds')} s of motion), captions from {t.get('captions_from')}.",

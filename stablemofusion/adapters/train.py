@@ -206,7 +206,7 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
     from ..diffusion.schedule import make_train_scheduler
     from ..diffusion.solvers import solver_table
     from ..diffusion.train import masked_mse
-    from ..limits import GUIDANCE, STUDENT_SAMPLER
+    from ..limits import STUDENT_SAMPLER
     from ..pipelines.components import model_folder
     from ..pipeline import MotionPipeline
 
@@ -229,8 +229,8 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
     state = run.state or {"stage": 1, "step": 0}
     t_start = time.perf_counter() - run.seconds
     lo, hi = student_pipe.min_frames, student_pipe.max_frames
-    guidance = float(student_pipe.config.guidance if student_pipe.config.guidance is not None else GUIDANCE)
-    teacher_guidance = float(teacher_pipe.config.guidance if teacher_pipe.config.guidance is not None else GUIDANCE)
+    guidance = student_pipe.settings().guidance_scale  # what the default path samples with
+    teacher_guidance = teacher_pipe.settings().guidance_scale
 
     # 2. prepare: the clips normalised as the models were trained, the taught captions, the replay set
     mean, std = torch.as_tensor(teacher_pipe.mean), torch.as_tensor(teacher_pipe.std)
@@ -358,8 +358,9 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
         train_stage(1, teacher, cfg.teacher_steps, cfg.teacher_lr, teacher_batch)
 
         # 4. stage 2: the student's targets (adapted teacher on the taught captions, base student on the replay)
-        teacher_table = solver_table("dpmsolver++-karras", 10, schedule).to(device)
-        steps_s = student_pipe.config.distil.sample_steps
+        distilled = student_pipe.config.distil  # the teacher's sampler the student was distilled from
+        teacher_table = solver_table(distilled.teacher_sampler, distilled.teacher_steps, schedule).to(device)
+        steps_s = distilled.sample_steps
         student_table = solver_table(STUDENT_SAMPLER, steps_s, schedule).to(device)
         g = torch.Generator().manual_seed(_mix(cfg.seed, 4))
         order = torch.randperm(len(clips), generator=g).tolist()
@@ -386,10 +387,7 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
             w = torch.full((len(eps),), guidance, device=device)
             return teacher_sample(teacher, eps, tokens, tmask, drop, mask, w, teacher_table)
 
-        def base_student_target(eps, tokens, tmask, mask):
-            return _student_out(student, eps, tokens, tmask, mask)
-
-        def _student_out(model, eps, tokens, tmask, mask):
+        def student_out(model, eps, tokens, tmask, mask):
             drop = torch.zeros(len(eps), dtype=torch.bool, device=device)
             w = torch.full((len(eps),), guidance, device=device)
             step_noise = torch.zeros((steps_s,) + tuple(eps.shape), device=device)
@@ -400,14 +398,11 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
         if n_replay:
             reps = [replay[k % len(replay)] for k in range(cfg.pool)]
             reps_frames = [replay_frames[k % len(replay)] for k in range(cfg.pool)]
-            if state["stage"] <= 2 and "student" in state and state["stage"] == 2 and state["step"] > 0:
-                # resumed mid-way: the replay targets are the base student's, so LoRA weights must be off
-                saved = lora_state(student)
-                load_lora_state(student, {k: torch.zeros_like(v) for k, v in saved.items()})
-                pool["replay"] = targets(reps, reps_frames, base_student_target)
-                load_lora_state(student, saved)
-            else:
-                pool["replay"] = targets(reps, reps_frames, base_student_target)
+            # the base student's own outputs: its LoRA updates off (a resumed run has trained some already)
+            saved = lora_state(student)
+            load_lora_state(student, {k: torch.zeros_like(v) for k, v in saved.items()})
+            pool["replay"] = targets(reps, reps_frames, lambda *a: student_out(student, *a))
+            load_lora_state(student, saved)
 
         def student_batch(model, g: torch.Generator) -> torch.Tensor:
             picks = [pool["taught"][int(torch.randint(cfg.pool, (), generator=g))]
@@ -416,7 +411,7 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
             eps, mask = _pad([p[1] for p in picks])
             target, _ = _pad([p[2] for p in picks])
             tokens, tmask = tokens_of([p[0] for p in picks])
-            pred = _student_out(model, eps.to(device), tokens, tmask, mask.to(device))
+            pred = student_out(model, eps.to(device), tokens, tmask, mask.to(device))
             return masked_mse(pred.float(), target.to(device), mask.to(device))
 
         train_stage(2, student, cfg.student_steps, cfg.student_lr, student_batch)
@@ -425,8 +420,7 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
 
     # 5. the adapter file
     seconds = time.perf_counter() - t_start
-    label = name
-    info = AdapterInfo(name=name, actions={label: taught}, clips=[(c.file, cap) for c in clips for cap in c.captions],
+    info = AdapterInfo(name=name, actions={name: taught}, clips=[(c.file, cap) for c in clips for cap in c.captions],
                        licence=licence, base=hashes, lora=lora, guidance=guidance,
                        training={"config": cfg.to_dict(), "clips": len(clips),
                                  "motion_seconds": round(sum(c.frames for c in clips) / student_pipe.fps, 1),

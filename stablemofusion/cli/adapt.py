@@ -95,5 +95,5 @@ def run(args: argparse.Namespace) -> None:
     if not args.no_report:
         from ..adapters.report import write_report
 
-        report = write_report(adapter, args.out, args.base, args.report or Path(str(args.out) + ".report"))
+        report = write_report(adapter, args.base, args.report or Path(str(args.out) + ".report"))
         print(f"report: {report}")

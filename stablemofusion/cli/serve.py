@@ -42,6 +42,7 @@ def add_parser(sub, name: str) -> None:
 
 def run(args: argparse.Namespace) -> None:
     import logging
+    from dataclasses import replace
 
     import uvicorn
 
@@ -67,8 +68,7 @@ def run(args: argparse.Namespace) -> None:
     config = read_config(checkpoint)  # checks the folder; the worker process loads the model itself
     adapters = served_adapters(args.adapter or [], checkpoint, config)
     spec = WorkerSpec(str(checkpoint), args.device, args.threads, args.engine, tuple(str(a) for a in args.adapter or ()))
-    streams = StreamProcessWorker(WorkerSpec(str(checkpoint), args.device, args.threads, args.engine), config) \
-        if max_streams else None
+    streams = StreamProcessWorker(replace(spec, adapters=()), config) if max_streams else None  # the base model
     app = create_app(ProcessWorker(spec, config, adapters), max_batch=args.max_batch, wait_ms=args.wait_ms,
                      max_queue=args.max_queue, allowed_hosts=tuple(args.allow_host), streams=streams,
                      max_streams=max_streams, **cost)

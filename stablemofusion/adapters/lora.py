@@ -9,13 +9,13 @@ other weights, so every engine and runtime runs it at the base model's speed.
 
 from __future__ import annotations
 
-import contextlib
 from dataclasses import asdict, dataclass
 
 import torch
 from torch import nn
 
 from ..errors import SMFError
+from ..text.transformer import no_fast_path  # noqa: F401  (public here too: adapters train under it)
 
 # the layers an adapter may change: every Linear and Conv1d of the denoiser except the text transformer's
 # attention output projections (nn.MultiheadAttention reads their weight directly, so a wrapper would be skipped)
@@ -57,18 +57,6 @@ def add_lora(model: nn.Module, cfg: LoraConfig) -> nn.Module:
     peft_cfg = PeftLoraConfig(r=cfg.rank, lora_alpha=cfg.alpha, target_modules=target_layers(model, cfg.text),
                               lora_dropout=0.0)
     return inject_adapter_in_model(peft_cfg, model)
-
-
-@contextlib.contextmanager
-def no_fast_path():
-    """Within it, nn.TransformerEncoderLayer runs its layers as modules: its inference fast path reads the
-    linear weights directly and would skip the LoRA wrappers of a wrapped model (merged models need no care)."""
-    before = torch.backends.mha.get_fastpath_enabled()
-    torch.backends.mha.set_fastpath_enabled(False)
-    try:
-        yield
-    finally:
-        torch.backends.mha.set_fastpath_enabled(before)
 
 
 def lora_state(model: nn.Module) -> dict[str, torch.Tensor]:

@@ -34,6 +34,7 @@ import torch
 
 from ..diffusion.config import LENGTH_MULTIPLE
 from ..errors import SMFError
+from ..limits import SEED_RANGE
 from .clips import Clip
 from .file import Adapter, AdapterInfo, weights_hash
 from .lora import LoraConfig, add_lora, load_lora_state, lora_state, no_fast_path
@@ -268,7 +269,7 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
     replay_motion = []
     for a in range(0, len(replay), cfg.batch_size):  # the base teacher's own samples (its sampler and guidance)
         raw = teacher_pipe.denoise(replay[a:a + cfg.batch_size], replay_frames[a:a + cfg.batch_size],
-                                   seed=[_mix(cfg.seed, 3, a + i) for i in range(len(replay[a:a + cfg.batch_size]))])
+                                   seed=[_mix(cfg.seed, 3, a + i) % SEED_RANGE for i in range(len(replay[a:a + cfg.batch_size]))])
         replay_motion += [(raw[i, :n] - mean) / std for i, n in enumerate(replay_frames[a:a + cfg.batch_size])]
     if cfg.replay > 0 and not replay:
         cfg = replace(cfg, replay=0.0)  # a base without known actions: nothing to replay

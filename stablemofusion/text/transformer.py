@@ -2,10 +2,25 @@
 
 from __future__ import annotations
 
+import contextlib
+
 import torch
 from torch import nn
 
 from ..dropout import Dropout
+
+
+@contextlib.contextmanager
+def no_fast_path():
+    """Within it, nn.TransformerEncoderLayer runs its layers as modules: its inference fast path reads the
+    linear weights directly (skipping the LoRA wrappers of an adapted model) and is one fused operator that ONNX
+    export does not know."""
+    before = torch.backends.mha.get_fastpath_enabled()
+    torch.backends.mha.set_fastpath_enabled(False)
+    try:
+        yield
+    finally:
+        torch.backends.mha.set_fastpath_enabled(before)
 
 
 class TextTransformer(nn.Module):

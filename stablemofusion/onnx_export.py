@@ -1,0 +1,271 @@
+"""Export a model folder's inference path as ONNX graphs for the torch-free runtime (:mod:`stablemofusion.runtime`).
+
+One folder (``graphs.json`` the manifest, docs/runtime.md the contract) holds every network the default path
+runs; what is plain arithmetic (the sampler loops as coefficient tables, feature decoding, the rigid stage,
+cleanup, the known actions' similarities) stays numpy, shared with the torch path:
+
+- ``text_encoder.onnx``: MiniLM, ``input_ids``, ``attention_mask`` (B, L) int64 -> ``tokens`` (B, L, 384) (zero
+  on padding), ``sentence`` (B, 384) the unit mean of the valid tokens; ``tokenizer.json`` its tokenizer
+  (the ``tokenizers`` package); weights stored as float16, computed in float32 (the torch encoder rounds its
+  weights the same way, :mod:`stablemofusion.text.frozen`);
+- per model (the student at the top, its teacher in ``teacher/``): ``condition.onnx`` the text side (``tokens``,
+  ``mask`` bool, and ``drop`` (B,) bool for a teacher or ``guidance`` (B,) float32 for a student -> ``features``
+  (B, L, latent), ``sentence`` (B, C)); ``denoise.onnx`` one step (``x`` (B, T, D) with T a multiple of
+  ``pad_multiple``, ``t`` (B,) float32, ``features``, ``text_mask`` bool, ``keep`` (B,) bool, ``sentence``,
+  ``motion_mask`` (B, T) bool -> ``x0`` (B, T, D)); the sampler tables of every (sampler, steps) it takes;
+- ``length.onnx`` (``tokens``, ``mask`` -> ``frames`` (B,) int64, the median length) and ``ood.onnx``
+  (``sentence`` (B, 384) -> ``score`` (B,) in-domain score); the actions' example embeddings (``actions.npy``).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from .errors import SMFError
+
+from .runtime.graphs import FORMAT, MANIFEST, TABLE_FIELDS, VERSION
+
+OPSET = 18
+
+
+class _TextEncoderGraph(nn.Module):
+    def __init__(self, bert: nn.Module):
+        super().__init__()
+        self.bert = bert
+
+    def forward(self, input_ids, attention_mask):
+        from .text.frozen import sentence_embedding
+
+        hidden = self.bert(input_ids=input_ids, attention_mask=attention_mask).last_hidden_state
+        mask = attention_mask.bool()
+        tokens = hidden * mask[..., None].to(hidden.dtype)
+        return tokens, sentence_embedding(tokens, mask)
+
+
+class _ConditionGraph(nn.Module):
+    def __init__(self, model):
+        super().__init__()
+        self.model = model
+
+    def forward(self, tokens, mask, control):
+        if self.model.takes_guidance:  # a student: control is the guidance scale (B,)
+            c = self.model.condition(tokens, mask, torch.zeros_like(mask[:, 0]), control)
+        else:  # a teacher: control is the drop flag (B,)
+            c = self.model.condition(tokens, mask, control)
+        return c.features, c.sentence
+
+
+class _DenoiseGraph(nn.Module):
+    def __init__(self, model):
+        super().__init__()
+        self.model = model
+
+    def forward(self, x, t, features, text_mask, keep, sentence, motion_mask):
+        from .models.base import TextCondition
+
+        return self.model.denoise(x, t, TextCondition(features, text_mask, keep, sentence), motion_mask)
+
+
+class _LengthGraph(nn.Module):
+    def __init__(self, estimator):
+        super().__init__()
+        self.estimator = estimator
+
+    def forward(self, tokens, mask):
+        return self.estimator.predict_frames(tokens, mask).long()
+
+
+class _OODGraph(nn.Module):
+    def __init__(self, detector):
+        super().__init__()
+        self.classifier = detector.classifier
+        self.offset, self.scale = float(detector.offset), float(detector.scale)
+
+    def forward(self, sentence):
+        return torch.sigmoid((self.classifier(sentence) - self.offset) / self.scale)
+
+
+def _export(module: nn.Module, args: tuple, path: Path, inputs: list[str], outputs: list[str],
+            dynamic: dict[str, dict[int, str]], fp16: str = "exact", multiples: dict[str, int] | None = None) -> None:
+    """Export with torch.export (dynamic batch, text and motion lengths: ``dynamic`` input name -> {axis: name};
+    ``multiples`` name -> m: that size is any multiple of m); ``fp16``: "exact" stores the initialisers float16
+    holds exactly as float16, "all" every large one."""
+    import onnx
+
+    from .text.transformer import no_fast_path
+
+    dims = {name: torch.export.Dim(name, min=1, max=4096) for axes in dynamic.values() for name in axes.values()}
+    for name, m in (multiples or {}).items():
+        dims[name] = m * torch.export.Dim(name + "_units", min=1, max=4096 // m)
+    shapes = tuple({axis: dims[name] for axis, name in dynamic.get(i, {}).items()} or None for i in inputs)
+    module.eval()
+    with torch.no_grad(), no_fast_path():
+        torch.onnx.export(module, args, str(path), input_names=inputs, output_names=outputs, dynamic_shapes=shapes,
+                          opset_version=OPSET, dynamo=True, optimize=True, verbose=False, external_data=False)
+    model = onnx.load(str(path))
+    _store_fp16(model, exact=fp16 == "exact")
+    onnx.save(model, str(path))
+
+
+def _store_fp16(model, exact: bool) -> None:
+    """Store large float32 initialisers as float16 with a Cast back to float32 (computed in float32): all of
+    them (the text encoder's, which the torch encoder rounds the same way, FP16_MIN_ELEMENTS), or with ``exact``
+    those that float16 holds exactly (a shipped model's weights are float16)."""
+    from onnx import TensorProto, helper, numpy_helper
+
+    from .text.frozen import FP16_MIN_ELEMENTS
+
+    graph = model.graph
+    casts, keep = [], []
+    for init in graph.initializer:
+        arr = numpy_helper.to_array(init) if init.data_type == TensorProto.FLOAT else None
+        if arr is not None and arr.size >= FP16_MIN_ELEMENTS and (
+                not exact or np.array_equal(arr.astype(np.float16).astype(np.float32), arr)):
+            half = numpy_helper.from_array(arr.astype(np.float16), init.name + "_fp16")
+            keep.append(half)
+            casts.append(helper.make_node("Cast", [half.name], [init.name], to=TensorProto.FLOAT))
+        else:
+            keep.append(init)
+    del graph.initializer[:]
+    graph.initializer.extend(keep)
+    nodes = list(graph.node)
+    del graph.node[:]
+    graph.node.extend(casts + nodes)
+
+
+def _tables(sampler: str, steps_range: range, schedule, arrays: dict[str, np.ndarray]) -> dict:
+    """The tables of one sampler for each step count it takes: their arrays into ``arrays`` (key
+    ``sampler/steps/field``), returns {steps: {init_sigma, stochastic}}."""
+    from .diffusion.solvers import solver_table
+
+    out = {}
+    for k in steps_range:
+        try:
+            tab = solver_table(sampler, k, schedule)
+        except SMFError:
+            break
+        for f in TABLE_FIELDS:
+            arrays[f"{sampler}/{k}/{f}"] = getattr(tab, f).double().numpy()
+        out[str(k)] = {"init_sigma": tab.init_sigma, "stochastic": tab.stochastic}
+    return out
+
+
+def export_model_graphs(components, out: Path) -> dict:
+    """The condition and denoise graphs, the sampler tables and the settings of one loaded model
+    (:class:`~stablemofusion.pipelines.components.Components`) into ``out``; returns its manifest entry."""
+    from .diffusion.config import LENGTH_MULTIPLE
+    from .diffusion.schedulers import parse_sampler, sampler_names
+
+    model = components.model.float().eval()
+    out.mkdir(parents=True, exist_ok=True)
+    B, L, T, D = 2, 7, 48, int(components.mean.shape[0])
+    tokens, mask = torch.randn(B, L, 384), torch.ones(B, L, dtype=torch.bool)
+    mask[1, 5:] = False
+    control = torch.full((B,), 2.5) if model.takes_guidance else torch.tensor([False, True])
+    _export(_ConditionGraph(model), (tokens, mask, control), out / "condition.onnx",
+            ["tokens", "mask", "guidance" if model.takes_guidance else "drop"], ["features", "sentence"],
+            {"tokens": {0: "B", 1: "L"}, "mask": {0: "B", 1: "L"}, "guidance" if model.takes_guidance else "drop":
+             {0: "B"}, "features": {0: "B", 1: "L"}, "sentence": {0: "B"}})
+    with torch.no_grad():
+        c = model.condition(tokens, mask, torch.zeros(B, dtype=torch.bool), 2.5 if model.takes_guidance else None)
+    motion_mask = torch.ones(B, T, dtype=torch.bool)
+    motion_mask[1, 40:] = False
+    _export(_DenoiseGraph(model), (torch.randn(B, T, D), torch.tensor([999.0, 500.0]), c.features, c.mask,
+                                   torch.ones(B, dtype=torch.bool), c.sentence, motion_mask),
+            out / "denoise.onnx", ["x", "t", "features", "text_mask", "keep", "sentence", "motion_mask"], ["x0"],
+            {"x": {0: "B", 1: "T"}, "t": {0: "B"}, "features": {0: "B", 1: "L"}, "text_mask": {0: "B", 1: "L"},
+             "keep": {0: "B"}, "sentence": {0: "B"}, "motion_mask": {0: "B", 1: "T"}, "x0": {0: "B", 1: "T"}},
+            multiples={"T": _pad_multiple(model)})
+    np.save(out / "Mean.npy", components.mean.numpy().astype(np.float32))
+    np.save(out / "Std.npy", components.std.numpy().astype(np.float32))
+    settings = components.settings()
+    samplers = [settings.sampler] if components.student else \
+        [n for n in sampler_names() if parse_sampler(n)[1].fast and not parse_sampler(n)[0] == "lcm"]
+    arrays: dict[str, np.ndarray] = {}
+    tables = {s: _tables(s, range(1, components.max_steps + 1), components.schedule, arrays) for s in samplers}
+    np.savez(out / "solvers.npz", **arrays)
+    cfg = components.config
+    return {"student": bool(components.student), "fps": cfg.fps, "min_frames": cfg.min_frames,
+            "max_frames": cfg.max_frames, "length_multiple": LENGTH_MULTIPLE,
+            "pad_multiple": _pad_multiple(model), "motion_dim": D,
+            "skeleton": cfg.skeleton, "guidance": settings.guidance_scale, "sampler": settings.sampler,
+            "steps": settings.steps, "max_steps": components.max_steps, "text_encoder": cfg.text_encoder,
+            "files": {"condition": "condition.onnx", "denoise": "denoise.onnx", "mean": "Mean.npy", "std": "Std.npy",
+                      "solvers": "solvers.npz"},
+            "solvers": tables}
+
+
+def export_text_encoder(out: Path) -> dict:
+    """MiniLM and its tokenizer into ``out`` (the encoder the shipped models use)."""
+    from .text.frozen import MiniLMEncoder, minilm_folder
+
+    enc = MiniLMEncoder()
+    ids = torch.tensor([[101, 1037, 2711, 10427, 102, 0], [101, 2619, 3216, 102, 0, 0]])
+    am = (ids != 0).long()
+    _export(_TextEncoderGraph(enc.model.float()), (ids, am), out / "text_encoder.onnx",
+            ["input_ids", "attention_mask"], ["tokens", "sentence"],
+            {"input_ids": {0: "B", 1: "L"}, "attention_mask": {0: "B", 1: "L"}, "tokens": {0: "B", 1: "L"},
+             "sentence": {0: "B"}}, fp16="all")
+    shutil.copyfile(minilm_folder() / "tokenizer.json", out / "tokenizer.json")
+    return {"name": enc.name, "dim": enc.dim, "max_tokens": enc.max_tokens, "file": "text_encoder.onnx",
+            "tokenizer": "tokenizer.json", "licence": "Apache-2.0 (sentence-transformers/all-MiniLM-L6-v2)"}
+
+
+def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder: bool = True) -> Path:
+    """Every graph of a model folder (``None``: the shipped model) and its teacher into ``out`` (written
+    atomically); returns ``out``."""
+    from .io import atomic_dir
+    from .pipelines.components import Components, model_folder
+
+    path = model_folder(model_path)
+    student = Components.from_pretrained(path, device="cpu", dtype=torch.float32)
+    if student.config.text_encoder != "minilm":
+        raise SMFError(f"only models on the MiniLM text encoder export to ONNX, this one uses "
+                       f"{student.config.text_encoder}")
+    with atomic_dir(Path(out)) as tmp:
+        manifest = {"format": FORMAT, "version": VERSION, "noise_version": _noise_version()}
+        if text_encoder:
+            manifest["text_encoder"] = export_text_encoder(tmp)
+        manifest["model"] = export_model_graphs(student, tmp)
+        if student.student:
+            teacher = Components.from_pretrained(path, teacher=True, device="cpu", dtype=torch.float32)
+            manifest["teacher"] = export_model_graphs(teacher, tmp / "teacher")
+            manifest["teacher"]["folder"] = "teacher"
+        if student.length_estimator is not None:
+            est = student.length_estimator.eval()
+            tokens, mask = torch.randn(2, 7, 384), torch.ones(2, 7, dtype=torch.bool)
+            mask[1, 4:] = False
+            _export(_LengthGraph(est), (tokens, mask), tmp / "length.onnx", ["tokens", "mask"], ["frames"],
+                    {"tokens": {0: "B", 1: "L"}, "mask": {0: "B", 1: "L"}, "frames": {0: "B"}})
+            manifest["length"] = {"file": "length.onnx"}
+        known = student.known_actions
+        if known is not None:
+            np.save(tmp / "actions.npy", known.examples_embedding().numpy().astype(np.float32))
+            manifest["actions"] = {"threshold": known.threshold, "actions": known.actions, "top": known.top,
+                                   "embeddings": "actions.npy"}
+            if known.detector is not None:
+                _export(_OODGraph(known.detector), (torch.randn(3, 384),), tmp / "ood.onnx", ["sentence"], ["score"],
+                        {"sentence": {0: "B"}, "score": {0: "B"}})
+                manifest["actions"]["detector"] = "ood.onnx"
+        (tmp / MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
+    return Path(out)
+
+
+def _noise_version() -> int:
+    from .noise import NOISE_VERSION
+
+    return NOISE_VERSION
+
+
+__all__ = ["MANIFEST", "export_onnx", "export_model_graphs", "export_text_encoder"]
+
+
+def _pad_multiple(model) -> int:
+    """The frame count the denoiser's input must be a multiple of (a UNet's levels halve it), else 1."""
+    return int(getattr(model.config, "pad_multiple", 1))

@@ -1,0 +1,65 @@
+"""The sampling call of the portable runtime, in numpy: the same steps as the torch path's
+(:func:`stablemofusion.pipelines.denoise.sample` with a coefficient table, :func:`~stablemofusion.diffusion.
+sampling.run_solver`) on the same portable noise, so both give the same motion."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from ..noise import batch_noise
+from .graphs import PortableModel, Table
+
+Denoiser = Callable[[np.ndarray, int], np.ndarray]  # (model input x (B, T, D), step k) -> x0 (B, T, D)
+
+
+def run_table(denoiser: Denoiser, table: Table, x: np.ndarray, step_noise: np.ndarray | None) -> np.ndarray:
+    """The loop of a coefficient table: ``x`` the initial noise scaled by ``table.init_sigma``, ``step_noise``
+    (K, B, T, D) for stochastic tables. Returns the final sample."""
+    prev = np.zeros_like(x)
+    for k in range(table.steps):
+        x0 = denoiser(x * table.c_in[k], k)
+        nxt = table.a[k] * x + table.b[k] * x0 + table.c[k] * prev
+        if table.stochastic:
+            nxt = nxt + table.d[k] * step_noise[k]
+        x, prev = nxt, x0
+    return x
+
+
+def guided_denoiser(model: PortableModel, tokens: np.ndarray, mask: np.ndarray, lengths: list[int], T: int,
+                    table: Table, guidance: float) -> Denoiser:
+    """The model under the text condition: a student takes ``guidance`` as input; a teacher with guidance other
+    than 1 runs the conditional and unconditional passes in one batch (``u + guidance * (c - u)``)."""
+    B = len(lengths)
+    motion_mask = np.arange(T)[None] < np.asarray(lengths)[:, None]
+    if model.student or guidance == 1.0:
+        cond = model.condition(tokens, mask, guidance=guidance)
+        return lambda x, k: model.denoise(x, np.full(B, table.t[k], np.float32), cond, motion_mask)
+    c, u = model.condition(tokens, mask), model.condition(tokens, mask, drop=True)
+    pair = {key: np.concatenate([c[key], u[key]]) for key in c}
+    mask2 = np.concatenate([motion_mask, motion_mask])
+    scale = np.float32(guidance)
+
+    def denoise(x: np.ndarray, k: int) -> np.ndarray:
+        out = model.denoise(np.concatenate([x, x]), np.full(2 * B, table.t[k], np.float32), pair, mask2)
+        cond_x0, uncond_x0 = out[:B], out[B:]
+        return uncond_x0 + scale * (cond_x0 - uncond_x0)
+
+    return denoise
+
+
+def sample(model: PortableModel, tokens: np.ndarray, mask: np.ndarray, lengths: list[int], seed: int | list[int], *,
+           guidance: float, sampler: str, steps: int) -> np.ndarray:
+    """The model's raw features (B, max(lengths), D) in dataset units (float32), before the final stage: item k
+    draws its noise from ``seed`` (stream k) or ``seed[k]`` (:func:`stablemofusion.noise.batch_noise`)."""
+    table = model.table(sampler, steps)
+    T = max(lengths)
+    x = batch_noise(seed, lengths, model.dim, draw=0) * np.float32(table.init_sigma)
+    step_noise = (np.stack([batch_noise(seed, lengths, model.dim, draw=1 + k) for k in range(table.steps)])
+                  if table.stochastic else None)
+    x = run_table(guided_denoiser(model, tokens, mask, lengths, T, table, guidance), table, x, step_noise)
+    return x * model.std + model.mean
+
+
+__all__ = ["run_table", "guided_denoiser", "sample"]

@@ -1,0 +1,75 @@
+"""The portable noise: a standard normal, independent across seeds, streams and draws, the same for any length,
+and the same numbers in JavaScript (assets/runtime/noise.js) as in numpy."""
+
+import json
+import shutil
+import subprocess
+from importlib import resources
+
+import numpy as np
+import pytest
+
+from stablemofusion.noise import batch_noise, draw_key, mix, noise, normal
+
+
+def test_mix_is_the_published_bijection_on_known_values():
+    # lowbias32 on 0 and 1 (checked against the JavaScript twin below as well)
+    assert int(mix(np.array([0], np.uint32))[0]) == 0
+    x = np.arange(1 << 16, dtype=np.uint32)
+    assert len(np.unique(mix(x))) == len(x)
+
+
+def test_values_are_standard_normal():
+    x = normal(123, 1_000_000).astype(np.float64)
+    assert abs(x.mean()) < 0.005 and abs(x.std() - 1) < 0.005
+    assert abs((x ** 3).mean()) < 0.02 and abs((x ** 4).mean() - 3) < 0.05
+    assert abs((np.abs(x) < 1).mean() - 0.6827) < 0.002
+    assert np.abs(x).max() < 5.8
+
+
+def test_draws_are_uncorrelated_across_seeds_streams_draws_and_neighbours():
+    n = 200_000
+    base = normal(5, n)
+    others = [normal(6, n), normal(5, n, stream=1), normal(5, n, draw=1), normal(5 + 2**32, n)]
+    for o in others:
+        assert abs(np.corrcoef(base, o)[0, 1]) < 0.01
+    assert abs(np.corrcoef(base[:-1], base[1:])[0, 1]) < 0.01
+    assert abs(np.corrcoef(base[0::2], base[1::2])[0, 1]) < 0.01  # the two halves of a Box-Muller pair
+
+
+def test_an_items_frames_do_not_depend_on_its_length_or_its_batch():
+    long, short = noise(9, 50, 7), noise(9, 21, 7)
+    np.testing.assert_array_equal(long[:21], short)
+    batch = batch_noise([4, 9], [30, 21], 7)
+    np.testing.assert_array_equal(batch[1, :21], short)
+    assert not batch[1, 21:].any()
+    one_seed = batch_noise(9, [21, 21], 7)  # one seed for the call: item k draws from stream k
+    np.testing.assert_array_equal(one_seed[0], short)
+    np.testing.assert_array_equal(one_seed[1], noise(9, 21, 7, stream=1))
+
+
+def test_seeds_out_of_range_are_refused():
+    with pytest.raises(ValueError):
+        draw_key(2**53)
+    with pytest.raises(ValueError):
+        draw_key(-1)
+
+
+@pytest.mark.skipif(shutil.which("node") is None, reason="needs Node.js for the JavaScript twin")
+def test_javascript_gives_the_same_numbers(tmp_path):
+    js = resources.files("stablemofusion") / "assets" / "runtime" / "noise.js"
+    cases = [(0, 0, 0, 80, 263), (2**53 - 1, 3, 2, 5, 7), (2147853511, 31, 9, 13, 263), (123456789012345, 0, 1, 1, 3)]
+    script = tmp_path / "run.mjs"
+    script.write_text(f"import {{ noise, drawKey }} from {json.dumps(js.as_uri())};\n"
+                      f"const cases = {json.dumps(cases)};\n"
+                      "console.log(JSON.stringify(cases.map(([s, st, d, f, n]) => "
+                      "({key: drawKey(s, st, d), values: Array.from(noise(s, f, n, {stream: st, draw: d}))}))));\n")
+    out = json.loads(subprocess.run(["node", str(script)], capture_output=True, text=True, check=True,
+                                    timeout=60).stdout)
+    for (s, st, d, f, n), got in zip(cases, out):
+        assert got["key"] == draw_key(s, st, d)
+        want = noise(s, f, n, stream=st, draw=d).ravel()
+        js_values = np.asarray(got["values"], dtype=np.float32)
+        assert js_values.shape == want.shape
+        ulps = np.abs(js_values.view(np.int32).astype(np.int64) - want.view(np.int32).astype(np.int64))
+        assert ulps.max() <= 1, (s, st, d, int(ulps.max()))

@@ -25,7 +25,6 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-import torch
 
 from ..errors import SMFError
 from ..motion.features import feature_slices, features_from_joints
@@ -33,7 +32,7 @@ from ..motion.rigid import (CM, DEFAULT_FIT, RigidFitConfig, RigidMotion, fit_ri
                             rigid_from_features, rigid_to_features)
 from .contacts import HML_FOOT_JOINTS, KinematicContactConfig, contacts_from_vgrf, kinematic_contacts, runs
 
-VgrfModel = Callable[[torch.Tensor], torch.Tensor]  # (B, T, 22, 3) metres, Y up, 20 fps -> (B, T, 2, 16)
+VgrfModel = Callable  # torch: (B, T, 22, 3) metres, Y up, 20 fps -> (B, T, 2, 16); the vGRF route needs torch
 LEG_JOINTS = (1, 2, 4, 5, 7, 8, 10, 11)
 # the chain from each contact joint (left ankle, left toe, right ankle, right toe) up to its hip
 FOOT_CHAINS = ((1, 4, 7), (1, 4, 7, 10), (2, 5, 8), (2, 5, 8, 11))
@@ -126,6 +125,8 @@ def detect_contacts(joints: np.ndarray, fps: float, config: CleanupConfig,
     if config.contacts == "vgrf":
         if vgrf_model is None:
             raise SMFError("contacts='vgrf' needs a vGRF model (a distilled 22-joint model or UnderPressure)")
+        import torch
+
         with torch.no_grad():
             f = vgrf_model(torch.as_tensor(joints, dtype=torch.float32)[None])[0].double().numpy()
         return contacts_from_vgrf(f, fps)
@@ -143,32 +144,70 @@ def cleanup_rigid(motion: RigidMotion, fps: float = 20.0, config: CleanupConfig 
     c = detect_contacts(x0, fps, config, vgrf_model) if contacts is None else np.asarray(contacts, bool)
     target, mask = anchor_targets(x0, c, floor=config.anchor_floor, max_shift=config.max_anchor_shift,
                                   bone_lengths=motion.bone_lengths, reach_margin=config.reach_margin)
-    X0 = torch.as_tensor(x0 * CM, dtype=torch.float64)
-    tgt = torch.as_tensor(target * CM, dtype=torch.float64)
-    m = torch.as_tensor(mask, dtype=torch.float64)[..., None]
-    n_anchor = max(1.0, float(mask.sum()))
-    w_joint = torch.ones(22, dtype=torch.float64)
-    w_joint[list(LEG_JOINTS)] = config.leg_pose_scale
-    use_vgrf = vgrf_model is not None and config.w_vgrf > 0
-    if use_vgrf:
-        with torch.no_grad():
-            g0 = vgrf_model(X0[None].float() / CM).double()
-    foot_idx = list(HML_FOOT_JOINTS)
-
-    def loss_fn(X: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
-        local = X - X0 - shift[:, None]  # the pose's own change (the root's is zero)
-        loss = config.w_pose * ((local ** 2).sum(-1) * w_joint).mean()
-        loss = loss + config.w_anchor * (((X[:, foot_idx] - tgt) ** 2) * m).sum() / n_anchor
-        loss = loss + config.w_root * ((shift[1:] - shift[:-1]) ** 2).sum(-1).mean()
-        loss = loss + config.w_root_offset * (shift ** 2).sum(-1).mean()
-        loss = loss + config.w_smooth * ((local[1:] - local[:-1]) ** 2).sum(-1).mean()
-        loss = loss + config.w_floor * (torch.relu(-X[..., 1]) ** 2).mean()
-        if use_vgrf:
-            loss = loss + config.w_vgrf * 100.0 * ((vgrf_model(X[None].float() / CM).double() - g0) ** 2).mean()
-        return loss
-
+    loss_fn = _cleanup_loss(x0 * CM, target * CM, mask, config, vgrf_model)
     out = optimise_pose(motion, loss_fn, config.iterations)
     return CleanupResult(out.joints(), c, out)
+
+
+def _cleanup_loss(X0: np.ndarray, tgt: np.ndarray, mask: np.ndarray, config: CleanupConfig,
+                  vgrf_model: VgrfModel | None):
+    """The loss of :func:`cleanup_rigid` (module docstring) and its gradient, on joints X (T, 22, 3) cm and the
+    root's shift (T, 3) cm: (value, dvalue/dX, dvalue/dshift)."""
+    T, J = X0.shape[:2]
+    m = mask.astype(np.float64)[..., None]
+    n_anchor = max(1.0, float(mask.sum()))
+    w_joint = np.ones(J)
+    w_joint[list(LEG_JOINTS)] = config.leg_pose_scale
+    feet = list(HML_FOOT_JOINTS)
+    vgrf = _vgrf_term(X0, vgrf_model) if vgrf_model is not None and config.w_vgrf > 0 else None
+
+    def loss(X: np.ndarray, shift: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        local = X - X0 - shift[:, None]  # the pose's own change (the root's is zero)
+        step = shift[1:] - shift[:-1]
+        moved = local[1:] - local[:-1]
+        below = np.maximum(-X[..., 1], 0.0)
+        off = (X[:, feet] - tgt) * m
+        value = (config.w_pose * ((local ** 2).sum(-1) * w_joint).mean()
+                 + config.w_anchor * (off ** 2).sum() / n_anchor
+                 + config.w_root * (step ** 2).sum(-1).mean()
+                 + config.w_root_offset * (shift ** 2).sum(-1).mean()
+                 + config.w_smooth * (moved ** 2).sum(-1).mean()
+                 + config.w_floor * (below ** 2).mean())
+        g_local = config.w_pose * 2 * local * w_joint[:, None] / (T * J)
+        g_moved = config.w_smooth * 2 * moved / ((T - 1) * J)
+        g_local[1:] += g_moved
+        g_local[:-1] -= g_moved
+        gX = g_local.copy()
+        gX[:, feet] += config.w_anchor * 2 * off / n_anchor
+        gX[..., 1] -= config.w_floor * 2 * below / (T * J)
+        g_step = config.w_root * 2 * step / (T - 1)
+        g_shift = config.w_root_offset * 2 * shift / T - g_local.sum(1)
+        g_shift[1:] += g_step
+        g_shift[:-1] -= g_step
+        if vgrf is not None:
+            v, g = vgrf(X)
+            value += config.w_vgrf * v
+            gX += config.w_vgrf * g
+        return float(value), gX, g_shift
+
+    return loss
+
+
+def _vgrf_term(X0: np.ndarray, vgrf_model: VgrfModel):
+    """The vGRF term (100 x the mean squared change of the predicted forces) and its gradient, through the torch
+    model (the vGRF route needs torch)."""
+    import torch
+
+    with torch.no_grad():
+        g0 = vgrf_model(torch.as_tensor(X0[None] / CM, dtype=torch.float32)).double()
+
+    def term(X: np.ndarray) -> tuple[float, np.ndarray]:
+        x = torch.tensor(X, dtype=torch.float64, requires_grad=True)
+        v = 100.0 * ((vgrf_model(x[None].float() / CM).double() - g0) ** 2).mean()
+        v.backward()
+        return float(v.detach()), x.grad.numpy()
+
+    return term
 
 
 def cleanup_joints(joints: np.ndarray, fps: float = 20.0, config: CleanupConfig = CleanupConfig(), *,

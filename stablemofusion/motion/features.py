@@ -12,11 +12,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 from scipy.ndimage import gaussian_filter1d
 
 from ..errors import MotionFormatError
-from .arrays import numpy_edge
+from .arrays import device, float64_numpy, namespace
 from .kinematics import forward_kinematics
 from .rotation import cont6d_to_matrix, qbetween, qinv, qmul, qrot, quat_to_cont6d, quat_to_matrix, yaw_quat
 from .skeleton import Skeleton, get_skeleton
@@ -210,7 +209,7 @@ def features_from_joints(joints: np.ndarray, skeleton: str | Skeleton = "humanml
     ], axis=-1)
 
 
-def _check_features(features: np.ndarray | torch.Tensor, sk: Skeleton) -> None:
+def _check_features(features, sk: Skeleton) -> None:
     shape = tuple(features.shape)
     if len(shape) < 2 or shape[-1] != sk.feature_dim:
         raise MotionFormatError(f"expected features of shape (..., T, {sk.feature_dim}), got {shape}")
@@ -220,25 +219,25 @@ def _check_features(features: np.ndarray | torch.Tensor, sk: Skeleton) -> None:
         raise MotionFormatError("features contain NaN or inf")
 
 
-@numpy_edge(numpy_dtype=torch.float64)
-def root_from_features(features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+@float64_numpy
+def root_from_features(features):
     """Integrate root yaw and position: (..., T, D) -> yaw quaternions (..., T, 4), root (..., T, 3) in metres
     (numpy in: float64 numpy out)."""
+    xp = namespace(features)
     yaw_vel = features[..., 0]
-    angle = torch.zeros_like(yaw_vel)
-    angle[..., 1:] = yaw_vel[..., :-1]
-    angle = torch.cumsum(angle, dim=-1)
+    zero = xp.zeros_like(yaw_vel[..., :1])
+    angle = xp.cumulative_sum(xp.concat([zero, yaw_vel[..., :-1]], axis=-1), axis=-1)
     # The stored value is the yaw half-angle, so the quaternion uses it directly: (cos a, 0, sin a, 0).
     quat = yaw_quat(2.0 * angle)
-    step = torch.zeros(features.shape[:-1] + (3,), dtype=features.dtype, device=features.device)
-    step[..., 1:, 0] = features[..., :-1, 1]
-    step[..., 1:, 2] = features[..., :-1, 2]
-    root = torch.cumsum(qrot(qinv(quat), step), dim=-2)
-    root[..., 1] = features[..., 3]
+    z = xp.zeros_like(features[..., :1, 0])
+    step = xp.stack([xp.concat([z, features[..., :-1, 1]], axis=-1), xp.zeros_like(yaw_vel),
+                     xp.concat([z, features[..., :-1, 2]], axis=-1)], axis=-1)
+    root = xp.cumulative_sum(qrot(qinv(quat), step), axis=-2)
+    root = xp.stack([root[..., 0], features[..., 3], root[..., 2]], axis=-1)
     return quat, root
 
 
-@numpy_edge(numpy_dtype=torch.float64)
+@float64_numpy
 def joints_from_features(features, skeleton: str | Skeleton = "humanml3d"):
     """Features (..., T, D) -> joint positions (..., T, J, 3) in metres, through the root-relative positions.
 
@@ -251,12 +250,14 @@ def joints_from_features(features, skeleton: str | Skeleton = "humanml3d"):
     quat, root = root_from_features(x)
     J = sk.num_joints
     local = x[..., 4:4 + 3 * (J - 1)].reshape(x.shape[:-1] + (J - 1, 3))
-    world = qrot(qinv(quat)[..., None, :].expand(local.shape[:-1] + (4,)), local)
-    world = torch.cat([world[..., :1] + root[..., None, [0]], world[..., 1:2], world[..., 2:] + root[..., None, [2]]], -1)
-    return torch.cat([root[..., None, :], world], dim=-2)
+    xp = namespace(x)
+    world = qrot(xp.broadcast_to(qinv(quat)[..., None, :], tuple(local.shape[:-1]) + (4,)), local)
+    world = xp.concat([world[..., :1] + root[..., None, :1], world[..., 1:2], world[..., 2:] + root[..., None, 2:]],
+                      axis=-1)
+    return xp.concat([root[..., None, :], world], axis=-2)
 
 
-@numpy_edge(numpy_dtype=torch.float64)
+@float64_numpy
 def joints_from_rotations(features: np.ndarray, skeleton: str | Skeleton = "humanml3d",
                           lengths: np.ndarray | None = None) -> np.ndarray:
     """Features (T, D) -> joints (T, J, 3) through the rotation channels instead of the positions: the root
@@ -273,9 +274,10 @@ def joints_from_rotations(features: np.ndarray, skeleton: str | Skeleton = "huma
     quat, root = root_from_features(x)
     T, J = len(x), sk.num_joints
     local = cont6d_to_matrix(x[:, feature_slices(sk).rotations].reshape(T, J - 1, 6))
-    raw = torch.as_tensor(sk.offsets_array, dtype=x.dtype, device=x.device) * \
-        torch.as_tensor(lengths, dtype=x.dtype, device=x.device)[:, None]
-    pos: list[torch.Tensor | None] = [None] * J
+    xp = namespace(x)
+    raw = xp.asarray(np.asarray(sk.offsets_array) * np.asarray(lengths, dtype=np.float64)[:, None], dtype=x.dtype,
+                     device=device(x))
+    pos: list = [None] * J
     pos[0] = root
     root_m = quat_to_matrix(quat)
     for chain in sk.chains:
@@ -283,7 +285,7 @@ def joints_from_rotations(features: np.ndarray, skeleton: str | Skeleton = "huma
         for p, c in zip(chain[:-1], chain[1:]):
             acc = acc @ local[:, c - 1]
             pos[c] = pos[p] + acc @ raw[c]
-    return torch.stack(pos, 1)
+    return xp.stack(pos, axis=1)
 
 
 def features_in_frames_of(joints: np.ndarray, reference: np.ndarray, skeleton: str | Skeleton = "humanml3d", *,
@@ -322,11 +324,10 @@ def features_in_frames_of(joints: np.ndarray, reference: np.ndarray, skeleton: s
     return out
 
 
-def _signs(values: list[float], like: torch.Tensor) -> torch.Tensor:
-    return torch.tensor(values, dtype=like.dtype, device=like.device)
+def _signs(values: list[float], like):
+    return namespace(like).asarray(values, dtype=like.dtype, device=device(like))
 
 
-@numpy_edge
 def mirror_joints(joints, skeleton: str | Skeleton = "humanml3d"):
     """Left/right mirror (..., J, 3): negate X and swap left and right joints (HumanML3D's M-copies)."""
     sk = get_skeleton(skeleton)
@@ -334,7 +335,6 @@ def mirror_joints(joints, skeleton: str | Skeleton = "humanml3d"):
     return out * _signs([-1.0, 1.0, 1.0], out)
 
 
-@numpy_edge
 def mirror_features(features, skeleton: str | Skeleton = "humanml3d"):
     """Mirror features (..., D) directly, equal to features_from_joints(mirror_joints(joints)).
 
@@ -345,10 +345,11 @@ def mirror_features(features, skeleton: str | Skeleton = "humanml3d"):
     J = sk.num_joints
     s = feature_slices(sk)
     perm = sk.mirror_permutation
-    if not features.is_floating_point():
-        features = features.float()
-    lead = features.shape[:-1]
-    out = features.clone()
+    xp = namespace(features)
+    if not xp.isdtype(features.dtype, "real floating"):
+        features = xp.astype(features, xp.float32)
+    lead = tuple(features.shape[:-1])
+    out = features + 0.0  # a copy (differentiable for tensors)
     out[..., 0] = -features[..., 0]
     out[..., 1] = -features[..., 1]
     ric = features[..., s.positions].reshape(lead + (J - 1, 3))[..., perm[1:] - 1, :]

@@ -13,9 +13,9 @@ G_c = G_p @ R_c; positions p_0 = root, p_c = p_p + G_p @ offsets[c] (p = parents
 is not used). Without rotations (``None``) every G is the identity: p_c = p_p + offsets[c], the offsets
 being already in world axes (a rest pose, or bone vectors).
 
-Written once, in torch (differentiable, any device and dtype); numpy arrays in give numpy arrays out
-(:func:`stablemofusion.motion.arrays.numpy_edge`). Vectorised over frames and batch: one step per depth of
-the tree, all joints of a depth at once.
+Written once against the array API (:func:`stablemofusion.motion.arrays.namespace`): numpy in gives numpy out,
+torch in gives torch out (differentiable, any device and dtype). Vectorised over frames and batch: one step
+per depth of the tree, all joints of a depth at once.
 """
 
 from __future__ import annotations
@@ -25,10 +25,9 @@ from functools import lru_cache
 from typing import Sequence
 
 import numpy as np
-import torch
 
 from ..errors import SMFError
-from .arrays import numpy_edge
+from .arrays import device, namespace
 
 
 @dataclass(frozen=True)
@@ -36,16 +35,14 @@ class Levels:
     """A joint tree by depth: ``joints[d]`` the joints at depth d + 1, ``parents[d]`` their parents as
     indices into the joints at depth d, ``order`` the permutation from depth order back to joint order."""
 
-    joints: tuple[torch.Tensor, ...]
-    parents: tuple[torch.Tensor, ...]
-    order: torch.Tensor
+    joints: tuple[np.ndarray, ...]
+    parents: tuple[np.ndarray, ...]
+    order: np.ndarray
 
 
-def as_parents(parents: Sequence[int] | np.ndarray | torch.Tensor) -> tuple[int, ...]:
-    """``parents`` as a tuple of ints (the key of the cached :func:`levels`)."""
-    if isinstance(parents, (np.ndarray, torch.Tensor)):
-        return tuple(int(p) for p in parents.tolist())
-    return tuple(int(p) for p in parents)
+def as_parents(parents) -> tuple[int, ...]:
+    """``parents`` (a sequence or an array of ints) as a tuple of ints (the key of the cached :func:`levels`)."""
+    return tuple(int(p) for p in (parents.tolist() if hasattr(parents, "tolist") else parents))
 
 
 @lru_cache(maxsize=64)
@@ -61,16 +58,14 @@ def levels(parents: tuple[int, ...]) -> Levels:
     by_depth = [[j for j in range(J) if depth[j] == d] for d in range(max(depth) + 1)]
     place = {j: i for level in by_depth for i, j in enumerate(level)}  # index within its own depth
     flat = [j for level in by_depth for j in level]
-    index = lambda xs: torch.tensor(xs, dtype=torch.long)  # noqa: E731
+    index = lambda xs: np.asarray(xs, dtype=np.int64)  # noqa: E731
     return Levels(tuple(index(level) for level in by_depth[1:]),
                   tuple(index([place[parents[j]] for j in level]) for level in by_depth[1:]),
                   index([flat.index(j) for j in range(J)]))
 
 
-@numpy_edge
-def forward_kinematics(offsets: torch.Tensor, rotations: torch.Tensor | None, root: torch.Tensor,
-                       parents: Sequence[int] | np.ndarray | torch.Tensor, *,
-                       global_rotations: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+def forward_kinematics(offsets, rotations, root, parents: Sequence[int] | np.ndarray, *,
+                       global_rotations: bool = False):
     """Joint positions of a posed tree (convention: module docstring).
 
     ``offsets`` (..., J, 3) metres (e.g. (J, 3) for one skeleton, (N, J, 3) per frame, (M, 1, J, 3) per
@@ -82,23 +77,26 @@ def forward_kinematics(offsets: torch.Tensor, rotations: torch.Tensor | None, ro
     lv = levels(as_parents(parents))
     if rotations is None and global_rotations:
         raise SMFError("global rotations need local rotations")
+    xp = namespace(offsets, rotations, root)
+    index = (lambda a: xp.asarray(a, device=device(root)))  # noqa: E731
     pos = root[..., None, :]  # (..., 1, 3): depth 0, broadcast to the others' batch below
     glob = None if rotations is None else rotations[..., :1, :, :]
     all_pos, all_glob = [pos], [glob]
-    for js, idx in zip(lv.joints, lv.parents):  # index_select: several times faster than x[..., idx, :]
-        off = offsets.index_select(-2, js)
+    for js, idx in zip(lv.joints, lv.parents):  # take: several times faster than x[..., idx, :] in torch
+        js, idx = index(js), index(idx)
+        off = xp.take(offsets, js, axis=-2)
         if glob is None:
-            pos = pos.index_select(-2, idx) + off
+            pos = xp.take(pos, idx, axis=-2) + off
         else:
-            g_par = glob.index_select(-3, idx)
-            pos = pos.index_select(-2, idx) + (g_par @ off[..., None])[..., 0]
-            glob = g_par @ rotations.index_select(-3, js)
+            g_par = xp.take(glob, idx, axis=-3)
+            pos = xp.take(pos, idx, axis=-2) + (g_par @ off[..., None])[..., 0]
+            glob = g_par @ xp.take(rotations, js, axis=-3)
             all_glob.append(glob)
         all_pos.append(pos)
     if len(all_pos) > 1:  # depth 1 on has every leading dimension (root, offsets, rotations)
-        all_pos[0] = all_pos[0].expand(all_pos[1].shape[:-2] + (1, 3))
-    positions = torch.cat(all_pos, dim=-2).index_select(-2, lv.order)
+        all_pos[0] = xp.broadcast_to(all_pos[0], tuple(all_pos[1].shape[:-2]) + (1, 3))
+    positions = xp.take(xp.concat(all_pos, axis=-2), index(lv.order), axis=-2)
     if not global_rotations:
         return positions
-    all_glob[0] = all_glob[0].expand(all_glob[-1].shape[:-3] + (1, 3, 3))
-    return positions, torch.cat(all_glob, dim=-3).index_select(-3, lv.order)
+    all_glob[0] = xp.broadcast_to(all_glob[0], tuple(all_glob[-1].shape[:-3]) + (1, 3, 3))
+    return positions, xp.take(xp.concat(all_glob, axis=-3), index(lv.order), axis=-3)

@@ -19,13 +19,12 @@ from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
-import torch
 
 from ..errors import SMFError
 from . import rigid_batch
 from .features import bone_lengths, features_in_frames_of, joints_from_features, joints_from_rotations
 from .kinematics import forward_kinematics  # also public here: the rigid body's forward kinematics
-from .rotation import cont6d_to_matrix
+from .lbfgs import lbfgs
 from .skeleton import Skeleton, get_skeleton
 
 BONE_LENGTHS = ("dataset", "median")
@@ -33,8 +32,8 @@ CM = 100.0  # the optimisation works in centimetres, so squared errors are O(1)
 COLLAPSED_M = 1e-6  # a frame whose every bone is shorter than this (m) has no pose to fit
 BRANCH_SCALE = 15.0  # cm: about the lever of a branching joint's children (hips, spine, neck, collars)
 
-# (X (T, J, 3) positions in cm, root_shift (T, 3) cm) -> scalar loss; see :func:`optimise_pose`
-PoseLoss = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+# (X (T, J, 3) positions in cm, root_shift (T, 3) cm) -> (loss, dloss/dX, dloss/dshift); see :func:`optimise_pose`
+PoseLoss = Callable[[np.ndarray, np.ndarray], tuple[float, np.ndarray, np.ndarray]]
 
 
 @dataclass
@@ -114,9 +113,10 @@ def global_rotations(motion: RigidMotion) -> np.ndarray:
 
 
 def optimise_pose(motion: RigidMotion, loss: PoseLoss, iterations: int) -> RigidMotion:
-    """Minimise ``loss`` over the pose and the root path of ``motion`` with L-BFGS; bone lengths never change.
-    ``loss`` gets the posed joints X (T, J, 3) and the root's shift from ``motion.root`` (T, 3), both in
-    centimetres, float64. Returns the optimised motion (the input when ``iterations`` is 0).
+    """Minimise ``loss`` over the pose and the root path of ``motion`` with L-BFGS (:func:`~stablemofusion.motion.
+    lbfgs.lbfgs`); bone lengths never change. ``loss(X, shift)`` gets the posed joints X (T, J, 3) and the root's
+    shift from ``motion.root`` (T, 3), both in centimetres, float64, and returns (value, dvalue/dX, dvalue/dshift).
+    Returns the optimised motion (the input when ``iterations`` is 0).
 
     Parametrised for a well-conditioned problem: the root path, the global orientation of each branching
     joint (its children's offsets stay rigid) and the global direction of every other bone (its length
@@ -126,47 +126,94 @@ def optimise_pose(motion: RigidMotion, loss: PoseLoss, iterations: int) -> Rigid
     if iterations <= 0:
         return motion
     sk = get_skeleton(motion.skeleton)
-    parents = sk.parents
-    J = sk.num_joints
-    kids = [sum(1 for c in parents if c == j) for j in range(J)]
-    branch = [j for j in range(J) if kids[j] > 1]
-    free = [c for c in range(1, J) if kids[parents[c]] == 1]  # bones free to turn: parent has one child
-    x0 = motion.joints()
-    glob = global_rotations(motion)[:, branch]
-    off = torch.as_tensor(motion.offsets * CM, dtype=torch.float64)  # float64: fewer steps' results depend on
-    length = torch.as_tensor(motion.bone_lengths * CM, dtype=torch.float64)  # rounding, and on CPU it is faster
-    root0 = torch.as_tensor(motion.root * CM, dtype=torch.float64)
-    # flat leaves (L-BFGS needs contiguous gradients): bone vectors in cm (T, F, 3), so that a unit step moves a
-    # joint about 1 cm; scaled 6D orientations of the branching joints (T, B, 6); the root's shift in cm (T, 3)
-    u0 = (x0[:, free] - x0[:, [parents[c] for c in free]]) * CM
-    g0 = np.concatenate([glob[..., :, 0], glob[..., :, 1]], -1) * BRANCH_SCALE
-    flat = [torch.tensor(a.ravel(), dtype=torch.float64, requires_grad=True) for a in (u0, g0, np.zeros((len(x0), 3)))]
-    b_index, f_index = {j: i for i, j in enumerate(branch)}, {c: i for i, c in enumerate(free)}
-
-    def positions() -> torch.Tensor:
-        u, g6, shift = flat[0].reshape(u0.shape), flat[1].reshape(g0.shape), flat[2].reshape(-1, 3)
-        rot = cont6d_to_matrix(g6 / BRANCH_SCALE)
-        unit = u / torch.linalg.vector_norm(u, dim=-1, keepdim=True).clamp_min(1e-6)
-        bones = [torch.zeros_like(root0)]  # each joint's bone vector in world axes (cm), the root's unused
-        for j in range(1, J):
-            p = parents[j]
-            bones.append((rot[:, b_index[p]] @ off[j, :, None])[..., 0] if p in b_index
-                         else length[j] * unit[:, f_index[j]])
-        return forward_kinematics(torch.stack(bones, dim=1), None, root0 + shift, parents)
-
-    opt = torch.optim.LBFGS(flat, lr=1.0, max_iter=iterations, history_size=10, line_search_fn="strong_wolfe")
-
-    def closure() -> torch.Tensor:
-        opt.zero_grad()
-        value = loss(positions(), flat[2].reshape(-1, 3))
-        value.backward()
-        return value
-
-    opt.step(closure)
-    with torch.no_grad():
-        x = positions().numpy() / CM
+    body = _PoseParams(motion, sk)
+    theta = lbfgs(body.objective(loss), body.theta0, iterations)
+    x = body.positions(theta)[0] / CM
     offsets, rotations = pose_from_joints(x, sk, motion.bone_lengths)
     return RigidMotion(offsets, rotations, x[:, 0].copy(), motion.skeleton)
+
+
+class _PoseParams:
+    """The parametrisation of :func:`optimise_pose` as one flat vector: bone vectors of the free bones in cm
+    (T, F, 3), scaled 6D orientations of the branching joints (T, B, 6), the root's shift in cm (T, 3); the
+    joints it poses and the chain rule back from the joints' gradient."""
+
+    def __init__(self, motion: RigidMotion, sk: Skeleton):
+        parents = np.asarray(sk.parents)
+        J = sk.num_joints
+        kids = np.bincount(parents[1:], minlength=J)
+        self.parents, self.J = parents, J
+        self.branch = [j for j in range(J) if kids[j] > 1]
+        self.free = [c for c in range(1, J) if kids[parents[c]] == 1]  # bones free to turn: parent has one child
+        self.under_branch = [c for c in range(1, J) if kids[parents[c]] > 1]
+        b_index = {j: i for i, j in enumerate(self.branch)}
+        self.branch_of = np.asarray([b_index[parents[c]] for c in self.under_branch])
+        x0 = motion.joints()
+        glob = global_rotations(motion)[:, self.branch]
+        self.off = motion.offsets * CM
+        self.length = motion.bone_lengths * CM
+        self.root0 = motion.root * CM
+        T = len(x0)
+        u0 = (x0[:, self.free] - x0[:, parents[self.free]]) * CM
+        g0 = np.concatenate([glob[..., :, 0], glob[..., :, 1]], -1) * BRANCH_SCALE
+        self.shapes = [u0.shape, g0.shape, (T, 3)]
+        self.theta0 = np.concatenate([u0.ravel(), g0.ravel(), np.zeros(T * 3)])
+        sub = np.eye(J)  # subtree[j, k] = 1 where k is j or below it
+        for c in range(J - 1, 0, -1):
+            sub[parents[c]] += sub[c]
+        self.subtree = np.minimum(sub, 1.0)
+
+    def split(self, theta: np.ndarray) -> list[np.ndarray]:
+        out, a = [], 0
+        for shape in self.shapes:
+            n = int(np.prod(shape))
+            out.append(theta[a:a + n].reshape(shape))
+            a += n
+        return out
+
+    def positions(self, theta: np.ndarray):
+        """Joints (T, J, 3) cm of ``theta``, and what the chain rule needs."""
+        u, g6, shift = self.split(theta)
+        a, b = g6[..., :3] / BRANCH_SCALE, g6[..., 3:] / BRANCH_SCALE
+        na = np.linalg.norm(a, axis=-1, keepdims=True)
+        x = a / na
+        w = np.cross(x, b)
+        nw = np.linalg.norm(w, axis=-1, keepdims=True)
+        z = w / nw
+        y = np.cross(z, x)
+        rot = np.stack([x, y, z], -1)  # (T, B, 3, 3) columns x, y, z
+        nu = np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-6)
+        bones = np.zeros((len(u), self.J, 3))
+        bones[:, self.free] = self.length[self.free, None] * u / nu
+        bones[:, self.under_branch] = np.einsum("tcij,cj->tci", rot[:, self.branch_of], self.off[self.under_branch])
+        X = forward_kinematics(bones, None, self.root0 + shift, self.parents)
+        return X, (u, nu, a, na, b, x, y, z, w, nw, shift)
+
+    def objective(self, loss: PoseLoss):
+        def f(theta: np.ndarray) -> tuple[float, np.ndarray]:
+            X, (u, nu, a, na, b, x, y, z, w, nw, shift) = self.positions(theta)
+            value, gX, gshift = loss(X, shift)
+            g_bone = np.einsum("jk,tkc->tjc", self.subtree, gX)  # a bone moves its whole subtree
+            # free bones: bone = length * u / |u|
+            gb = g_bone[:, self.free]
+            n = u / nu
+            g_u = self.length[self.free, None] / nu * (gb - n * np.sum(n * gb, -1, keepdims=True))
+            # branching joints: bone_c = R_b off_c, R = Gram-Schmidt of (a, b)
+            g_rot = np.zeros(x.shape[:2] + (3, 3))
+            np.add.at(g_rot, (slice(None), self.branch_of),
+                      np.einsum("tci,cj->tcij", g_bone[:, self.under_branch], self.off[self.under_branch]))
+            gx, gy, gz = g_rot[..., 0], g_rot[..., 1], g_rot[..., 2]
+            gz = gz + np.cross(x, gy)  # y = z x x
+            gx = gx + np.cross(gy, z)
+            gw = (gz - z * np.sum(z * gz, -1, keepdims=True)) / nw  # z = w / |w|
+            gx = gx + np.cross(b, gw)  # w = x x b
+            g_b = np.cross(gw, x)
+            g_a = (gx - x * np.sum(x * gx, -1, keepdims=True)) / na  # x = a / |a|
+            g_g6 = np.concatenate([g_a, g_b], -1) / BRANCH_SCALE
+            g_shift = gshift + gX.sum(1)
+            return float(value), np.concatenate([g_u.ravel(), g_g6.ravel(), g_shift.ravel()])
+
+        return f
 
 
 FIT_STARTS = ("rotations", "positions")
@@ -232,9 +279,8 @@ def fit_rigid_many(targets: list[np.ndarray], skeleton: str | Skeleton = "humanm
         out = []
         for x, begin, length in zip(xs, begins, lengths):
             offsets, rotations = pose_from_joints(x if begin is None else begin, sk, length)
-            target = torch.as_tensor(x * CM, dtype=torch.float64)
             out.append(optimise_pose(RigidMotion(offsets, rotations, x[:, 0].copy(), sk.name),
-                                     lambda X, _, t=target: ((X - t) ** 2).sum(-1).mean(), config.iterations))
+                                     _squared_distance(x * CM), config.iterations))
         return out
     starts_at = np.cumsum([0] + [len(x) for x in xs[:-1]])
     stacked = np.concatenate(xs)
@@ -247,6 +293,16 @@ def fit_rigid_many(targets: list[np.ndarray], skeleton: str | Skeleton = "humanm
     ends = np.append(starts_at[1:], len(fitted))
     return [RigidMotion(offsets[i], rotations[a:b], root[a:b], sk.name).with_joints(joints[a:b])
             for i, (a, b) in enumerate(zip(starts_at, ends))]
+
+
+def _squared_distance(target: np.ndarray) -> PoseLoss:
+    """The mean over frames of the summed squared distance of every joint to ``target`` (T, J, 3) cm."""
+
+    def loss(X: np.ndarray, shift: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        d = X - target
+        return float((d ** 2).sum() / len(X)), 2 * d / len(X), np.zeros_like(shift)
+
+    return loss
 
 
 def fit_rigid(targets: np.ndarray, skeleton: str | Skeleton = "humanml3d", config: RigidFitConfig = DEFAULT_FIT, *,

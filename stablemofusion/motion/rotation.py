@@ -1,57 +1,53 @@
 """Rotation helpers for quaternions (w, x, y, z), rotation matrices and the continuous 6D form.
 
-Written once in torch and broadcasting over leading dims; every function also takes numpy arrays and then
-returns numpy arrays of the same dtype (:func:`stablemofusion.motion.arrays.numpy_edge`). Angles in radians.
+Written once against the array API (:func:`stablemofusion.motion.arrays.namespace`), broadcasting over leading
+dims: numpy in gives numpy out (same dtype), torch in gives torch out (differentiable). Angles in radians.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import torch
-from torch import Tensor
 
-from .arrays import Array, numpy_edge
+from .arrays import Array, namespace
 
 __all__ = ["Array", "cont6d_to_matrix", "matrix_to_quat", "qbetween", "qinv", "qmul", "qnormalize", "qrot",
            "quat_to_cont6d", "quat_to_matrix", "yaw_quat"]
 
 
-def _norm(x: Tensor) -> Tensor:
+def _norm(x: Array) -> Array:
     """(..., n) -> (..., 1) Euclidean length."""
-    return torch.linalg.vector_norm(x, dim=-1, keepdim=True)
+    return namespace(x).linalg.vector_norm(x, axis=-1, keepdims=True)
 
 
-def _cross(a: Tensor, b: Tensor) -> Tensor:
+def _cross(a: Array, b: Array) -> Array:
     """Cross product over the last dim (3), broadcasting leading dims as numpy does (any number of them)."""
-    return torch.linalg.cross(*torch.broadcast_tensors(a, b), dim=-1)
+    xp = namespace(a, b)
+    return xp.linalg.cross(*xp.broadcast_arrays(a, b), axis=-1)
 
 
-@numpy_edge
 def qnormalize(q: Array) -> Array:
     """Unit quaternion(s) (..., 4)."""
     return q / _norm(q)
 
 
-@numpy_edge
 def qinv(q: Array) -> Array:
     """Inverse of unit quaternion(s) (..., 4): the conjugate."""
-    return torch.cat([q[..., :1], -q[..., 1:]], -1)
+    return namespace(q).concat([q[..., :1], -q[..., 1:]], axis=-1)
 
 
-@numpy_edge
 def qmul(a: Array, b: Array) -> Array:
     """Hamilton product a*b of quaternions (..., 4): apply b first, then a."""
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack([
+    xp = namespace(a, b)
+    aw, ax, ay, az = xp.unstack(a, axis=-1)
+    bw, bx, by, bz = xp.unstack(b, axis=-1)
+    return xp.stack([
         aw * bw - ax * bx - ay * by - az * bz,
         aw * bx + ax * bw + ay * bz - az * by,
         aw * by - ax * bz + ay * bw + az * bx,
         aw * bz + ax * by - ay * bx + az * bw,
-    ], -1)
+    ], axis=-1)
 
 
-@numpy_edge
 def qrot(q: Array, v: Array) -> Array:
     """Rotate vectors v (..., 3) by unit quaternions q (..., 4)."""
     w, u = q[..., :1], q[..., 1:]
@@ -59,44 +55,56 @@ def qrot(q: Array, v: Array) -> Array:
     return v + 2.0 * (w * uv + _cross(u, uv))
 
 
-@numpy_edge
 def qbetween(v0: Array, v1: Array) -> Array:
     """Shortest-arc unit quaternion rotating direction v0 onto v1 (..., 3) -> (..., 4)."""
-    w = _norm(v0) * _norm(v1) + (v0 * v1).sum(-1, keepdim=True)
-    return qnormalize(torch.cat([w, _cross(v0, v1)], -1))
+    xp = namespace(v0, v1)
+    w = _norm(v0) * _norm(v1) + xp.sum(v0 * v1, axis=-1, keepdims=True)
+    cross = _cross(v0, v1)
+    return qnormalize(xp.concat([xp.broadcast_to(w, cross.shape[:-1] + (1,)), cross], axis=-1))
 
 
-@numpy_edge
 def quat_to_matrix(q: Array) -> Array:
     """Unit quaternions (..., 4) -> rotation matrices (..., 3, 3)."""
-    w, x, y, z = q.unbind(-1)
-    return torch.stack([
-        torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        torch.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
+    xp = namespace(q)
+    w, x, y, z = xp.unstack(q, axis=-1)
+    return xp.stack([
+        xp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+        xp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+        xp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+    ], axis=-2)
 
 
 def matrix_to_quat(m: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) -> unit quaternions (..., 4) with w >= 0 (numpy, float64: scipy's
-    conversion)."""
-    from scipy.spatial.transform import Rotation
-
+    """Rotation matrices (..., 3, 3) -> unit quaternions (..., 4) with w >= 0 (numpy, float64): the largest of
+    the four squared components decides which formula is stable (Shepperd's method)."""
+    m = np.asarray(m, dtype=np.float64)
     shape = m.shape[:-2]
-    xyzw = Rotation.from_matrix(np.asarray(m, dtype=np.float64).reshape(-1, 3, 3)).as_quat()
-    q = np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=-1)
-    q = q * np.where(q[:, :1] < 0, -1.0, 1.0)
+    r = m.reshape(-1, 3, 3)
+    tr = r[:, 0, 0] + r[:, 1, 1] + r[:, 2, 2]
+    # 4 w^2, 4 x^2, 4 y^2, 4 z^2 (up to rounding): the largest is at least 1
+    sq = np.stack([1 + tr, 1 + 2 * r[:, 0, 0] - tr, 1 + 2 * r[:, 1, 1] - tr, 1 + 2 * r[:, 2, 2] - tr], -1)
+    k = np.argmax(sq, -1)
+    s = np.sqrt(np.maximum(sq[np.arange(len(r)), k], 1e-300))  # 2 |component k|
+    zyx = np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]], -1)  # 4 w (x, y, z)
+    xy, xz, yz = r[:, 0, 1] + r[:, 1, 0], r[:, 0, 2] + r[:, 2, 0], r[:, 1, 2] + r[:, 2, 1]  # 4 xy, 4 xz, 4 yz
+    q = np.empty((len(r), 4))
+    rows = [np.stack([s, zyx[:, 0] / s, zyx[:, 1] / s, zyx[:, 2] / s], -1) / 2,
+            np.stack([zyx[:, 0] / s, s, xy / s, xz / s], -1) / 2,
+            np.stack([zyx[:, 1] / s, xy / s, s, yz / s], -1) / 2,
+            np.stack([zyx[:, 2] / s, xz / s, yz / s, s], -1) / 2]
+    for i in range(4):
+        q[k == i] = rows[i][k == i]
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
     return q.reshape(shape + (4,))
 
 
-@numpy_edge
 def quat_to_cont6d(q: Array) -> Array:
     """Unit quaternions (..., 4) -> continuous 6D (..., 6): the first two matrix columns, concatenated."""
     m = quat_to_matrix(q)
-    return torch.cat([m[..., :, 0], m[..., :, 1]], -1)
+    return namespace(q).concat([m[..., :, 0], m[..., :, 1]], axis=-1)
 
 
-@numpy_edge
 def cont6d_to_matrix(d6: Array) -> Array:
     """Continuous 6D (..., 6) -> rotation matrices (..., 3, 3) by Gram-Schmidt (columns x, y, z)."""
     a, b = d6[..., 0:3], d6[..., 3:6]
@@ -104,12 +112,12 @@ def cont6d_to_matrix(d6: Array) -> Array:
     z = _cross(x, b)
     z = z / _norm(z)
     y = _cross(z, x)
-    return torch.stack([x, y, z], -1)
+    return namespace(d6).stack([x, y, z], axis=-1)
 
 
-@numpy_edge
 def yaw_quat(angle: Array) -> Array:
     """Quaternion (..., 4) of a rotation by ``angle`` (...) radians about +Y."""
+    xp = namespace(angle)
     half = angle / 2.0
-    zeros = torch.zeros_like(half)
-    return torch.stack([torch.cos(half), zeros, torch.sin(half), zeros], -1)
+    zeros = xp.zeros_like(half)
+    return xp.stack([xp.cos(half), zeros, xp.sin(half), zeros], axis=-1)

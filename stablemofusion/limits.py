@@ -48,6 +48,7 @@ MIN_GUIDANCE, MAX_GUIDANCE = 0.0, 20.0
 MAX_SEGMENTS = 16  # segments of a timeline
 MAX_PROMPT_CHARS = 300
 MAX_BATCH_SIZE = 256
+LENGTH_MULTIPLE = 4  # generated lengths are whole multiples of this many frames (pipelines, distillation)
 SEED_RANGE = 2**53  # seeds are whole numbers in [0, SEED_RANGE): exact in JavaScript too (the viewer sends them back)
 FRESH_SEEDS = 2**32  # a request without a seed gets one drawn from [0, FRESH_SEEDS): short enough to type again
 

@@ -159,7 +159,7 @@ def _tables(sampler: str, steps_range: range, schedule, arrays: dict[str, np.nda
 def export_model_graphs(components, out: Path) -> dict:
     """The condition and denoise graphs, the sampler tables and the settings of one loaded model
     (:class:`~stablemofusion.pipelines.components.Components`) into ``out``; returns its manifest entry."""
-    from .diffusion.config import LENGTH_MULTIPLE
+    from .limits import LENGTH_MULTIPLE
     from .diffusion.schedulers import parse_sampler, sampler_names
 
     model = components.model.float().eval()

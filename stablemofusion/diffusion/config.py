@@ -13,11 +13,11 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 from ..errors import SMFError
+from ..limits import LENGTH_MULTIPLE  # noqa: F401  (public here too)
 from ..models.base import ModelConfig
 from ..motion.skeleton import HUMANML3D, get_skeleton
 from .schedule import ScheduleConfig
 
-LENGTH_MULTIPLE = 4  # generated lengths are whole multiples of this many frames (pipelines, distillation)
 
 
 @dataclass

@@ -11,18 +11,19 @@ import numpy as np
 import torch
 
 from ..diffusion.checkpoint import companion_file, load_checkpoint, teacher_folder
-from ..diffusion.config import LENGTH_MULTIPLE, CheckpointConfig
+from ..diffusion.config import CheckpointConfig
 from ..diffusion.engine import SolverEngine, check_engine
 from ..diffusion.solvers import SolverTable, solver_table
 from ..errors import SMFError
 from ..models.base import TextCondition
-from ..motion.rigid import DEFAULT_FIT, RigidFitConfig, RigidMotion, rigid_from_features_many, rigid_to_features
+from ..motion.rigid import DEFAULT_FIT, RigidFitConfig, RigidMotion
 from ..motion.skeleton import get_skeleton
 from ..text.known import ACTIONS_FILE, DomainCheck, KnownActions
 from ..text.length import WEIGHTS as LENGTH_WEIGHTS
 from ..text.length import LengthEstimator
-from ..limits import DEFAULT_SECONDS, MAX_STEPS, STUDENT_MAX_STEPS, check_footskate, check_seconds
-from .settings import LengthClampedWarning, OutOfDomainWarning, Settings, resolve_engine
+from ..limits import MAX_STEPS, STUDENT_MAX_STEPS
+from .final import OutOfDomainWarning, finish_many, frames_for
+from .settings import Settings, resolve_engine
 
 
 def default_model_path() -> Path | None:
@@ -218,17 +219,9 @@ class Components:
         return [int(f) / self.fps for f in frames]
 
     def frames_for(self, seconds: float | None, frames: int | None) -> int:
-        """A requested duration in frames, a multiple of ``LENGTH_MULTIPLE``, at least the model's shortest
-        (warning if changed); lengths past ``max_frames`` are kept: they are generated window by window (timelines)."""
-        if frames is None:
-            frames = int(round(check_seconds(DEFAULT_SECONDS if seconds is None else seconds) * self.fps))
-        check_seconds(frames / self.fps, "the length")  # more than 0 frames, at most MAX_SECONDS
-        n = max(frames, self.min_frames) // LENGTH_MULTIPLE * LENGTH_MULTIPLE
-        if n != frames:
-            warnings.warn(f"length {frames} frames ({frames / self.fps:.2f} s) clamped to {n} frames "
-                          f"({n / self.fps:.2f} s), the range this model was trained on", LengthClampedWarning,
-                          stacklevel=3)
-        return n
+        """A requested duration in frames (:func:`~stablemofusion.pipelines.final.frames_for`); lengths past
+        ``max_frames`` are kept: they are generated window by window (timelines)."""
+        return frames_for(seconds, frames, self.fps, self.min_frames)
 
     def domains(self, prompts: list[str]) -> list[DomainCheck | None]:
         """Each prompt's closest known action (None for models without actions.json), warning once per
@@ -273,22 +266,7 @@ class Components:
                     footskate_options=None) -> list[tuple[np.ndarray, RigidMotion | None]]:
         """:meth:`finish` of several motions' raw features (T_i, D), their rigid fits done together (one
         vectorised fit of all their frames; each motion's result is the one it gets alone)."""
-        check_footskate(footskate)
-        fs = [np.asarray(f, dtype=np.float64) for f in features]
-        if self.rigid is None:
-            return [(f, None) for f in fs]
-        if footskate == "post":
-            from ..footskate import FootskateOptions
-            from ..footskate.cleanup import cleanup_features
-
-            options = footskate_options or FootskateOptions()
-            return [cleanup_features(f, options.config, vgrf_model=options.vgrf_model, fps=self.fps, rigid=self.rigid)
-                    for f in fs]
-        out = []
-        for motion, f in zip(rigid_from_features_many(fs, self.skeleton, self.rigid), fs):
-            moved, written = rigid_to_features(motion, f, self.rigid)
-            out.append((written, moved))
-        return out
+        return finish_many(features, self.skeleton, self.fps, self.rigid, footskate, footskate_options)
 
 
 class _LazyEncoder:

@@ -11,16 +11,9 @@ import torch
 from ..diffusion.engine import check_engine, default_engine
 from ..diffusion.schedulers import sampler_spec
 from ..errors import SMFError
+from .final import LengthClampedWarning, OutOfDomainWarning  # noqa: F401  (public here too)
 from ..limits import (BATCH_SIZE, FOOTSKATE, GUIDANCE, SAMPLER, STEPS, STUDENT_EDIT_STEPS, STUDENT_SAMPLER,
                       check_batch_size, check_footskate, check_guidance, check_steps)
-
-
-class LengthClampedWarning(UserWarning):
-    """A requested length was outside what the model was trained on and was clamped."""
-
-
-class OutOfDomainWarning(UserWarning):
-    """A prompt is far from every action the model was trained on (it is generated anyway)."""
 
 
 class EngineWarning(UserWarning):

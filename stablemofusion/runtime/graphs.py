@@ -187,17 +187,31 @@ class PortableGraphs:
         tokens, sentence = self._text.run(None, {"input_ids": ids, "attention_mask": am})
         return tokens, am.astype(bool), sentence
 
+    @property
+    def has_length_model(self) -> bool:
+        return "length" in self.manifest
+
     def predict_frames(self, tokens: np.ndarray, mask: np.ndarray) -> np.ndarray | None:
         """(B,) the length model's frames (median), or None for a folder without one."""
         if self._length is None:
             return None
         return self._length.run(None, {"tokens": tokens, "mask": mask})[0]
 
-    def domain_scores(self, sentence: np.ndarray) -> np.ndarray | None:
-        """(B,) the out-of-domain detector's in-domain scores, or None without one."""
-        if self._ood is None:
+    def known_actions(self, text_cache):
+        """The model's :class:`~stablemofusion.text.known.KnownActions` (None without), its examples' embeddings
+        and detector from this folder, prompts encoded through ``text_cache``."""
+        from ..text.known import KnownActions
+
+        a = self.manifest.get("actions")
+        if a is None:
             return None
-        return self._ood.run(None, {"sentence": sentence.astype(np.float32)})[0]
+        return KnownActions(a["actions"], a["threshold"], text_cache, top=int(a["top"]),
+                            detector=self if self._ood is not None else None,
+                            embeddings=np.load(self.folder / a["embeddings"]))
+
+    def scores(self, sentence: np.ndarray) -> np.ndarray:
+        """(B,) the out-of-domain detector's in-domain scores of unit sentence embeddings (B, C)."""
+        return self._ood.run(None, {"sentence": np.asarray(sentence, np.float32)})[0]
 
 
 __all__ = ["PortableGraphs", "PortableModel", "Table"]

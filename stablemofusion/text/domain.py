@@ -23,9 +23,10 @@ import torch
 from torch import nn
 
 from ..errors import SMFError
+from ..motion.arrays import numpy_edge
 from .frozen import sentence_embedding
+from .names import DETECTOR_FILE
 
-DETECTOR_FILE = "ood.safetensors"
 FLAG_RATE = 0.05  # share of the calibration prompts (calibration_inside) the threshold flags
 HIDDEN, DROPOUT, EPOCHS, LR, WEIGHT_DECAY, BATCH = 256, 0.2, 15, 3e-3, 1e-2, 512
 FOREIGN_PER_PHRASE = 24  # foreign captions per foreign phrasing (assets/lexicons/foreign.txt)
@@ -95,8 +96,11 @@ class DomainDetector:
     def logits(self, embeddings: torch.Tensor) -> torch.Tensor:
         return self.classifier(embeddings.float())
 
-    def scores(self, embeddings: torch.Tensor) -> torch.Tensor:
-        """(B,) in-domain scores of unit sentence embeddings (B, dim)."""
+    def scores(self, embeddings):
+        """(B,) in-domain scores of unit sentence embeddings (B, dim): numpy in, numpy out; torch in, torch out."""
+        return numpy_edge(self._scores)(embeddings)
+
+    def _scores(self, embeddings: torch.Tensor) -> torch.Tensor:
         return torch.sigmoid((self.logits(embeddings) - self.offset) / self.scale)
 
     @classmethod

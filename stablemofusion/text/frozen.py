@@ -38,6 +38,7 @@ import torch
 from torch import nn
 
 from ..errors import SMFError
+from .sentence import sentence_embedding  # noqa: F401  (public here too)
 
 DEFAULT_ENCODER = "minilm"
 MAX_TOKENS = 77
@@ -77,17 +78,6 @@ def _check_loaded(info: dict[str, Any], what: str, folder: Path) -> None:
         bad = (missing + mismatched)[:5]
         raise SMFError(f"{what} weights at {folder} do not fit the model: missing or mismatched {bad}"
                        f"{' ...' if len(missing) + len(mismatched) > 5 else ''}")
-
-
-def sentence_embedding(tokens: torch.Tensor, mask: torch.Tensor, drop_cond: torch.Tensor | None = None) -> torch.Tensor:
-    """Frozen token states (B, L, C), mask (B, L) bool -> (B, C) unit sentence embeddings (mean over valid
-    tokens, L2-normalised); rows where ``drop_cond`` (B,) is True are zero (the unconditional branch)."""
-    m = mask[..., None].to(tokens.dtype)
-    pooled = (tokens * m).sum(1) / m.sum(1).clamp(min=1.0)
-    pooled = pooled / pooled.norm(dim=-1, keepdim=True).clamp(min=1e-8)
-    if drop_cond is not None:
-        pooled = pooled * (~drop_cond.bool()).to(pooled.dtype)[:, None]
-    return pooled
 
 
 class FrozenTextEncoder(nn.Module):

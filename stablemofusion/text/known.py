@@ -20,14 +20,12 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-import torch
+import numpy as np
 
 from ..errors import SMFError
-from .domain import DETECTOR_FILE, DomainDetector
-from .frozen import sentence_embedding
-
-ACTIONS_FILE = "actions.json"
-EMBEDDINGS_FILE = "actions.safetensors"
+from ..motion.arrays import to_numpy
+from .names import ACTIONS_FILE, DETECTOR_FILE, EMBEDDINGS_FILE
+from .sentence import sentence_embedding
 MAX_EMBEDDINGS_BYTES = 64 * 2**20  # a larger embeddings file is not read (the examples are encoded instead)
 # a prompt this similar (cosine of sentence embeddings) to a caption an adapter was taught is in domain
 # (benchmarks/adapt_check.py measures it on held-out prompts of the taught action and on foreign ones)
@@ -61,18 +59,21 @@ class DomainCheck:
 
 
 class KnownActions:
-    """The actions of a model and their example sentences, embedded once through ``text_cache``."""
+    """The actions of a model and their example sentences, embedded once through ``text_cache`` (anything with
+    ``get_or_compute(texts) -> (tokens (B, L, C), mask (B, L))``, torch or numpy, and ``encoder.name``).
+    ``detector``: anything with ``scores(embeddings (B, C) numpy) -> (B,) numpy`` (a
+    :class:`~stablemofusion.text.domain.DomainDetector`, or the portable runtime's graph). numpy throughout."""
 
     def __init__(self, actions: dict[str, list[str]], threshold: float, text_cache, top: int = 3,
-                 detector: DomainDetector | None = None):
+                 detector=None, embeddings: np.ndarray | None = None):
         if not actions or any(not v for v in actions.values()):
             raise SMFError("actions.json: every action needs at least one example sentence")
         self.actions, self.threshold, self.text_cache, self.top = actions, float(threshold), text_cache, top
         self.detector = detector
-        self._emb: torch.Tensor | None = None
-        self._owner = torch.tensor([i for i, examples in enumerate(actions.values()) for _ in examples])
+        self._emb: np.ndarray | None = None if embeddings is None else np.asarray(embeddings, np.float32)
+        self._owner = np.asarray([i for i, examples in enumerate(actions.values()) for _ in examples])
         self.taught: dict[str, list[str]] = {}  # actions adapters added: label -> their captions
-        self._taught_emb: torch.Tensor | None = None
+        self._taught_emb: np.ndarray | None = None
 
     def with_taught(self, taught: list[dict[str, list[str]]]) -> "KnownActions":
         """A copy that also knows adapters' actions (each a dict label -> captions): a prompt at least
@@ -101,6 +102,8 @@ class KnownActions:
             raise SMFError(f"{path}: not an actions file ({e})") from None
         detector = None
         if detector_file is not None:
+            from .domain import DomainDetector
+
             if Path(detector_file).name != detector_file:
                 raise SMFError(f"{path}: the detector must be a file beside it, not {detector_file!r}")
             detector = DomainDetector.load(path.parent / detector_file)
@@ -113,18 +116,18 @@ class KnownActions:
         encoder = getattr(getattr(self.text_cache, "encoder", None), "name", "")
         return hashlib.sha256(json.dumps([encoder, self.actions]).encode()).hexdigest()
 
-    def _stored_embeddings(self, path: Path) -> torch.Tensor | None:
+    def _stored_embeddings(self, path: Path) -> np.ndarray | None:
         """The examples' embeddings saved beside actions.json, or None when absent, unreadable or stale."""
         from safetensors import SafetensorError, safe_open
 
         if not path.is_file() or path.stat().st_size > MAX_EMBEDDINGS_BYTES:
             return None
         try:
-            with safe_open(str(path), framework="pt", device="cpu") as f:
+            with safe_open(str(path), framework="numpy") as f:
                 if (f.metadata() or {}).get("fingerprint") != self._fingerprint():
                     return None
-                emb = f.get_tensor("embeddings").float()
-        except (OSError, SafetensorError, KeyError, RuntimeError):
+                emb = f.get_tensor("embeddings").astype(np.float32)
+        except (OSError, SafetensorError, KeyError, RuntimeError, ValueError):
             return None
         return emb if emb.ndim == 2 and len(emb) == len(self._owner) else None
 
@@ -145,46 +148,44 @@ class KnownActions:
     def save_embeddings(self, folder: str | Path) -> Path:
         """Write the examples' embeddings (float32, with the fingerprint of sentences and encoder) into
         ``folder/actions.safetensors``."""
-        from safetensors.torch import save_file
+        from safetensors.numpy import save_file
 
         from ..io import atomic_path
 
         path = Path(folder) / EMBEDDINGS_FILE
         with atomic_path(path) as tmp:
-            save_file({"embeddings": self.examples_embedding().contiguous()}, str(tmp),
+            save_file({"embeddings": np.ascontiguousarray(self.examples_embedding(), dtype=np.float32)}, str(tmp),
                       metadata={"fingerprint": self._fingerprint()})
             tmp.chmod(0o644)
         return path
 
-    def examples_embedding(self) -> torch.Tensor:
+    def examples_embedding(self) -> np.ndarray:
         """(E, dim) unit embeddings of every example sentence, in ``actions`` order (encoded once)."""
         if self._emb is None:
             self._emb = self.embed([e for examples in self.actions.values() for e in examples])
         return self._emb
 
-    def embed(self, texts: list[str]) -> torch.Tensor:
+    def embed(self, texts: list[str]) -> np.ndarray:
+        """(N, C) float32 unit sentence embeddings of ``texts`` (the text cache's tokens, 64 at a time)."""
         out = []
         for a in range(0, len(texts), 64):
             tokens, mask = self.text_cache.get_or_compute(texts[a:a + 64])
-            out.append(sentence_embedding(tokens.float().cpu(), mask.cpu()))
-        return torch.cat(out)
+            out.append(sentence_embedding(np.asarray(to_numpy(tokens), np.float32), np.asarray(to_numpy(mask), bool)))
+        return np.concatenate(out)
 
-    def similarities(self, prompts: list[str]) -> torch.Tensor:
+    def similarities(self, prompts: list[str]) -> np.ndarray:
         """(B, A) largest cosine similarity of each prompt to each action's examples."""
         return self._similarities(self.embed(list(prompts)))
 
-    def _similarities(self, emb: torch.Tensor) -> torch.Tensor:
-        sims = emb @ self.examples_embedding().T  # (B, E)
-        best = torch.full((len(emb), len(self.actions)), -1.0)
-        return best.scatter_reduce(1, self._owner.expand(len(emb), -1), sims, reduce="amax")
+    def _similarities(self, emb: np.ndarray) -> np.ndarray:
+        return _best_per_owner(emb @ self.examples_embedding().T, self._owner, len(self.actions))
 
-    def taught_similarities(self, emb: torch.Tensor) -> torch.Tensor:
+    def taught_similarities(self, emb: np.ndarray) -> np.ndarray:
         """(B, A') largest cosine similarity of sentence embeddings ``emb`` to each taught action's captions."""
         if self._taught_emb is None:
             self._taught_emb = self.embed([c for caps in self.taught.values() for c in caps])
-        owner = torch.tensor([i for i, caps in enumerate(self.taught.values()) for _ in caps])
-        best = torch.full((len(emb), len(self.taught)), -1.0)
-        return best.scatter_reduce(1, owner.expand(len(emb), -1), emb @ self._taught_emb.T, reduce="amax")
+        owner = np.asarray([i for i, caps in enumerate(self.taught.values()) for _ in caps])
+        return _best_per_owner(emb @ self._taught_emb.T, owner, len(self.taught))
 
     def check_many(self, prompts: list[str]) -> list[DomainCheck]:
         self.examples_embedding()  # the examples first (when not stored): their encoding batches stay as they were
@@ -193,11 +194,11 @@ class KnownActions:
         scores = None if self.detector is None else self.detector.scores(emb)
         labels = list(self.actions)
         if self.taught:  # an adapter's actions: known when a prompt is close to one of their captions
-            sims = torch.cat([sims, self.taught_similarities(emb)], dim=1)
+            sims = np.concatenate([sims, self.taught_similarities(emb)], axis=1)
             labels += list(self.taught)
         out = []
         for b, row in enumerate(sims):
-            order = torch.argsort(row, descending=True)[: self.top]
+            order = np.argsort(-row, kind="stable")[: self.top]
             closest = tuple((labels[int(i)], float(row[i])) for i in order)
             score = closest[0][1] if scores is None else float(scores[b])
             out_of_domain = score < self.threshold
@@ -208,6 +209,16 @@ class KnownActions:
 
     def check(self, prompt: str) -> DomainCheck:
         return self.check_many([prompt])[0]
+
+
+def _best_per_owner(sims: np.ndarray, owner: np.ndarray, count: int) -> np.ndarray:
+    """(B, count) the largest of ``sims`` (B, E) over the columns of each owner (E,) (-1 for an owner of none)."""
+    best = np.full((len(sims), count), -1.0, dtype=sims.dtype)
+    for k in range(count):
+        cols = sims[:, owner == k]
+        if cols.shape[1]:
+            best[:, k] = np.maximum(best[:, k], cols.max(1))
+    return best
 
 
 __all__ = ["ACTIONS_FILE", "EMBEDDINGS_FILE", "DomainCheck", "KnownActions"]

@@ -24,9 +24,10 @@ from torch import nn
 from ..errors import SMFError
 from ..motion.skeleton import HUMANML3D
 from .frozen import sentence_embedding
+from .names import LENGTH_CONFIG, LENGTH_WEIGHTS
 from .transformer import TextTransformer
 
-WEIGHTS, CONFIG = "length.safetensors", "length.json"
+WEIGHTS, CONFIG = LENGTH_WEIGHTS, LENGTH_CONFIG
 INPUTS = ("sentence", "text", "both")  # what the estimator reads of a caption (LengthConfig.inputs)
 TEXT_DIMS = ("in_dim", "latent", "layers", "heads", "ff", "max_tokens")  # of the copied text transformer
 

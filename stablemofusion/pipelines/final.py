@@ -1,0 +1,61 @@
+"""What every runtime does after sampling, written once (numpy, no torch): a requested length in frames, and the
+final stage of raw features (the rigid fit, footskate cleanup in 'post' mode, the body written back as
+features). The torch path (:class:`~stablemofusion.pipelines.components.Components`) and the portable runtime
+(:mod:`stablemofusion.runtime`) both call these."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from ..limits import DEFAULT_SECONDS, LENGTH_MULTIPLE, check_footskate, check_seconds
+from ..motion.rigid import RigidFitConfig, RigidMotion, rigid_from_features_many, rigid_to_features
+from ..motion.skeleton import Skeleton
+
+
+class LengthClampedWarning(UserWarning):
+    """A requested length was outside what the model was trained on and was clamped."""
+
+
+class OutOfDomainWarning(UserWarning):
+    """A prompt is far from every action the model was trained on (it is generated anyway)."""
+
+
+def frames_for(seconds: float | None, frames: int | None, fps: float, min_frames: int) -> int:
+    """A requested duration in frames, a multiple of ``LENGTH_MULTIPLE``, at least the model's shortest
+    (warning if changed); lengths past a model's window are kept (they are generated window by window)."""
+    if frames is None:
+        frames = int(round(check_seconds(DEFAULT_SECONDS if seconds is None else seconds) * fps))
+    check_seconds(frames / fps, "the length")  # more than 0 frames, at most MAX_SECONDS
+    n = max(frames, min_frames) // LENGTH_MULTIPLE * LENGTH_MULTIPLE
+    if n != frames:
+        warnings.warn(f"length {frames} frames ({frames / fps:.2f} s) clamped to {n} frames ({n / fps:.2f} s), the "
+                      "range this model was trained on", LengthClampedWarning, stacklevel=4)
+    return n
+
+
+def finish_many(features: list[np.ndarray], skeleton: Skeleton, fps: float, rigid: RigidFitConfig | None,
+                footskate: str = "off", footskate_options=None) -> list[tuple[np.ndarray, RigidMotion | None]]:
+    """The final stage of several motions' raw features (T_i, D): their rigid fits done together (one vectorised
+    fit of all their frames; each motion's result is the one it gets alone), the footskate cleanup in 'post'
+    mode (on the rigid body), and each body written back as features that decode to it exactly. Returns
+    (features (T, D) float64, rigid motion) per motion; with ``rigid`` None the raw features and None."""
+    check_footskate(footskate)
+    fs = [np.asarray(f, dtype=np.float64) for f in features]
+    if rigid is None:
+        return [(f, None) for f in fs]
+    if footskate == "post":
+        from ..footskate import FootskateOptions
+        from ..footskate.cleanup import cleanup_features
+
+        options = footskate_options or FootskateOptions()
+        return [cleanup_features(f, options.config, vgrf_model=options.vgrf_model, fps=fps, rigid=rigid) for f in fs]
+    out = []
+    for motion, f in zip(rigid_from_features_many(fs, skeleton, rigid), fs):
+        moved, written = rigid_to_features(motion, f, rigid)
+        out.append((written, moved))
+    return out
+
+
+__all__ = ["LengthClampedWarning", "OutOfDomainWarning", "finish_many", "frames_for"]

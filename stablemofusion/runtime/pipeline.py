@@ -1,0 +1,184 @@
+"""Text to motion on the portable runtime (ONNX Runtime and numpy, no torch): the same steps, checks, seeds and
+final stage as the torch path's :class:`~stablemofusion.pipelines.text_to_motion.TextToMotionPipeline`, so the
+same prompt, seed and length give the same motion (docs/runtime.md)."""
+
+from __future__ import annotations
+
+import warnings
+from collections import OrderedDict
+from functools import cached_property
+from importlib import resources
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from ..errors import SMFError
+from ..limits import (BATCH_SIZE, FOOTSKATE, base_seed, check_batch_size, check_footskate, check_guidance,
+                      check_prompt, check_seconds, check_seed, check_steps)
+from ..motion.rigid import DEFAULT_FIT
+from ..motion.skeleton import get_skeleton
+from ..pipelines.final import OutOfDomainWarning, finish_many, frames_for
+from ..pipelines.result import MotionResult
+from .graphs import PortableGraphs
+from .sampling import sample
+
+GRAPHS_DIR = "onnx"  # inside a model folder: its portable graphs (smf export --onnx)
+
+
+def default_graphs_path() -> Path | None:
+    """The portable graphs of the model shipped inside the package, if any."""
+    path = Path(str(resources.files("stablemofusion") / "assets" / "default_model" / GRAPHS_DIR))
+    return path if (path / "graphs.json").is_file() else None
+
+
+class PortablePipeline:
+    """``pipe(prompts, seconds=..., seed=...)`` -> one :class:`MotionResult` per prompt, on the portable graphs
+    of a model (``teacher``: its teacher's). Build with :meth:`from_pretrained`."""
+
+    def __init__(self, graphs: PortableGraphs, *, teacher: bool = False, text_cache_size: int = 1024):
+        model = graphs.teacher if teacher else graphs.model
+        if model is None:
+            raise SMFError("these graphs hold no teacher")
+        self.graphs, self.model = graphs, model
+        self.skeleton = get_skeleton(model.entry["skeleton"])
+        self.fps, self.min_frames, self.max_frames = model.fps, model.min_frames, model.max_frames
+        self.rigid = DEFAULT_FIT
+        self._cache: OrderedDict[str, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+        self._cache_size = text_cache_size
+
+    @classmethod
+    def from_pretrained(cls, path: str | Path | None = None, *, teacher: bool = False,
+                        threads: int | None = None) -> "PortablePipeline":
+        """The graphs folder ``path`` (or a model folder holding one in ``onnx/``); None: the shipped model's."""
+        if path is None:
+            path = default_graphs_path()
+            if path is None:
+                raise SMFError("this install ships no portable graphs of the default model")
+        path = Path(path)
+        if not (path / "graphs.json").is_file() and (path / GRAPHS_DIR / "graphs.json").is_file():
+            path = path / GRAPHS_DIR
+        return cls(PortableGraphs(path, threads), teacher=teacher)
+
+    # ---------------------------------------------------------------- text
+    @cached_property
+    def known_actions(self):
+        """The model's known actions and out-of-domain detector (None without)."""
+        return self.graphs.known_actions(_TextCache(self))
+
+    def encode(self, prompts: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Frozen tokens (B, L, C), mask (B, L), sentence embeddings (B, C), each prompt encoded once (LRU)."""
+        todo = [p for p in dict.fromkeys(prompts) if p not in self._cache]
+        if todo:
+            tokens, mask, sentence = self.graphs.encode(todo)
+            for p, t, m, s in zip(todo, tokens, mask, sentence):
+                self._cache[p] = (t[:int(m.sum())], s)
+        rows = []
+        for p in prompts:
+            self._cache.move_to_end(p)
+            rows.append(self._cache[p])
+        while len(self._cache) > self._cache_size:
+            self._cache.popitem(last=False)
+        L = max(len(r[0]) for r in rows)
+        tokens = np.zeros((len(rows), L, rows[0][0].shape[-1]), np.float32)
+        mask = np.zeros((len(rows), L), bool)
+        for i, (t, _) in enumerate(rows):
+            tokens[i, :len(t)], mask[i, :len(t)] = t, True
+        return tokens, mask, np.stack([s for _, s in rows])
+
+    def predict_seconds(self, prompts: list[str]) -> list[float]:
+        """The length each prompt's motion is expected to have (seconds), from the length model."""
+        tokens, mask, _ = self.encode(prompts)
+        frames = self.graphs.predict_frames(tokens, mask)
+        if frames is None:
+            raise SMFError("this model has no length model; give the length")
+        return [int(f) / self.fps for f in np.clip(frames, self.min_frames, self.max_frames)]
+
+    def domains(self, prompts: list[str]) -> list:
+        """Each prompt's closest known action (None without known actions), warning once per out-of-domain
+        prompt."""
+        known = self.known_actions
+        if known is None:
+            return [None] * len(prompts)
+        checks = list(known.check_many(prompts))
+        for p, d in dict(zip(prompts, checks)).items():
+            if d.out_of_domain:
+                warnings.warn(d.message(p), OutOfDomainWarning, stacklevel=3)
+        return checks
+
+    # ---------------------------------------------------------------- generate
+    def __call__(self, prompts: str | list[str], *, seconds: float | list[float] | None = None,
+                 frames: int | list[int] | None = None, seed: int | list[int] | None = None,
+                 guidance_scale: float | None = None, steps: int | None = None, sampler: str | None = None,
+                 footskate: str | None = None, batch_size: int = BATCH_SIZE) -> list[MotionResult]:
+        """One motion per prompt (the torch path's rules: seeds, lengths, batches, final stage)."""
+        m = self.model
+        # 1. check inputs, defaults from the model
+        prompts = [prompts] if isinstance(prompts, str) else list(prompts)
+        if not prompts:
+            raise SMFError("every prompt must be a non-empty text")
+        for p in prompts:
+            check_prompt(p, "every prompt")
+        guidance = m.guidance if check_guidance(guidance_scale) is None else float(guidance_scale)
+        steps = m.steps if check_steps(steps) is None else int(steps)
+        if m.student and steps > m.max_steps:
+            raise SMFError(f"steps must be at most {m.max_steps} for this model (a distilled student: more steps drift "
+                           f"into motions no human makes), got {steps}")
+        sampler = sampler or m.sampler
+        footskate = check_footskate(FOOTSKATE if footskate is None else footskate)
+        if footskate == "loop":
+            raise SMFError("footskate 'loop' runs inside the torch sampler; use 'post' or 'off' here")
+        check_batch_size(batch_size)
+        n = len(prompts)
+        secs = list(seconds) if isinstance(seconds, (list, tuple)) else [seconds] * n
+        frs = list(frames) if isinstance(frames, (list, tuple)) else [frames] * n
+        if len(secs) != n or len(frs) != n:
+            raise SMFError("give one length for all prompts or one per prompt")
+        for s in secs:
+            check_seconds(s)
+        per_item = isinstance(seed, (list, tuple))
+        if per_item and len(seed) != n:
+            raise SMFError(f"give one seed for all prompts or one per prompt: {len(seed)} seeds for {n} prompts")
+        for s in seed if per_item else [seed]:
+            check_seed(s)
+        # 2. prepare: lengths (the model's estimate where none is given), seeds, domains
+        unknown = [i for i in range(n) if secs[i] is None and frs[i] is None]
+        if unknown and self.graphs.has_length_model:
+            for i, s in zip(unknown, self.predict_seconds([prompts[i] for i in unknown])):
+                secs[i] = s
+        lengths = [frames_for(s, f, self.fps, self.min_frames) for s, f in zip(secs, frs)]
+        if max(lengths) > self.max_frames:
+            raise SMFError(f"the portable runtime makes motions of up to {self.max_frames / self.fps:g} s in one "
+                           "window; longer ones need the torch path for now")
+        base = None if per_item else base_seed(seed)
+        domains = self.domains(prompts)
+        results: list[MotionResult] = []
+        # 3. denoise in batches (batch k uses seed + k, as the torch path)
+        for k, start in enumerate(range(0, n, batch_size)):
+            idx = list(range(start, min(n, start + batch_size)))
+            batch_seed = [seed[i] for i in idx] if per_item else base + k
+            tokens, mask, _ = self.encode([prompts[i] for i in idx])
+            raw = sample(m, tokens, mask, [lengths[i] for i in idx], batch_seed, guidance=guidance, sampler=sampler,
+                         steps=steps)
+            # 4. post-process: the final stage of the batch's motions (their rigid fits together)
+            finished = finish_many([raw[j, :lengths[i]] for j, i in enumerate(idx)], self.skeleton, self.fps,
+                                   self.rigid, footskate)
+            for (f, motion), i in zip(finished, idx):
+                results.append(MotionResult.build(prompts[i], f, motion, self.skeleton, self.fps,
+                                                  seed[i] if per_item else batch_seed, domains[i]))
+        return results
+
+
+class _TextCache:
+    """The text-cache protocol of :class:`~stablemofusion.text.known.KnownActions` over a pipeline's encoder."""
+
+    def __init__(self, pipe: PortablePipeline):
+        self.pipe = pipe
+        self.encoder = SimpleNamespace(name=pipe.graphs.manifest["text_encoder"]["name"])
+
+    def get_or_compute(self, texts: list[str]) -> tuple[np.ndarray, np.ndarray]:
+        tokens, mask, _ = self.pipe.encode(list(texts))
+        return tokens, mask
+
+
+__all__ = ["PortablePipeline", "default_graphs_path"]

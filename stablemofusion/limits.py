@@ -35,6 +35,7 @@ FOOTSKATE_MODES = ("off", "post", "loop")
 # skate ratio is 0.234 against 0.080 for the real motions of those captions; after 'post' 0.064, the joints moved
 # 1.2 cm on average, for 51 ms more per motion (61 against 11 ms). docs/footskate.md.
 FOOTSKATE = "post"
+PORTABLE_ENGINE = "onnx"  # the portable graphs on ONNX Runtime (stablemofusion.runtime), no torch
 ENGINES = ("eager", "fast", "compiled", "graph", "compiled-graph", "aot")  # diffusion/engine.py: what each does
 OUTPUT_FORMATS = ("npy", "json", "bvh", "glb", "mp4", "gif")  # output.py: one writer each
 DEFAULT_FORMATS = "npy,mp4,bvh"

@@ -49,26 +49,27 @@ class _TextEncoderGraph(nn.Module):
 
 
 class _ConditionGraph(nn.Module):
-    def __init__(self, model):
+    def __init__(self, model, sentence: bool):
         super().__init__()
-        self.model = model
+        self.model, self.sentence = model, sentence
 
     def forward(self, tokens, mask, control):
         if self.model.takes_guidance:  # a student: control is the guidance scale (B,)
             c = self.model.condition(tokens, mask, torch.zeros_like(mask[:, 0]), control)
         else:  # a teacher: control is the drop flag (B,)
             c = self.model.condition(tokens, mask, control)
-        return c.features, c.sentence
+        return (c.features, c.sentence) if self.sentence else c.features
 
 
 class _DenoiseGraph(nn.Module):
-    def __init__(self, model):
+    def __init__(self, model, sentence: bool):
         super().__init__()
-        self.model = model
+        self.model, self.sentence = model, sentence
 
-    def forward(self, x, t, features, text_mask, keep, sentence, motion_mask):
+    def forward(self, x, t, features, text_mask, keep, a, b=None):
         from .models.base import TextCondition
 
+        sentence, motion_mask = (a, b) if self.sentence else (None, a)  # (sentence,) motion_mask
         return self.model.denoise(x, t, TextCondition(features, text_mask, keep, sentence), motion_mask)
 
 
@@ -104,8 +105,12 @@ def _export(module: nn.Module, args: tuple, path: Path, inputs: list[str], outpu
     for name, m in (multiples or {}).items():
         dims[name] = m * torch.export.Dim(name + "_units", min=1, max=4096 // m)
     shapes = tuple({axis: dims[name] for axis, name in dynamic.get(i, {}).items()} or None for i in inputs)
+    dims = {k: v for k, v in dims.items() if any(k in axes.values() for i, axes in dynamic.items() if i in inputs)}
+    import warnings
+
     module.eval()
-    with torch.no_grad(), no_fast_path():
+    with torch.no_grad(), no_fast_path(), warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the exporter's notes on renamed axes and traced branches
         torch.onnx.export(module, args, str(path), input_names=inputs, output_names=outputs, dynamic_shapes=shapes,
                           opset_version=OPSET, dynamo=True, optimize=True, verbose=False, external_data=False)
     model = onnx.load(str(path))
@@ -168,19 +173,23 @@ def export_model_graphs(components, out: Path) -> dict:
     tokens, mask = torch.randn(B, L, 384), torch.ones(B, L, dtype=torch.bool)
     mask[1, 5:] = False
     control = torch.full((B,), 2.5) if model.takes_guidance else torch.tensor([False, True])
-    _export(_ConditionGraph(model), (tokens, mask, control), out / "condition.onnx",
-            ["tokens", "mask", "guidance" if model.takes_guidance else "drop"], ["features", "sentence"],
-            {"tokens": {0: "B", 1: "L"}, "mask": {0: "B", 1: "L"}, "guidance" if model.takes_guidance else "drop":
-             {0: "B"}, "features": {0: "B", 1: "L"}, "sentence": {0: "B"}})
     with torch.no_grad():
         c = model.condition(tokens, mask, torch.zeros(B, dtype=torch.bool), 2.5 if model.takes_guidance else None)
+    has_sentence = c.sentence is not None  # the global condition (sentence embedding, a student's guidance)
+    _export(_ConditionGraph(model, has_sentence), (tokens, mask, control), out / "condition.onnx",
+            ["tokens", "mask", "guidance" if model.takes_guidance else "drop"],
+            ["features", "sentence"][:1 + has_sentence],
+            {"tokens": {0: "B", 1: "L"}, "mask": {0: "B", 1: "L"}, "guidance" if model.takes_guidance else "drop":
+             {0: "B"}})
     motion_mask = torch.ones(B, T, dtype=torch.bool)
     motion_mask[1, 40:] = False
-    _export(_DenoiseGraph(model), (torch.randn(B, T, D), torch.tensor([999.0, 500.0]), c.features, c.mask,
-                                   torch.ones(B, dtype=torch.bool), c.sentence, motion_mask),
-            out / "denoise.onnx", ["x", "t", "features", "text_mask", "keep", "sentence", "motion_mask"], ["x0"],
+    text_inputs = ["features", "text_mask", "keep"] + ["sentence"] * has_sentence
+    _export(_DenoiseGraph(model, has_sentence),
+            (torch.randn(B, T, D), torch.tensor([999.0, 500.0]), c.features, c.mask, torch.ones(B, dtype=torch.bool))
+            + ((c.sentence,) if has_sentence else ()) + (motion_mask,),
+            out / "denoise.onnx", ["x", "t"] + text_inputs + ["motion_mask"], ["x0"],
             {"x": {0: "B", 1: "T"}, "t": {0: "B"}, "features": {0: "B", 1: "L"}, "text_mask": {0: "B", 1: "L"},
-             "keep": {0: "B"}, "sentence": {0: "B"}, "motion_mask": {0: "B", 1: "T"}, "x0": {0: "B", 1: "T"}},
+             "keep": {0: "B"}, "sentence": {0: "B"}, "motion_mask": {0: "B", 1: "T"}},
             multiples={"T": _pad_multiple(model)})
     np.save(out / "Mean.npy", components.mean.numpy().astype(np.float32))
     np.save(out / "Std.npy", components.std.numpy().astype(np.float32))
@@ -191,7 +200,7 @@ def export_model_graphs(components, out: Path) -> dict:
     tables = {s: _tables(s, range(1, components.max_steps + 1), components.schedule, arrays) for s in samplers}
     np.savez(out / "solvers.npz", **arrays)
     cfg = components.config
-    return {"student": bool(components.student), "fps": cfg.fps, "min_frames": cfg.min_frames,
+    return {"student": bool(components.student), "sentence": has_sentence, "fps": cfg.fps, "min_frames": cfg.min_frames,
             "max_frames": cfg.max_frames, "length_multiple": LENGTH_MULTIPLE,
             "pad_multiple": _pad_multiple(model), "motion_dim": D,
             "skeleton": cfg.skeleton, "guidance": settings.guidance_scale, "sampler": settings.sampler,
@@ -217,9 +226,10 @@ def export_text_encoder(out: Path) -> dict:
             "tokenizer": "tokenizer.json", "licence": "Apache-2.0 (sentence-transformers/all-MiniLM-L6-v2)"}
 
 
-def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder: bool = True) -> Path:
+def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder_from: str | Path | None = None) -> Path:
     """Every graph of a model folder (``None``: the shipped model) and its teacher into ``out`` (written
-    atomically); returns ``out``."""
+    atomically); returns ``out``. ``text_encoder_from``: a graphs folder whose text encoder and tokenizer are
+    copied instead of exported again (the same MiniLM)."""
     from .io import atomic_dir
     from .pipelines.components import Components, model_folder
 
@@ -230,8 +240,14 @@ def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder:
                        f"{student.config.text_encoder}")
     with atomic_dir(Path(out)) as tmp:
         manifest = {"format": FORMAT, "version": VERSION, "noise_version": _noise_version()}
-        if text_encoder:
+        if text_encoder_from is None:
             manifest["text_encoder"] = export_text_encoder(tmp)
+        else:
+            src = Path(text_encoder_from)
+            entry = json.loads((src / MANIFEST).read_text(encoding="utf-8"))["text_encoder"]
+            for f in (entry["file"], entry["tokenizer"]):
+                shutil.copyfile(src / f, tmp / f)
+            manifest["text_encoder"] = entry
         manifest["model"] = export_model_graphs(student, tmp)
         if student.student:
             teacher = Components.from_pretrained(path, teacher=True, device="cpu", dtype=torch.float32)
@@ -246,7 +262,7 @@ def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder:
             manifest["length"] = {"file": "length.onnx"}
         known = student.known_actions
         if known is not None:
-            np.save(tmp / "actions.npy", known.examples_embedding().numpy().astype(np.float32))
+            np.save(tmp / "actions.npy", known.examples_embedding().astype(np.float32))
             manifest["actions"] = {"threshold": known.threshold, "actions": known.actions, "top": known.top,
                                    "embeddings": "actions.npy"}
             if known.detector is not None:
@@ -254,7 +270,22 @@ def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder:
                         {"sentence": {0: "B"}, "score": {0: "B"}})
                 manifest["actions"]["detector"] = "ood.onnx"
         (tmp / MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
+        (tmp / "README.md").write_text(_readme(path, manifest), encoding="utf-8")
     return Path(out)
+
+
+def _readme(model: Path, manifest: dict) -> str:
+    """The folder's note: what it holds and under which licences."""
+    card = model / "MODEL_CARD.md"
+    licence = ("the model's own: CC BY-NC 4.0 (non-commercial), trained on the Bandai-Namco Research Motion Dataset; "
+               "see its MODEL_CARD.md" if card.is_file() and "CC BY-NC 4.0" in card.read_text(encoding="utf-8")
+               else "the model's own (see its folder)")
+    return (f"# Portable graphs of {model.name}\n\n"
+            "ONNX graphs of every network the model's default path runs, for the torch-free runtime "
+            "(`smf generate --engine onnx`; inputs and outputs: docs/runtime.md). `graphs.json` lists them.\n\n"
+            f"- `{manifest['text_encoder']['file']}`, `{manifest['text_encoder']['tokenizer']}`: all-MiniLM-L6-v2 "
+            f"({manifest['text_encoder']['licence']}; weights stored as float16).\n"
+            f"- every other file: the model's networks and tables; licence {licence}.\n")
 
 
 def _noise_version() -> int:

@@ -1,6 +1,7 @@
 """`smf export --checkpoint RUN --out DIR [--card MODEL_CARD.md] [--teacher-folder TEACHER] [--text-side MODEL]
 [--guidance G]`: a small release folder (EMA weights, fp16); a distilled student's with its teacher inside; its
-default guidance scale (docs/models.md)."""
+default guidance scale (docs/models.md). `smf export --onnx --checkpoint MODEL --out DIR`: the model's portable
+graphs (docs/runtime.md)."""
 
 from __future__ import annotations
 
@@ -35,10 +36,20 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--ood-flag-rate", type=float, default=None,
                    help="share of held-out in-domain prompts the detector's threshold flags (default: the calibrated "
                         "FLAG_RATE of stablemofusion.text.domain)")
+    p.add_argument("--onnx", action="store_true",
+                   help="instead: write the portable graphs (ONNX, docs/runtime.md) of the model folder --checkpoint "
+                        "(and its teacher) into --out, for the torch-free runtime (`--engine onnx`)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> None:
+    if args.onnx:
+        from ..onnx_export import export_onnx
+
+        out = export_onnx(args.checkpoint, args.out)
+        size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
+        print(f"exported the graphs of {args.checkpoint} -> {out} ({size / 1e6:.1f} MB)")
+        return
     import torch
 
     from ..diffusion.checkpoint import export_checkpoint

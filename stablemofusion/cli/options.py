@@ -11,8 +11,8 @@ from pathlib import Path
 def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
     """--out, --format, --overwrite, --guidance, --steps, --sampler, --seed, --checkpoint, --teacher, --device,
     --engine and the footskate flags."""
-    from ..limits import (DEFAULT_FORMATS, ENGINES, FOOTSKATE, FOOTSKATE_MODES, GUIDANCE, OUTPUT_FORMATS, SAMPLER,
-                          STEPS, STUDENT_EDIT_STEPS, STUDENT_SAMPLER)
+    from ..limits import (DEFAULT_FORMATS, ENGINES, FOOTSKATE, FOOTSKATE_MODES, GUIDANCE, OUTPUT_FORMATS,
+                          PORTABLE_ENGINE, SAMPLER, STEPS, STUDENT_EDIT_STEPS, STUDENT_SAMPLER)
     from .flags import add_teacher_flag
 
     p.add_argument("--out", type=Path, required=True, help="output folder")
@@ -36,9 +36,9 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=None,
                    help="CPU threads for torch (default: OMP_NUM_THREADS if set, else the idle cores: the cores less "
                         "the 1-minute load average, at least 1)")
-    p.add_argument("--engine", default="auto", choices=("auto",) + ENGINES,
+    p.add_argument("--engine", default="auto", choices=("auto",) + ENGINES + (PORTABLE_ENGINE,),
                    help="denoising engine (default auto: CUDA graphs on a GPU, the precomputed solver loop on a CPU; "
-                        "docs/inference.md)")
+                        f"{PORTABLE_ENGINE}: the portable graphs on ONNX Runtime, docs/runtime.md; docs/inference.md)")
     p.add_argument("--footskate", default=FOOTSKATE, choices=FOOTSKATE_MODES,
                    help="footskate cleanup: off, post (after sampling) or loop (inside the last denoising steps); "
                         "post by default: the raw motion skates about 3 times as much as real motion "
@@ -120,9 +120,24 @@ def set_threads(args) -> None:
 
 def load_pipeline(args):
     """The pipeline of ``--checkpoint``/``--teacher``, saying on stderr what it loads (imports and loading take a few
-    seconds on a first run)."""
+    seconds on a first run); ``--engine onnx``: the portable graphs (:mod:`stablemofusion.runtime`)."""
+    from ..limits import PORTABLE_ENGINE
+
     what = f"the model in {args.checkpoint}" if args.checkpoint is not None else "the shipped model"
     status = LoadingStatus(f"smf: loading {what}{' (its teacher)' if args.teacher else ''} and its text encoder ...")
+    if args.engine == PORTABLE_ENGINE:
+        import os
+
+        from ..errors import SMFError
+        from ..runtime.pipeline import PortablePipeline
+
+        if getattr(args, "adapter", None):
+            raise SMFError(f"--adapter runs on the torch engines for now, not --engine {PORTABLE_ENGINE}")
+        threads = args.threads or (int(os.environ["OMP_NUM_THREADS"]) if os.environ.get("OMP_NUM_THREADS", "").isdigit()
+                                   else idle_threads())
+        pipe = PortablePipeline.from_pretrained(args.checkpoint, teacher=args.teacher, threads=threads)
+        status.done()
+        return pipe
     from ..pipeline import MotionPipeline
 
     set_threads(args)
@@ -155,6 +170,12 @@ class LoadingStatus:
 def output_meta(args, pipe, *, edit: bool = False) -> dict:
     """What the JSON output records of how a motion was made (the guidance, steps and sampler ``pipe`` used;
     ``edit``: for an edit)."""
+    from ..limits import PORTABLE_ENGINE
+
+    if args.engine == PORTABLE_ENGINE:
+        m = pipe.model
+        return {"sampler": args.sampler or m.sampler, "steps": args.steps or m.steps,
+                "guidance": m.guidance if args.guidance is None else args.guidance, "student": m.student, "adapters": []}
     from ..pipelines.settings import Settings
 
     s = pipe.settings(Settings(guidance_scale=args.guidance, steps=args.steps, sampler=args.sampler), edit=edit)
@@ -168,7 +189,7 @@ def user_warnings():
     after as one line each, ``smf: warning: ...``."""
     import warnings
 
-    from ..pipeline import EngineWarning, LengthClampedWarning, OutOfDomainWarning
+    from ..pipelines.final import EngineWarning, LengthClampedWarning, OutOfDomainWarning
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -22,6 +22,10 @@ class OutOfDomainWarning(UserWarning):
     """A prompt is far from every action the model was trained on (it is generated anyway)."""
 
 
+class EngineWarning(UserWarning):
+    """A requested engine cannot run a task (its steps are changed by hooks) and another one runs it."""
+
+
 def frames_for(seconds: float | None, frames: int | None, fps: float, min_frames: int) -> int:
     """A requested duration in frames, a multiple of ``LENGTH_MULTIPLE``, at least the model's shortest
     (warning if changed); lengths past a model's window are kept (they are generated window by window)."""
@@ -58,4 +62,4 @@ def finish_many(features: list[np.ndarray], skeleton: Skeleton, fps: float, rigi
     return out
 
 
-__all__ = ["LengthClampedWarning", "OutOfDomainWarning", "finish_many", "frames_for"]
+__all__ = ["EngineWarning", "LengthClampedWarning", "OutOfDomainWarning", "finish_many", "frames_for"]

@@ -11,13 +11,9 @@ import torch
 from ..diffusion.engine import check_engine, default_engine
 from ..diffusion.schedulers import sampler_spec
 from ..errors import SMFError
-from .final import LengthClampedWarning, OutOfDomainWarning  # noqa: F401  (public here too)
+from .final import EngineWarning, LengthClampedWarning, OutOfDomainWarning  # noqa: F401  (public here too)
 from ..limits import (BATCH_SIZE, FOOTSKATE, GUIDANCE, SAMPLER, STEPS, STUDENT_EDIT_STEPS, STUDENT_SAMPLER,
                       check_batch_size, check_footskate, check_guidance, check_steps)
-
-
-class EngineWarning(UserWarning):
-    """A requested engine cannot run a task (its steps are changed by hooks) and another one runs it."""
 
 
 HOOK_ENGINES = ("eager", "fast")  # the engines whose loop runs step by step on the host: they apply x0 / x_t hooks

@@ -110,8 +110,11 @@ class PortableModel:
             control = {"guidance": np.full(B, self.guidance if guidance is None else guidance, np.float32)}
         else:
             control = {"drop": np.full(B, bool(drop))}
-        features, sentence = self._condition.run(None, {"tokens": tokens.astype(np.float32), "mask": mask, **control})
-        return {"features": features, "text_mask": mask, "keep": np.full(B, not drop), "sentence": sentence}
+        out = self._condition.run(None, {"tokens": tokens.astype(np.float32), "mask": mask, **control})
+        cond = {"features": out[0], "text_mask": mask, "keep": np.full(B, not drop)}
+        if self.entry.get("sentence", True):
+            cond["sentence"] = out[1]
+        return cond
 
     def denoise(self, x: np.ndarray, t: np.ndarray, cond: dict[str, np.ndarray], motion_mask: np.ndarray) -> np.ndarray:
         """x0 (B, T, D) of one step: ``x`` (B, T, D) normalised model input, ``t`` (B,) timesteps; T is padded to

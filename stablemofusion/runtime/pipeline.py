@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from ..errors import SMFError
-from ..limits import (BATCH_SIZE, FOOTSKATE, base_seed, check_batch_size, check_footskate, check_guidance,
+from ..limits import (BATCH_SIZE, FOOTSKATE, PORTABLE_ENGINE, base_seed, check_batch_size, check_footskate, check_guidance,
                       check_prompt, check_seconds, check_seed, check_steps)
 from ..motion.rigid import DEFAULT_FIT
 from ..motion.skeleton import get_skeleton
@@ -110,8 +110,10 @@ class PortablePipeline:
     def __call__(self, prompts: str | list[str], *, seconds: float | list[float] | None = None,
                  frames: int | list[int] | None = None, seed: int | list[int] | None = None,
                  guidance_scale: float | None = None, steps: int | None = None, sampler: str | None = None,
-                 footskate: str | None = None, batch_size: int = BATCH_SIZE) -> list[MotionResult]:
-        """One motion per prompt (the torch path's rules: seeds, lengths, batches, final stage)."""
+                 footskate: str | None = None, footskate_options=None, batch_size: int = BATCH_SIZE,
+                 engine: str | None = None, progress: bool = False) -> list[MotionResult]:
+        """One motion per prompt (the torch path's rules: seeds, lengths, batches, final stage); ``engine``: None or
+        'onnx' (the keyword the torch pipeline takes), ``progress`` unused (a call takes milliseconds)."""
         m = self.model
         # 1. check inputs, defaults from the model
         prompts = [prompts] if isinstance(prompts, str) else list(prompts)
@@ -129,6 +131,8 @@ class PortablePipeline:
         if footskate == "loop":
             raise SMFError("footskate 'loop' runs inside the torch sampler; use 'post' or 'off' here")
         check_batch_size(batch_size)
+        if engine not in (None, "auto", PORTABLE_ENGINE):
+            raise SMFError(f"the portable runtime runs the engine {PORTABLE_ENGINE!r}, not {engine!r}")
         n = len(prompts)
         secs = list(seconds) if isinstance(seconds, (list, tuple)) else [seconds] * n
         frs = list(frames) if isinstance(frames, (list, tuple)) else [frames] * n
@@ -162,7 +166,7 @@ class PortablePipeline:
                          steps=steps)
             # 4. post-process: the final stage of the batch's motions (their rigid fits together)
             finished = finish_many([raw[j, :lengths[i]] for j, i in enumerate(idx)], self.skeleton, self.fps,
-                                   self.rigid, footskate)
+                                   self.rigid, footskate, footskate_options)
             for (f, motion), i in zip(finished, idx):
                 results.append(MotionResult.build(prompts[i], f, motion, self.skeleton, self.fps,
                                                   seed[i] if per_item else batch_seed, domains[i]))

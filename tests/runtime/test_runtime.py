@@ -1,0 +1,122 @@
+"""The portable runtime (ONNX graphs, numpy, no torch) gives the torch path's motions: exported graphs of any
+shape, the shipped graphs against the shipped weights, the command line with torch absent."""
+
+import json
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+
+from stablemofusion.errors import SMFError
+from stablemofusion.runtime.pipeline import PortablePipeline, default_graphs_path
+
+PROMPTS = ["a person waves both hands happily", "an old man walks forward slowly", "a person kicks",
+           "someone bows politely", "a tired woman walks backwards", "a person raises both hands"]
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    from stablemofusion.pipeline import MotionPipeline
+
+    return PortablePipeline.from_pretrained(threads=1), MotionPipeline.from_pretrained(device="cpu")
+
+
+def test_exported_graphs_denoise_as_the_torch_models_for_any_batch_text_and_length(tmp_path, tiny_checkpoint,
+                                                                                   save_tiny_student):
+    import torch
+
+    from stablemofusion.onnx_export import export_onnx
+    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.runtime.sampling import sample
+
+    torch.set_num_threads(1)
+    student = save_tiny_student(tmp_path / "student", tiny_checkpoint)
+    graphs = export_onnx(student, tmp_path / "onnx", text_encoder_from=default_graphs_path())
+    rt = PortablePipeline.from_pretrained(graphs, threads=1)
+    for teacher in (False, True):
+        pipe = MotionPipeline.from_pretrained(student, teacher=teacher, device="cpu")
+        model = rt.graphs.teacher if teacher else rt.graphs.model
+        for prompts, lengths, seed in ((["a person walks"], [40], 3), (PROMPTS[:3], [44, 80, 60], [1, 2, 3])):
+            for guidance in ((1.0, 2.5) if teacher else (2.5,)):
+                tokens, mask, _ = rt.encode(prompts)
+                got = sample(model, tokens, mask, lengths, seed, guidance=guidance, sampler=model.sampler,
+                             steps=min(model.steps, 4))
+                want = pipe.denoise(prompts, lengths, seed=seed, guidance_scale=guidance, steps=min(model.steps, 4),
+                                    engine="eager").numpy()
+                for i, n in enumerate(lengths):
+                    np.testing.assert_allclose(got[i, :n], want[i, :n], atol=2e-4, rtol=0)
+
+
+def test_shipped_graphs_make_the_shipped_models_motions(shipped):
+    rt, torch_pipe = shipped
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for footskate in ("off", "post"):
+            for seed in (list(range(len(PROMPTS))), 5):
+                a = rt(PROMPTS, seconds=4, seed=seed, footskate=footskate)
+                b = torch_pipe(PROMPTS, seconds=4, seed=seed, footskate=footskate, engine="eager")
+                for x, y in zip(a, b):
+                    assert np.abs(x.joints - y.joints).max() < 1e-3  # metres: within 1 mm
+                    assert x.seed == y.seed and x.domain.out_of_domain == y.domain.out_of_domain
+                    assert abs(x.domain.similarity - y.domain.similarity) < 1e-4
+        a, b = rt(PROMPTS, seed=2), torch_pipe(PROMPTS, seed=2)  # lengths predicted from the text
+        assert [x.frames for x in a] == [y.frames for y in b]
+
+
+def test_shipped_teacher_graphs_make_the_teachers_motions():
+    from stablemofusion.pipeline import MotionPipeline
+
+    rt = PortablePipeline.from_pretrained(teacher=True, threads=1)
+    torch_pipe = MotionPipeline.from_pretrained(teacher=True, device="cpu")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        a = rt(PROMPTS[:2], seconds=3, seed=[4, 9], footskate="off", guidance_scale=2.5)
+        b = torch_pipe(PROMPTS[:2], seconds=3, seed=[4, 9], footskate="off", guidance_scale=2.5, engine="eager")
+    for x, y in zip(a, b):
+        assert np.abs(x.joints - y.joints).max() < 1e-3
+
+
+BLOCK_TORCH = """
+import sys
+class Block:
+    def find_spec(self, name, path=None, target=None):
+        if name == "torch" or name.startswith("torch."):
+            raise ImportError("torch is blocked in this test")
+sys.meta_path.insert(0, Block())
+from stablemofusion.cli.main import main
+sys.argv = ["smf"] + sys.argv[1:]
+main()
+"""
+
+
+def test_the_command_line_generates_without_torch(tmp_path, shipped):
+    out = tmp_path / "out"
+    run = subprocess.run([sys.executable, "-c", BLOCK_TORCH, "generate", PROMPTS[0], "--seconds", "3", "--seed", "7",
+                          "--engine", "onnx", "--format", "npy,bvh,json", "--footskate", "post", "--out", str(out)],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    joints = np.load(next(out.glob("*_joints.npy")))
+    want = shipped[1](PROMPTS[0], seconds=3, seed=7, footskate="post", engine="eager")[0].joints
+    assert np.abs(joints - want).max() < 1e-3
+    meta = json.loads(next(out.glob("*.json")).read_text())
+    assert meta["seed"] == 7 and next(out.glob("*.bvh")).stat().st_size > 0
+
+
+def test_a_folder_without_graphs_or_of_another_version_is_one_clear_error(tmp_path):
+    with pytest.raises(SMFError, match="holds no portable graphs"):
+        PortablePipeline.from_pretrained(tmp_path)
+    (tmp_path / "graphs.json").write_text(json.dumps({"format": "stablemofusion-onnx", "version": 99}))
+    with pytest.raises(SMFError, match="version"):
+        PortablePipeline.from_pretrained(tmp_path)
+
+
+def test_runtime_checks_inputs_as_the_torch_path(shipped):
+    rt = shipped[0]
+    with pytest.raises(SMFError, match="seconds"):
+        rt("a person walks", seconds=500)
+    with pytest.raises(SMFError, match="steps"):
+        rt("a person walks", steps=9)
+    with pytest.raises(SMFError, match="loop"):
+        rt("a person walks", footskate="loop")

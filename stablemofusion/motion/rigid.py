@@ -133,6 +133,15 @@ def optimise_pose(motion: RigidMotion, loss: PoseLoss, iterations: int) -> Rigid
     return RigidMotion(offsets, rotations, x[:, 0].copy(), motion.skeleton)
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product over the last dim (3) of same-shaped arrays (np.cross's axis handling costs more here)."""
+    out = np.empty_like(a)
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
 class _PoseParams:
     """The parametrisation of :func:`optimise_pose` as one flat vector: bone vectors of the free bones in cm
     (T, F, 3), scaled 6D orientations of the branching joints (T, B, 6), the root's shift in cm (T, 3); the
@@ -177,10 +186,10 @@ class _PoseParams:
         a, b = g6[..., :3] / BRANCH_SCALE, g6[..., 3:] / BRANCH_SCALE
         na = np.linalg.norm(a, axis=-1, keepdims=True)
         x = a / na
-        w = np.cross(x, b)
+        w = _cross(x, b)
         nw = np.linalg.norm(w, axis=-1, keepdims=True)
         z = w / nw
-        y = np.cross(z, x)
+        y = _cross(z, x)
         rot = np.stack([x, y, z], -1)  # (T, B, 3, 3) columns x, y, z
         nu = np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-6)
         bones = np.zeros((len(u), self.J, 3))
@@ -193,7 +202,7 @@ class _PoseParams:
         def f(theta: np.ndarray) -> tuple[float, np.ndarray]:
             X, (u, nu, a, na, b, x, y, z, w, nw, shift) = self.positions(theta)
             value, gX, gshift = loss(X, shift)
-            g_bone = np.einsum("jk,tkc->tjc", self.subtree, gX)  # a bone moves its whole subtree
+            g_bone = np.matmul(self.subtree, gX)  # (T, J, 3): a bone moves its whole subtree
             # free bones: bone = length * u / |u|
             gb = g_bone[:, self.free]
             n = u / nu
@@ -203,11 +212,11 @@ class _PoseParams:
             np.add.at(g_rot, (slice(None), self.branch_of),
                       np.einsum("tci,cj->tcij", g_bone[:, self.under_branch], self.off[self.under_branch]))
             gx, gy, gz = g_rot[..., 0], g_rot[..., 1], g_rot[..., 2]
-            gz = gz + np.cross(x, gy)  # y = z x x
-            gx = gx + np.cross(gy, z)
+            gz = gz + _cross(x, gy)  # y = z x x
+            gx = gx + _cross(gy, z)
             gw = (gz - z * np.sum(z * gz, -1, keepdims=True)) / nw  # z = w / |w|
-            gx = gx + np.cross(b, gw)  # w = x x b
-            g_b = np.cross(gw, x)
+            gx = gx + _cross(b, gw)  # w = x x b
+            g_b = _cross(gw, x)
             g_a = (gx - x * np.sum(x * gx, -1, keepdims=True)) / na  # x = a / |a|
             g_g6 = np.concatenate([g_a, g_b], -1) / BRANCH_SCALE
             g_shift = gshift + gX.sum(1)

@@ -8,16 +8,15 @@ order, so every parent precedes its children.
 from __future__ import annotations
 
 import os
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..errors import MotionFormatError, SMFError
 from ..io import atomic_path
 from .kinematics import forward_kinematics as forward_kinematics_of_tree
+from .rotation import matrix_to_euler, quat_to_matrix
 
 UNIT_SCALES: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254}  # metres per unit
 _CHANNELS = {f"{a}{k}".lower(): f"{a}{k}" for a in "XYZ" for k in ("position", "rotation")}
@@ -371,12 +370,11 @@ def format_bvh(*, names: list[str], parents, offsets, rotations, root_positions,
         raise MotionFormatError("zero-norm quaternion in rotations")
 
     if rotations.ndim == 3:
-        rot = Rotation.from_quat(rotations.reshape(-1, 4)[:, [1, 2, 3, 0]])
+        q = rotations.reshape(-1, 4)
+        matrices = quat_to_matrix(q / np.linalg.norm(q, axis=-1, keepdims=True))
     else:
-        rot = Rotation.from_matrix(rotations.reshape(-1, 3, 3))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)  # gimbal lock: angles still give the rotation
-        euler = rot.as_euler(order, degrees=True).reshape(F, J, 3)
+        matrices = rotations.reshape(-1, 3, 3)
+    euler = matrix_to_euler(matrices, order).reshape(F, J, 3)  # gimbal lock: the angles still give the rotation
 
     children: list[list[int]] = [[] for _ in range(J)]
     for j in range(1, J):

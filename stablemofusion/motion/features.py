@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
 
 from ..errors import MotionFormatError
 from .arrays import device, float64_numpy, namespace
@@ -100,11 +99,24 @@ def _across(joints: np.ndarray, sk: Skeleton, official_ik: bool) -> np.ndarray:
     return (joints[:, r_hip] - joints[:, l_hip]) + (joints[:, r_sh] - joints[:, l_sh])
 
 
+def gaussian_smooth(x: np.ndarray, sigma: float, truncate: float = 4.0) -> np.ndarray:
+    """Gaussian smoothing along axis 0 of ``x`` (T, ...) with standard deviation ``sigma`` frames, the edges
+    extended by their nearest value; the kernel reaches ``truncate`` sigmas (scipy.ndimage.gaussian_filter1d with
+    mode="nearest", in numpy)."""
+    radius = int(truncate * float(sigma) + 0.5)
+    taps = np.arange(-radius, radius + 1)
+    kernel = np.exp(-0.5 * (taps / float(sigma)) ** 2)
+    kernel /= kernel.sum()
+    x = np.asarray(x, dtype=np.float64)
+    padded = np.concatenate([np.repeat(x[:1], radius, 0), x, np.repeat(x[-1:], radius, 0)], 0)
+    return sum(w * padded[i:i + len(x)] for i, w in enumerate(kernel))
+
+
 def facing_quat(joints: np.ndarray, sk: Skeleton, *, official_ik: bool = False, smooth: float = 0.0) -> np.ndarray:
     """(T, J, 3) -> (T, 4) yaw quaternion that turns each frame's facing direction to +Z."""
     forward = np.cross(_Y, _unit(_across(joints, sk, official_ik)))
     if smooth > 0:
-        forward = gaussian_filter1d(forward, smooth, axis=0, mode="nearest")
+        forward = gaussian_smooth(forward, smooth)
     forward = _unit(forward)
     return qbetween(forward, np.broadcast_to(_Z, forward.shape))
 

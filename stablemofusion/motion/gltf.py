@@ -16,11 +16,11 @@ kinematics (see :mod:`stablemofusion.motion.rigid`).
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..errors import SMFError
 from .kinematics import forward_kinematics
 from .rigid import RigidMotion
+from .rotation import matrix_to_quat
 from .skeleton import get_skeleton
 
 # bone radii (m) of the body's capsules, by the joint a bone ends at (HumanML3D names); others get DEFAULT_RADIUS
@@ -123,7 +123,7 @@ def rigid_to_glb(motion: RigidMotion, fps: float | None = None, *, body: bool = 
     if T < 1 or J != sk.num_joints:
         raise SMFError(f"expected rotations (T>=1, {sk.num_joints}, 3, 3), got {motion.rotations.shape}")
     parents, names = sk.parents, sk.joint_names
-    quats = Rotation.from_matrix(motion.rotations.reshape(-1, 3, 3)).as_quat().reshape(T, J, 4)  # x, y, z, w
+    quats = matrix_to_quat(motion.rotations.reshape(-1, 3, 3))[:, [1, 2, 3, 0]].reshape(T, J, 4)  # x, y, z, w
     quats = _continuous_quats(quats).astype(np.float32)
     quats /= np.linalg.norm(quats, axis=-1, keepdims=True)
     root = motion.root.astype(np.float32)

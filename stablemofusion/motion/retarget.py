@@ -133,7 +133,7 @@ def retarget_onto_bvh(joints: np.ndarray, rig: BVH, joint_map: JointMap):
 def rig_bvh_text(rig: BVH, motion, fps: float, precision: int = 6) -> str:
     """The BVH text of a :class:`~stablemofusion.motion.rig.RigMotion` on ``rig``: the template's joints, order,
     names, offsets, end sites, channel layout and unit; rotations in each joint's own channel order."""
-    from scipy.spatial.transform import Rotation
+    from .rotation import matrix_to_euler
 
     unit = UNIT_SCALES[rig.unit]
     T, R = motion.rotations.shape[:2]
@@ -141,7 +141,7 @@ def rig_bvh_text(rig: BVH, motion, fps: float, precision: int = 6) -> str:
     for j, chans in enumerate(rig.channels):
         rot = [c[0] for c in chans if c.endswith("rotation")]
         if len(rot) == 3:
-            euler = Rotation.from_matrix(motion.rotations[:, j]).as_euler("".join(rot), degrees=True)
+            euler = matrix_to_euler(motion.rotations[:, j], "".join(rot))
         elif not np.allclose(motion.rotations[:, j], np.eye(3), atol=1e-6):
             raise SMFError(f"rig: joint {rig.names[j]!r} must turn but has {len(rot)} rotation channel(s), not 3")
         k = 0

@@ -10,8 +10,10 @@ import numpy as np
 
 from .arrays import Array, namespace
 
-__all__ = ["Array", "cont6d_to_matrix", "matrix_to_quat", "qbetween", "qinv", "qmul", "qnormalize", "qrot",
-           "quat_to_cont6d", "quat_to_matrix", "yaw_quat"]
+__all__ = ["Array", "cont6d_to_matrix", "matrix_to_euler", "matrix_to_quat", "qbetween", "qinv", "qmul", "qnormalize",
+           "qrot", "quat_to_cont6d", "quat_to_matrix", "yaw_quat"]
+
+GIMBAL_COS = 1e-9  # below this |cos| of the middle angle the first and third axes coincide: the third angle is 0
 
 
 def _norm(x: Array) -> Array:
@@ -97,6 +99,36 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
     q *= np.where(q[:, :1] < 0, -1.0, 1.0)
     return q.reshape(shape + (4,))
+
+
+def matrix_to_euler(m: np.ndarray, order: str) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) -> intrinsic Euler angles (..., 3) in degrees about the three distinct axes of
+    ``order`` (e.g. "ZXY": R = Rz(a) Rx(b) Ry(c), as BVH channels are written); numpy, float64. With the middle
+    angle at +-90 degrees (gimbal lock) the third is 0 and the first carries the rest: the angles still give R."""
+    from ..errors import SMFError
+
+    axes = ["XYZ".index(a) for a in order.upper()] if len(order) == 3 and set(order.upper()) <= set("XYZ") else []
+    if len(set(axes)) != 3:
+        raise SMFError(f"Euler order must name the three axes X, Y, Z once each, got {order!r}")
+    i, j, k = axes
+    s = 1.0 if (j - i) % 3 == 1 else -1.0  # +1 for the cyclic orders XYZ, YZX, ZXY
+    r = np.asarray(m, dtype=np.float64)
+    cos_b = np.hypot(r[..., i, i], r[..., i, j])  # |cos b| from the row that holds it (arcsin is ill-conditioned)
+    b = np.arctan2(s * r[..., i, k], cos_b)
+    a = np.arctan2(-s * r[..., j, k], r[..., k, k])
+    c = np.arctan2(-s * r[..., i, j], r[..., i, i])
+    locked = cos_b < GIMBAL_COS
+    if np.any(locked):  # c = 0: R_i(a) = R R_j(b)^T, whose angle about axis i is read off its (i+1, i+2) block
+        rj = np.zeros(b.shape + (3, 3))
+        p, q = (j + 1) % 3, (j + 2) % 3
+        rj[..., j, j] = 1.0
+        rj[..., p, p] = rj[..., q, q] = np.cos(b)
+        rj[..., q, p], rj[..., p, q] = np.sin(b), -np.sin(b)
+        ri = r @ np.swapaxes(rj, -1, -2)
+        p, q = (i + 1) % 3, (i + 2) % 3
+        a = np.where(locked, np.arctan2(ri[..., q, p], ri[..., p, p]), a)
+        c = np.where(locked, 0.0, c)
+    return np.degrees(np.stack([a, b, c], -1))
 
 
 def quat_to_cont6d(q: Array) -> Array:

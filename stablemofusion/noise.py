@@ -66,8 +66,7 @@ def normal(seed: int, count: int, *, stream: int = 0, draw: int = 0) -> np.ndarr
     """Elements 0..count-1 of one draw: (count,) float32 standard normal values."""
     pairs = (int(count) + 1) // 2
     k = np.uint32(draw_key(seed, stream, draw))
-    c = np.arange(2 * pairs, dtype=np.uint32)
-    words = mix(mix(c) ^ k)
+    words = mix(_mixed_counters(2 * pairs) ^ k)
     a, b = words[0::2], words[1::2]
     u = ((a >> np.uint32(8)).astype(np.float64) + 1.0) * (1.0 / 2**24)
     v = (b >> np.uint32(8)).astype(np.float64) * (2.0 * np.pi / 2**24)
@@ -76,6 +75,17 @@ def normal(seed: int, count: int, *, stream: int = 0, draw: int = 0) -> np.ndarr
     out[0::2] = r * np.cos(v)
     out[1::2] = r * np.sin(v)
     return out[:count].astype(np.float32)
+
+
+_MIXED = np.zeros(0, dtype=np.uint32)  # mix(c) for the counters c = 0, 1, ... (the same for every key)
+
+
+def _mixed_counters(n: int) -> np.ndarray:
+    """mix(0), ..., mix(n - 1), kept between calls (they do not depend on the seed)."""
+    global _MIXED
+    if len(_MIXED) < n:
+        _MIXED = mix(np.arange(max(n, 2 * len(_MIXED)), dtype=np.uint32))
+    return _MIXED[:n]
 
 
 def noise(seed: int, frames: int, dims: int, *, stream: int = 0, draw: int = 0) -> np.ndarray:

@@ -21,9 +21,16 @@ F = TypeVar("F", bound=Callable[..., Any])
 __all__ = ["Array", "device", "float64_numpy", "namespace", "numpy_edge", "to_numpy", "to_torch"]
 
 
+# numpy 2.1 and later is itself an array API namespace (no compatibility layer to import: 0.1 s on first use)
+_NUMPY_IS_ARRAY_API = all(hasattr(np, f) for f in ("concat", "unstack", "cumulative_sum", "astype", "isdtype"))
+
+
 def namespace(*arrays: Any):
     """The array namespace (numpy's or torch's, array API) of the arrays given (None and numbers ignored)."""
-    return array_namespace(*(a for a in arrays if a is not None and not isinstance(a, (int, float, bool))))
+    xs = [a for a in arrays if a is not None and not isinstance(a, (int, float, bool))]
+    if _NUMPY_IS_ARRAY_API and all(type(a) is np.ndarray for a in xs):
+        return np
+    return array_namespace(*xs)
 
 
 def float64_numpy(fn: F) -> F:

@@ -38,7 +38,7 @@ FOOTSKATE = "post"
 PORTABLE_ENGINE = "onnx"  # the portable graphs on ONNX Runtime (stablemofusion.runtime), no torch
 ENGINES = ("eager", "fast", "compiled", "graph", "compiled-graph", "aot")  # diffusion/engine.py: what each does
 OUTPUT_FORMATS = ("npy", "json", "bvh", "glb", "mp4", "gif")  # output.py: one writer each
-DEFAULT_FORMATS = "npy,mp4,bvh"
+DEFAULT_FORMATS = "npy,bvh,glb"  # no rendering: mp4 needs the [video] extra, gif and mp4 take about 1 s
 EDIT_MODES = ("prefix", "suffix", "inbetween", "upper-body", "lower-body", "trajectory")  # edit.py: what each keeps
 IMPOSE = ("x0", "xt")  # where an edit imposes the kept part: the x0 prediction or the noisy sample
 

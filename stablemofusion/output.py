@@ -178,6 +178,10 @@ def parse_formats(text: str) -> list[str]:
     bad = [f for f in formats if f not in WRITERS]
     if bad or not formats:
         raise SMFError(f"unknown format(s) {bad or text!r}; choose from {', '.join(WRITERS)}")
+    from .render.encoders import check_encoder
+
+    for f in formats:
+        check_encoder(f)
     return formats
 
 

@@ -91,13 +91,13 @@ def test_generate_with_teacher_flag_samples_with_the_teacher(tmp_path):
         assert (meta["sampler"], meta["steps"], meta["student"], meta["guidance"]) == (sampler, steps, student, guidance)
 
 
-def test_main_command_writes_video_joints_and_bvh(tmp_path, capsys):
+def test_main_command_writes_joints_bvh_and_glb(tmp_path, capsys):
     assert main(["generate", "a person waves both hands happily", "--out", str(tmp_path), "--seconds", "3",
                  "--footskate", "post"]) == 0
     stem = "000_a_person_waves_both_hands_happily"
     joints = np.load(tmp_path / f"{stem}_joints.npy")
     assert joints.shape == (60, 22, 3)
-    assert (tmp_path / f"{stem}.mp4").stat().st_size > 10_000
+    assert (tmp_path / f"{stem}.glb").stat().st_size > 10_000 and not list(tmp_path.glob("*.mp4"))
     back = load_motion(tmp_path / f"{stem}.bvh")
     assert np.linalg.norm(back.joints - joints, axis=-1).max() < 1e-3  # the BVH is the same rigid motion
     lengths = np.linalg.norm(joints[:, 1:] - joints[:, list(HUMANML3D.parents[1:])], axis=-1)

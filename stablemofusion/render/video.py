@@ -25,6 +25,7 @@ from PIL import Image
 from ..errors import SMFError
 from ..io import atomic_path
 from ..motion.skeleton import Skeleton, get_skeleton
+from .encoders import check_encoder
 
 __all__ = ["render_video", "render_frame", "render_strip", "VIDEO_SUFFIXES"]
 
@@ -297,6 +298,7 @@ def render_video(joints: np.ndarray, path: str | os.PathLike, *, skeleton: str |
     suffix = target.suffix.lower()
     if suffix not in VIDEO_SUFFIXES:
         raise SMFError(f"unsupported video format '{target.suffix}'; use .mp4 or .gif")
+    check_encoder(suffix)
     scene = _scene(joints, skeleton, title, size, fps)
     with atomic_path(target) as tmp:
         if suffix == ".mp4":

@@ -152,8 +152,9 @@ class PortablePipeline:
                 secs[i] = s
         lengths = [frames_for(s, f, self.fps, self.min_frames) for s, f in zip(secs, frs)]
         if max(lengths) > self.max_frames:
-            raise SMFError(f"the portable runtime makes motions of up to {self.max_frames / self.fps:g} s in one "
-                           "window; longer ones need the torch path for now")
+            raise SMFError(f"the portable runtime makes motions of up to {self.max_frames / self.fps:g} s for now; "
+                           "longer ones are made window by window on the torch engines (pip install "
+                           "'stablemofusion[train]')")
         base = None if per_item else base_seed(seed)
         domains = self.domains(prompts)
         results: list[MotionResult] = []

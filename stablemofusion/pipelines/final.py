@@ -9,7 +9,8 @@ import warnings
 
 import numpy as np
 
-from ..limits import DEFAULT_SECONDS, LENGTH_MULTIPLE, check_footskate, check_seconds
+from ..errors import SMFError
+from ..limits import DEFAULT_SECONDS, LENGTH_MULTIPLE, check_footskate, check_prompt, check_seconds, check_seed
 from ..motion.rigid import RigidFitConfig, RigidMotion, rigid_from_features_many, rigid_to_features
 from ..motion.skeleton import Skeleton
 
@@ -39,6 +40,30 @@ def frames_for(seconds: float | None, frames: int | None, fps: float, min_frames
     return n
 
 
+def check_batch_request(prompts, seconds, frames, seed) -> tuple[list[str], list, list, bool]:
+    """The inputs of a text-to-motion call, checked as every runtime checks them: ``prompts`` (one text or a
+    list), ``seconds``/``frames`` one value or one per prompt, ``seed`` one or one per prompt. Returns the prompts,
+    the seconds and frames per prompt, and whether the seeds are per prompt."""
+    prompts = [prompts] if isinstance(prompts, str) else list(prompts)
+    if not prompts:
+        raise SMFError("every prompt must be a non-empty text")
+    for p in prompts:
+        check_prompt(p, "every prompt")
+    n = len(prompts)
+    secs = list(seconds) if isinstance(seconds, (list, tuple)) else [seconds] * n
+    frs = list(frames) if isinstance(frames, (list, tuple)) else [frames] * n
+    if len(secs) != n or len(frs) != n:
+        raise SMFError("give one length for all prompts or one per prompt")
+    for s in secs:
+        check_seconds(s)
+    per_item = isinstance(seed, (list, tuple))
+    if per_item and len(seed) != n:
+        raise SMFError(f"give one seed for all prompts or one per prompt: {len(seed)} seeds for {n} prompts")
+    for s in seed if per_item else [seed]:
+        check_seed(s)
+    return prompts, secs, frs, per_item
+
+
 def finish_many(features: list[np.ndarray], skeleton: Skeleton, fps: float, rigid: RigidFitConfig | None,
                 footskate: str = "off", footskate_options=None) -> list[tuple[np.ndarray, RigidMotion | None]]:
     """The final stage of several motions' raw features (T_i, D): their rigid fits done together (one vectorised
@@ -62,4 +87,5 @@ def finish_many(features: list[np.ndarray], skeleton: Skeleton, fps: float, rigi
     return out
 
 
-__all__ = ["EngineWarning", "LengthClampedWarning", "OutOfDomainWarning", "finish_many", "frames_for"]
+__all__ = ["EngineWarning", "LengthClampedWarning", "OutOfDomainWarning", "check_batch_request", "finish_many",
+           "frames_for"]

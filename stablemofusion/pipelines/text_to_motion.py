@@ -5,11 +5,11 @@ from __future__ import annotations
 import torch
 from tqdm import tqdm
 
-from ..errors import SMFError
+from ..limits import base_seed
 from .components import Components
-from .result import MotionResult
 from .denoise import sample
-from ..limits import base_seed, check_prompt, check_seconds, check_seed
+from .final import check_batch_request
+from .result import MotionResult
 from .settings import Settings
 from .timeline import TimelinePipeline
 
@@ -29,24 +29,9 @@ class TextToMotionPipeline:
         one per prompt (each motion independent of those it is batched with); None: a fresh one, reported."""
         c = self.c
         # 1. check inputs
-        prompts = [prompts] if isinstance(prompts, str) else list(prompts)
-        if not prompts:
-            raise SMFError("every prompt must be a non-empty text")
-        for p in prompts:
-            check_prompt(p, "every prompt")
+        prompts, secs, frs, per_item = check_batch_request(prompts, seconds, frames, seed)
         settings = c.settings(settings)
         n = len(prompts)
-        secs = list(seconds) if isinstance(seconds, (list, tuple)) else [seconds] * n
-        frs = list(frames) if isinstance(frames, (list, tuple)) else [frames] * n
-        if len(secs) != n or len(frs) != n:
-            raise SMFError("give one length for all prompts or one per prompt")
-        for s in secs:
-            check_seconds(s)
-        per_item = isinstance(seed, (list, tuple))
-        if per_item and len(seed) != n:
-            raise SMFError(f"give one seed for all prompts or one per prompt: {len(seed)} seeds for {n} prompts")
-        for s in seed if per_item else [seed]:
-            check_seed(s)
         # 2. prepare: lengths (the model's estimate where none is given), seeds, domains
         unknown = [i for i in range(n) if secs[i] is None and frs[i] is None]
         if unknown and c.length_estimator is not None:

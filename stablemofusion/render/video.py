@@ -1,9 +1,9 @@
 """Stick-figure rendering of joint positions to .mp4 / .gif clips and .png stills.
 
 Joints are (T, J, 3) world positions in metres, Y up (HumanML3D convention). Frames are drawn with a
-fixed perspective camera onto a matplotlib Agg canvas (no pyplot), which is built once per clip; each
-frame only updates artist data and is streamed to the encoder (ffmpeg for .mp4; for .gif Pillow needs
-every frame before writing, so frames are kept palettised at one byte per pixel).
+fixed perspective camera with Pillow (twice the size, then reduced: antialiased), the title drawn once per clip,
+and streamed to the encoder (ffmpeg for .mp4; for .gif Pillow needs every frame before writing, so frames are
+kept palettised at one byte per pixel).
 """
 
 from __future__ import annotations
@@ -15,12 +15,7 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.collections import LineCollection
-from matplotlib.colors import to_rgb
-from matplotlib.figure import Figure
-from matplotlib.patches import Circle
-from PIL import Image
+from PIL import Image, ImageDraw, ImageFont
 
 from ..errors import SMFError
 from ..io import atomic_path
@@ -40,6 +35,8 @@ _FOV = math.radians(34.0)
 FOLLOW_EXTENT = 4.0  # root paths longer than this many body heights: the camera follows the character
 FOLLOW_SMOOTH = 1.0  # seconds over which the followed root position is averaged (no camera shake)
 TITLE_CHARS, TITLE_LINES = 52, 4  # a title wraps at TITLE_CHARS characters, up to TITLE_LINES lines
+POINT = 100.0 / 72.0  # pixels per point: sizes are in points at 100 dots per inch, as the drawings were designed
+SUPERSAMPLE = 2  # frames are drawn at twice the size and reduced: antialiased lines
 
 
 def _validate(joints: np.ndarray, sk: Skeleton) -> np.ndarray:
@@ -83,8 +80,20 @@ class _Camera:
         return cam[..., :2] / np.maximum(depth, 1e-3)[..., None], depth
 
 
+def _rgb(color: str) -> tuple[float, float, float]:
+    """'#rrggbb' -> (r, g, b) in [0, 1]."""
+    return tuple(int(color[i:i + 2], 16) / 255.0 for i in (1, 3, 5))
+
+
+def _blend(color: str | tuple, alpha: float) -> tuple[int, int, int]:
+    """``color`` at opacity ``alpha`` over the white background, as 0-255 RGB."""
+    rgb = _rgb(color) if isinstance(color, str) else color
+    return tuple(int(round(255 * (1.0 - alpha * (1.0 - c)))) for c in rgb)
+
+
 class _Scene:
-    """A matplotlib figure for one clip: build once with :meth:`__init__`, then :meth:`draw` frames."""
+    """One clip's drawing: geometry and the title are prepared once (:meth:`__init__`), then :meth:`draw` renders
+    a frame with Pillow, at SUPERSAMPLE times the size and reduced (antialiased lines)."""
 
     def __init__(self, joints: np.ndarray, sk: Skeleton, title: str | None, size: int, fps: float) -> None:
         self.joints, self.sk, self.fps, self.size = joints, sk, fps, size
@@ -95,9 +104,10 @@ class _Scene:
             for j in chain[1:]:
                 side[j] = {0: 0, 3: 0, 1: 1, 4: 1}.get(ci, 2)
         kind = np.array([side[j] for _, j in self.bones])
-        self.bone_colors = np.array([_RIGHT, _LEFT, _SPINE], dtype=object)[kind]
+        self.bone_colors = [[_RIGHT, _LEFT, _SPINE][k] for k in kind]
         px = size / 480.0
-        self.bone_widths = np.where(kind == 2, 5.0, 3.4) * px
+        self.px = px
+        self.bone_widths = np.where(kind == 2, 5.0, 3.4) * px  # points
         spine = sk.chains[2] if len(sk.chains) > 2 else sk.chains[0]
         self.head, self.neck = spine[-1], spine[-2]
 
@@ -112,39 +122,26 @@ class _Scene:
         self.offset = np.zeros(3)
         self.cam = self._make_camera()
 
-        # Figure: a square canvas of size x size pixels; the axes fill it below a title band.
-        dpi = 100.0
-        self.fig = Figure(figsize=(size / dpi, size / dpi), dpi=dpi, facecolor=_BACKGROUND)
-        self.canvas = FigureCanvasAgg(self.fig)
+        # the title band on top (wrapped per timeline segment), the drawing area below it
         lines = [ln for part in title.strip().split("; ") for ln in textwrap.wrap(part, width=TITLE_CHARS)] if title else []
         if len(lines) > TITLE_LINES:
             lines = lines[:TITLE_LINES]
             lines[-1] = lines[-1][: max(0, len(lines[-1]) - 1)].rstrip() + "\u2026"
-        fontsize = 12.0 * px
-        band = (len(lines) * 1.35 * fontsize * dpi / 72 + (14 if lines else 6) * px) / size
+        self.title_lines = lines
+        font_px = 12.0 * px * POINT
+        band = len(lines) * 1.35 * font_px + (14 if lines else 6) * px
+        self.band = band / size  # share of the height above the drawing area
+        self.limits = self._set_limits(aspect=(1.0 - self.band))
+        s = SUPERSAMPLE
+        self.base = Image.new("RGB", (size * s, size * s), _BACKGROUND)
         if lines:
-            self.fig.text(0.5, 1 - 6 * px / size, "\n".join(lines), ha="center", va="top",
-                          fontsize=fontsize, color="#212529", linespacing=1.3)
-        ax = self.fig.add_axes((0.0, 0.0, 1.0, 1.0 - band))
-        ax.set_axis_off()
-        self.ax = ax
-        self._set_limits(aspect=(1.0 - band))
-
-        self.grid = LineCollection([], linewidths=0.9 * px, zorder=1, capstyle="butt")
-        self.path_all = LineCollection([self._proj(self.root)], colors="#adb5bd", linewidths=1.2 * px,
-                                       linestyles=(0, (3, 3)), zorder=2)
-        (self.path_done,) = ax.plot([], [], color=_PATH, lw=2.0 * px, zorder=2.5, solid_capstyle="round")
-        self.shadow = LineCollection([], colors="#000000", alpha=0.1, zorder=3, capstyle="round")
-        self.back = LineCollection([], zorder=4, capstyle="round")
-        self.head_patch = Circle((0, 0), 0.01, facecolor="#f1f3f5", edgecolor=_SPINE, lw=2.2 * px, zorder=5)
-        self.front = LineCollection([], zorder=6, capstyle="round")
-        for artist in (self.grid, self.path_all, self.shadow, self.back, self.front):
-            ax.add_collection(artist)
-        ax.add_patch(self.head_patch)
-        self.progress = self.fig.add_artist(
-            LineCollection([], colors=_PATH, linewidths=3.0 * px, transform=self.fig.transFigure))
-        self.clock = self.fig.text(1 - 8 * px / size, 8 * px / size, "", ha="right", va="bottom",
-                                   fontsize=9 * px, color="#868e96")
+            font = _font(font_px * s)
+            draw = ImageDraw.Draw(self.base)
+            y = 6 * px * s
+            for line in lines:
+                draw.text((size * s / 2, y), line, fill="#212529", font=font, anchor="ma")
+                y += 1.3 * font_px * s
+        self.clock_font = _font(9 * px * POINT * s)
 
     # -- camera ---------------------------------------------------------------------------------
     def _make_camera(self) -> _Camera:
@@ -156,8 +153,8 @@ class _Scene:
         azimuth = _AZIMUTH
         xz = self.root[:, [0, 2]] - self.root[:, [0, 2]].mean(0)
         if len(xz) > 1:
-            _, s, vt = np.linalg.svd(xz, full_matrices=False)
-            if s[0] / math.sqrt(len(xz)) > 0.6 * self.scale:  # travelling: look across the path
+            _, sv, vt = np.linalg.svd(xz, full_matrices=False)
+            if sv[0] / math.sqrt(len(xz)) > 0.6 * self.scale:  # travelling: look across the path
                 dx, dz = vt[0]
                 nx, nz = (-dz, dx) if dx > 0 or (dx == 0 and dz < 0) else (dz, -dx)
                 azimuth = math.atan2(nx, nz) + math.radians(20.0)
@@ -188,24 +185,34 @@ class _Scene:
     def _proj(self, pts: np.ndarray) -> np.ndarray:
         return self._project(pts)[0]
 
-    def _set_limits(self, aspect: float) -> None:
-        """Fit every frame's joints plus the root path on the floor; equal scale on both screen axes."""
+    def _set_limits(self, aspect: float) -> tuple[np.ndarray, np.ndarray]:
+        """The image-plane box (lo, hi) that fits every frame's joints plus the root path on the floor, widened to
+        the drawing area's shape (width / height = 1 / ``aspect``): equal scale on both screen axes."""
         rel = self.joints - self.track[:, None]
         xy = self._proj(np.concatenate([rel.reshape(-1, 3), (self.root - self.track) if self.follows else self.root]))
         lo, hi = xy.min(0), xy.max(0)
         pad = 0.08 * (hi - lo).max() + 0.02
         lo, hi = lo - pad, hi + pad
         w, h = hi - lo
-        if w * aspect < h:  # widen to the axes' width / height ratio (1 / aspect)
+        if w * aspect < h:
             lo[0], hi[0] = lo[0] - (h / aspect - w) / 2, hi[0] + (h / aspect - w) / 2
         else:
             lo[1], hi[1] = lo[1] - (w * aspect - h) / 2, hi[1] + (w * aspect - h) / 2
-        self.ax.set_xlim(lo[0], hi[0])
-        self.ax.set_ylim(lo[1], hi[1])
+        return lo, hi
+
+    def _pixels(self, xy: np.ndarray) -> np.ndarray:
+        """Image-plane coordinates (..., 2) -> pixels of the supersampled frame (..., 2), y down."""
+        lo, hi = self.limits
+        full = self.size * SUPERSAMPLE
+        top = self.band * full
+        x = (xy[..., 0] - lo[0]) / (hi[0] - lo[0]) * full
+        y = top + (hi[1] - xy[..., 1]) / (hi[1] - lo[1]) * (full - top)
+        return np.stack([x, y], -1)
 
     # -- per frame ------------------------------------------------------------------------------
     def _grid(self, center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World-aligned floor grid around ``center`` (x, z), fading with distance: (segments, rgba)."""
+        """World-aligned floor grid around ``center`` (x, z), fading with distance: (segments (S, 2, 2) in the
+        image plane, opacity (S,))."""
         step, reach = 0.5 * self.scale, 2.25 * self.scale
         ticks = np.arange(-reach, reach + 1e-9, step)
         base = np.round(center / step) * step
@@ -221,60 +228,101 @@ class _Scene:
         seg = np.concatenate(segs)  # (S, 2, 3)
         mid = seg.mean(1)[:, [0, 2]]
         fade = np.clip(1.0 - np.linalg.norm(mid - center, axis=-1) / reach, 0.0, 1.0) ** 1.5
-        rgba = np.zeros((len(seg), 4))
-        rgba[:, :3] = 0.55
-        rgba[:, 3] = 0.75 * fade
         xy, depth = self._project(seg)
         keep = (depth > 0.05 * self.scale).all(1) & (fade > 0)
-        return xy[keep], rgba[keep]
+        return xy[keep], 0.75 * fade[keep]
 
     def draw(self, t: int) -> np.ndarray:
         """Render frame ``t``; return an (H, W, 3) uint8 RGB image."""
+        s, px = SUPERSAMPLE, self.px
+        width = (lambda points: max(1, int(round(points * POINT * s))))  # noqa: E731  (points -> pixels)
         pose = self.joints[t]
         if self.follows:
             self.offset = self.track[t]
-            self.path_all.set_segments([self._proj(self.root)])
+        image = self.base.copy()
+        d = ImageDraw.Draw(image)
+        gxy, alpha = self._grid(pose[0, [0, 2]])
+        for (a, b), al in zip(self._pixels(gxy), alpha):
+            d.line([tuple(a), tuple(b)], fill=_blend((0.55, 0.55, 0.55), al), width=width(0.9 * px))
+        _dashed(d, self._pixels(self._proj(self.root)), _blend("#adb5bd", 1.0), width(1.2 * px), 6 * px * s)
+        done = self._pixels(self._proj(self.root[: t + 1]))
+        _polyline(d, done, _PATH, width(2.0 * px))
         seg3 = pose[self.bones]  # (B, 2, 3)
+        flat = seg3.copy()
+        flat[..., 1] = self.floor
+        shadow = _blend("#000000", 0.1)
+        for (a, b), w in zip(self._pixels(self._proj(flat)), self.bone_widths * 1.4):
+            _segment(d, a, b, shadow, width(w))
         xy, depth = self._project(seg3)
+        pix = self._pixels(xy)
         order = np.argsort(-depth.mean(1))  # far bones first
         neck, head = pose[self.neck], pose[self.head]
         up = head - neck
         up /= max(np.linalg.norm(up), 1e-9)
-        head_c = head + 0.035 * self.scale * up
-        hxy, hd = self._project(head_c)
-        radius = 0.085 * self.scale / hd
+        hxy, hd = self._project(head + 0.035 * self.scale * up)
+        centre = self._pixels(hxy)
+        lo, hi = self.limits
+        radius = 0.085 * self.scale / hd / (hi[1] - lo[1]) * (self.size * s) * (1.0 - self.band)
         in_front = depth.mean(1)[order] < hd
-        for coll, mask in ((self.back, ~in_front), (self.front, in_front)):
-            idx = order[mask]
-            coll.set_segments(xy[idx])
-            coll.set_colors(list(self.bone_colors[idx]))
-            coll.set_linewidths(self.bone_widths[idx])
-        self.head_patch.set_center(tuple(hxy))
-        self.head_patch.set_radius(radius)
-
-        flat = seg3.copy()
-        flat[..., 1] = self.floor
-        self.shadow.set_segments(self._proj(flat))
-        self.shadow.set_linewidths(self.bone_widths * 1.4)
-        gxy, grgba = self._grid(pose[0, [0, 2]])
-        self.grid.set_segments(gxy)
-        self.grid.set_colors(grgba)
-        done = self._proj(self.root[: t + 1])
-        self.path_done.set_data(done[:, 0], done[:, 1])
-
+        for i in order[~in_front]:
+            _segment(d, pix[i, 0], pix[i, 1], self.bone_colors[i], width(self.bone_widths[i]))
+        r, lw = float(radius), width(2.2 * px)
+        d.ellipse([centre[0] - r, centre[1] - r, centre[0] + r, centre[1] + r], fill="#f1f3f5", outline=_SPINE,
+                  width=lw)
+        for i in order[in_front]:
+            _segment(d, pix[i, 0], pix[i, 1], self.bone_colors[i], width(self.bone_widths[i]))
         n = len(self.joints)
-        frac = (t + 1) / n
-        y = 1.5 / self.size  # a thin timeline along the bottom edge (also keeps GIF frames distinct)
-        self.progress.set_segments([[(0.0, y), (frac, y)]])
-        self.clock.set_text(f"{t / self.fps:5.2f} s  {t + 1}/{n}")
-
-        self.canvas.draw()
-        rgba = np.asarray(self.canvas.buffer_rgba())
-        return np.ascontiguousarray(rgba[: self.size, : self.size, :3])
+        full = self.size * s
+        y = full - 1.5 * s  # a thin timeline along the bottom edge (also keeps GIF frames distinct)
+        d.line([(0, y), ((t + 1) / n * full, y)], fill=_PATH, width=width(3.0 * px))
+        d.text((full - 8 * px * s, full - 8 * px * s), f"{t / self.fps:5.2f} s  {t + 1}/{n}", fill="#868e96",
+               font=self.clock_font, anchor="rd")
+        frame = image.resize((self.size, self.size), Image.Resampling.LANCZOS)
+        return np.asarray(frame, dtype=np.uint8)
 
     def frames(self) -> Iterator[np.ndarray]:
         for t in range(len(self.joints)):
             yield self.draw(t)
+
+
+def _font(pixels: float):
+    """Pillow's own scalable font at ``pixels`` height (its bitmap font where FreeType is missing)."""
+    try:
+        return ImageFont.load_default(size=max(1, int(round(pixels))))
+    except (TypeError, ImportError, OSError):  # Pillow < 10.1 or without FreeType
+        return ImageFont.load_default()
+
+
+def _segment(d: ImageDraw.ImageDraw, a, b, color, width: int) -> None:
+    """A line with round caps."""
+    d.line([tuple(a), tuple(b)], fill=color, width=width)
+    r = width / 2
+    for x, y in (a, b):
+        d.ellipse([x - r, y - r, x + r, y + r], fill=color)
+
+
+def _polyline(d: ImageDraw.ImageDraw, pts: np.ndarray, color, width: int) -> None:
+    """A polyline with round joints and caps."""
+    if len(pts) < 2:
+        return
+    d.line([tuple(p) for p in pts], fill=color, width=width, joint="curve")
+    r = width / 2
+    for x, y in (pts[0], pts[-1]):
+        d.ellipse([x - r, y - r, x + r, y + r], fill=color)
+
+
+def _dashed(d: ImageDraw.ImageDraw, pts: np.ndarray, color, width: int, dash: float) -> None:
+    """A dashed polyline: ``dash`` pixels drawn, ``dash`` left out, along its length."""
+    if len(pts) < 2:
+        return
+    steps = np.linalg.norm(np.diff(pts, axis=0), axis=-1)
+    along = np.concatenate([[0.0], np.cumsum(steps)])
+    total = along[-1]
+    for start in np.arange(0.0, total, 2 * dash):
+        stop = min(start + dash, total)
+        piece = [np.array([np.interp(u, along, pts[:, 0]), np.interp(u, along, pts[:, 1])])
+                 for u in np.concatenate([[start], along[(along > start) & (along < stop)], [stop]])]
+        d.line([tuple(p) for p in piece], fill=color, width=width)
 
 
 def _scene(joints: np.ndarray, skeleton: str | Skeleton, title: str | None, size: int,
@@ -323,7 +371,7 @@ def _write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
 def _gif_palette() -> Image.Image:
     """A fixed 255-colour palette: white-to-colour ramps of every drawing colour plus a grey ramp."""
     ramp = np.linspace(0.0, 1.0, 51)[:, None]
-    rgb = [np.asarray(to_rgb(c)) for c in (_RIGHT, _LEFT, _SPINE, _PATH, "#000000")]
+    rgb = [np.asarray(_rgb(c)) for c in (_RIGHT, _LEFT, _SPINE, _PATH, "#000000")]
     colors = np.concatenate([1.0 - ramp * (1.0 - c) for c in rgb])  # (255, 3)
     palette = Image.new("P", (1, 1))
     palette.putpalette(np.round(colors * 255).astype(np.uint8).ravel().tolist())

@@ -14,11 +14,10 @@ def _walk(seconds: float, speed: float = 1.4) -> np.ndarray:
 
 
 def _body_height_fraction(scene, t: int) -> float:
-    xy = scene._proj(scene.joints[t])
-    lo, hi = scene.ax.get_ylim()
     scene.draw(t)
     xy = scene._proj(scene.joints[t])
-    return float((xy[:, 1].max() - xy[:, 1].min()) / (hi - lo))
+    lo, hi = scene.limits
+    return float((xy[:, 1].max() - xy[:, 1].min()) / (hi[1] - lo[1]))
 
 
 def test_camera_follows_a_long_walk():
@@ -31,5 +30,5 @@ def test_camera_follows_a_long_walk():
 def test_long_titles_wrap_per_segment():
     title = "; ".join(f"a person does thing number {i} slowly and carefully:3" for i in range(3))
     scene = _scene(_walk(1.0), "humanml3d", title, 240, 20.0)
-    text = scene.fig.texts[0].get_text()
+    text = "\n".join(scene.title_lines)
     assert text.count("\n") >= 2 and "\u2026" not in text

@@ -23,13 +23,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from .errors import SMFError
 from .limits import EDIT_MODES, IMPOSE
+from .motion.arrays import device as array_device
+from .motion.arrays import namespace
 from .motion.features import feature_slices
 from .motion.rigid import RigidMotion
-from .motion.root import follow_path, headings, land_at, root_xz
 from .motion.skeleton import Skeleton, get_skeleton
 
 SEAM_FRAMES = 10  # generated frames next to a kept block over which a seam is blended (0.5 s at 20 fps)
@@ -53,8 +53,13 @@ class EditPlan:
     path: np.ndarray | None = None
     anchor: tuple[int, int] | None = None
 
-    def on(self, device: torch.device | str = "cpu") -> "PlanTensors":
-        """The plan's arrays as float64 / bool tensors on ``device``, converted once for a whole sampling call."""
+    def on(self, device=None) -> "PlanTensors":
+        """The plan's arrays as float64 / bool tensors on ``device``, converted once for a whole sampling call;
+        ``device`` None: as numpy arrays (the portable runtime)."""
+        if device is None:
+            return PlanTensors(self.known, self.mask, self.kept, self.land, self.path)
+        import torch
+
         land = None
         if self.land is not None:
             start, frame, angle, xz = self.land
@@ -63,27 +68,31 @@ class EditPlan:
                            torch.from_numpy(self.kept).to(device), land,
                            None if self.path is None else torch.from_numpy(self.path).to(device))
 
-    def project(self, features: torch.Tensor) -> torch.Tensor:
-        """:meth:`PlanTensors.project` of one motion's features (T, D) in dataset units."""
-        return self.on(features.device).project(features)
+    def project(self, features):
+        """:meth:`PlanTensors.project` of one motion's features (T, D) in dataset units (numpy or torch)."""
+        return self.on(None if isinstance(features, np.ndarray) else features.device).project(features)
 
 
 @dataclass(frozen=True)
 class PlanTensors:
-    """An :class:`EditPlan`'s known part and root constraints as tensors on one device (float64)."""
+    """An :class:`EditPlan`'s known part and root constraints as arrays of one kind (numpy, or torch tensors on
+    one device; float64)."""
 
-    known: torch.Tensor
-    mask: torch.Tensor
-    kept: torch.Tensor
+    known: object
+    mask: object
+    kept: object
     land: tuple | None
-    path: torch.Tensor | None
+    path: object | None
 
-    def project(self, features: torch.Tensor) -> torch.Tensor:
+    def project(self, features):
         """Impose the known entries and the root constraints on features (T, D) in dataset units, and blend
         the generated frames next to kept blocks into them (:func:`blend_seams`)."""
-        f = torch.where(self.mask, self.known.to(features), features)
-        if self.kept.any() and not self.kept.all():
+        xp = namespace(features, self.known)
+        f = xp.where(self.mask, xp.astype(self.known, features.dtype), features)
+        if bool(self.kept.any()) and not bool(self.kept.all()):
             f = blend_seams(f, self.kept)
+        if self.land is not None or self.path is not None:
+            from .motion.root import follow_path, land_at  # root constraints: torch (editing on the torch engines)
         if self.land is not None:
             start, frame, angle, xz = self.land
             f = land_at(f, start, frame, angle, xz.to(f))
@@ -92,12 +101,13 @@ class PlanTensors:
         return f
 
 
-def edit_hooks(plan: EditPlan, mean: torch.Tensor, std: torch.Tensor, batch: int, device: torch.device,
-               dtype: torch.dtype, impose: str = "x0"):
+def edit_hooks(plan: EditPlan, mean, std, batch: int, device, dtype, impose: str = "x0"):
     """The sampling hooks imposing ``plan`` on a batch (:mod:`stablemofusion.pipelines.denoise`), built once on
     the torch side: (x0 hook or None, x_t hook factory or None). ``mean``/``std`` (D,) float32 the model's
     normalisation; ``impose`` 'x0' (replace the prediction's known entries and project its root) or 'xt'
     (impute the noisy sample; the root constraints still on x0)."""
+    import torch
+
     from .diffusion.sampling import impute_xt, replace_x0
 
     if impose not in IMPOSE:
@@ -122,29 +132,31 @@ def edit_hooks(plan: EditPlan, mean: torch.Tensor, std: torch.Tensor, batch: int
     return x0_hook, lambda eps, table: impute_xt(known, kmask, eps, table)
 
 
-def blend_seams(features: torch.Tensor, kept: torch.Tensor, frames: int = SEAM_FRAMES) -> torch.Tensor:
+def blend_seams(features, kept, frames: int = SEAM_FRAMES):
     """Make the generated frames next to each block of ``kept`` (T,) frames continue it without a jump in
     position or velocity (inertialisation, as game engines blend animations): the first generated frame
     after a block gets an offset that puts it where the block's last step leads and gives it the block's
     last velocity; the offset fades to zero over ``frames`` frames along a cubic Hermite curve (value and
     slope at the seam, zero value and slope at the end). The same, backwards, before a block. Applies to
     every per-frame feature (root height, joint positions, rotations, velocities), not to the root's yaw
-    and XZ velocities (which integrate) nor to the foot contacts. features (T, D) -> (T, D)."""
-    f = features.clone()
+    and XZ velocities (which integrate) nor to the foot contacts. features (T, D) -> (T, D), numpy or torch."""
+    xp = namespace(features)
+    f = features + 0  # a copy
     T = len(f)
-    dims = torch.ones(f.shape[1], dtype=torch.bool, device=f.device)
+    dims = np.ones(f.shape[1], dtype=bool)
     dims[:3] = False
     dims[-4:] = False
-    k = kept.cpu().tolist()
+    dims = xp.asarray(dims, device=array_device(f))
+    k = [bool(v) for v in (kept.tolist() if hasattr(kept, "tolist") else kept)]
 
-    def fade(n: int) -> tuple[torch.Tensor, torch.Tensor]:
+    def fade(n: int):
         """Per-frame weights (n, 1) of the position and the velocity offsets: the first frame takes the whole
         position offset, the second the position plus the whole velocity offset, and both fade to zero value
         and zero slope at ``frames`` (cubic Hermite curves on frames 1..frames)."""
-        i = torch.arange(n, dtype=f.dtype, device=f.device)[:, None]
-        s = ((i - 1) / (frames - 1)).clamp(min=0)
+        i = xp.arange(n, dtype=f.dtype, device=array_device(f))[:, None]
+        s = xp.clip((i - 1) / (frames - 1), min=0)
         h0 = 2 * s ** 3 - 3 * s ** 2 + 1
-        h1 = i * (1 - i / frames).clamp(min=0) ** 2 / (1 - 1 / frames) ** 2
+        h1 = i * xp.clip(1 - i / frames, min=0) ** 2 / (1 - 1 / frames) ** 2
         return h0, h1
 
     for b in range(2, T - 1):
@@ -163,7 +175,7 @@ def blend_seams(features: torch.Tensor, kept: torch.Tensor, frames: int = SEAM_F
             dp = f[b] - v_kept - f[b - 1]
             dv = v_kept - (f[b - 1] - f[b - 2])
             h0, h1 = fade(n)  # going backwards in time the slope of the offset is -dv
-            f[b - n:b, dims] += (h0 * dp - h1 * dv).flip(0)[:, dims]
+            f[b - n:b, dims] += xp.flip(h0 * dp - h1 * dv, axis=0)[:, dims]
     return f
 
 
@@ -256,6 +268,10 @@ def plan_edit(mode: str, source: np.ndarray, skeleton: Skeleton, *, keep_start: 
         known[T - keep_end:], source_frame[T - keep_end:] = src[Ts - keep_end:], np.arange(Ts - keep_end, Ts)
     if mode in ("prefix", "suffix", "inbetween"):
         mask[source_frame >= 0] = True
+    if mode in ("inbetween", "trajectory"):
+        import torch
+
+        from .motion.root import headings, root_xz
     if mode == "inbetween":
         f = torch.from_numpy(src)
         a = Ts - keep_end

@@ -78,4 +78,23 @@ def plan_windows(segments: list[tuple[str, int]], max_frames: int, overlap: int,
     return windows
 
 
-__all__ = ["DEFAULT_OVERLAP", "Window", "parse_timeline", "plan_windows"]
+def segment_frames(segments: list[tuple[str, float]], fps: float) -> list[tuple[str, int]]:
+    """A timeline's (prompt, seconds) segments checked (prompts, at least one frame each, the count and the total
+    length within the limits) and in frames at ``fps``."""
+    import math
+
+    from .limits import check_prompt, check_seconds, check_segments
+
+    check_segments(len(segments))
+    out = []
+    for prompt, secs in segments:
+        check_prompt(prompt, "every timeline prompt")
+        if not isinstance(secs, (int, float)) or not math.isfinite(secs) or secs * fps < 1:
+            raise SMFError(f"timeline segment {prompt!r}: seconds must be at least one frame ({1 / fps:g} s), "
+                           f"got {secs}")
+        out.append((prompt, int(round(secs * fps))))
+    check_seconds(sum(secs for _, secs in segments), "a timeline's total seconds")
+    return out
+
+
+__all__ = ["DEFAULT_OVERLAP", "Window", "parse_timeline", "plan_windows", "segment_frames"]

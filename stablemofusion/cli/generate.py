@@ -60,16 +60,11 @@ def run(args: argparse.Namespace) -> None:
     from .options import check_sampling
 
     check_sampling(args)  # before the heavy imports below: a bad flag is answered at once
-    from ..errors import SMFError
-    from ..limits import PORTABLE_ENGINE
     from ..output import parse_formats, write_results
     from .character import load_rig
     from .options import choose_engine, load_pipeline, output_meta, sampling_kwargs, user_warnings
 
-    choose_engine(args, portable=args.timeline is None, what="a timeline")
-    if args.engine == PORTABLE_ENGINE and args.timeline is not None:
-        raise SMFError(f"timelines run on the torch engines for now, not --engine {PORTABLE_ENGINE} (pip install "
-                       "'stablemofusion[train]')")
+    choose_engine(args)
     formats = parse_formats(args.format)
     rig = load_rig(args)  # checked before the model loads
     prompts = read_prompts(args)

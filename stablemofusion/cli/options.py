@@ -97,7 +97,7 @@ def choose_engine(args, *, portable: bool = True, what: str = "this") -> None:
         return
     what = what if args.engine == "auto" else f"--engine {args.engine}"
     raise SMFError(f"{what} needs PyTorch, which this install lacks: pip install 'stablemofusion[train]' (the portable "
-                   f"runtime, --engine {PORTABLE_ENGINE}, makes text to motion of up to one window)")
+                   f"runtime, --engine {PORTABLE_ENGINE}, makes text to motion and timelines)")
 
 
 def check_sampling(args) -> None:

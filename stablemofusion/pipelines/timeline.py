@@ -3,18 +3,17 @@
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 from tqdm import tqdm
 
 from ..edit_plan import edit_hooks, plan_edit
 from ..diffusion.schedulers import sampler_spec
 from ..errors import SMFError
-from ..timeline_plan import DEFAULT_OVERLAP, plan_windows
+from ..timeline_plan import DEFAULT_OVERLAP, plan_windows, segment_frames
 from .components import Components
 from .result import MotionResult
 from .denoise import sample
-from ..limits import base_seed, check_prompt, check_seconds, check_segments
+from ..limits import base_seed
 from .settings import Settings
 
 PROGRESS_WINDOWS = 3  # timelines of more windows than this show a progress bar by default
@@ -32,15 +31,7 @@ class TimelinePipeline:
         """Window j uses ``seed + j``. ``progress``: a tqdm bar over the windows (None: for long timelines)."""
         c = self.c
         # 1. check inputs
-        segs = []
-        check_segments(len(segments))
-        for prompt, secs in segments:
-            check_prompt(prompt, "every timeline prompt")
-            if not isinstance(secs, (int, float)) or not np.isfinite(secs) or secs * c.fps < 1:
-                raise SMFError(f"timeline segment {prompt!r}: seconds must be at least one frame ({1 / c.fps:g} s), "
-                               f"got {secs}")
-            segs.append((prompt, int(round(secs * c.fps))))
-        check_seconds(sum(secs for _, secs in segments), "a timeline's total seconds")
+        segs = segment_frames(segments, c.fps)
         # 2. prepare: the windows, the settings (later windows continue by editing: hooks) and the seed
         windows = plan_windows(segs, c.max_frames, int(round(overlap * c.fps)), c.min_frames)
         settings = c.settings(settings, hooks=len(windows) > 1)

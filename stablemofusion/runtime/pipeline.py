@@ -20,6 +20,8 @@ from ..motion.rigid import DEFAULT_FIT
 from ..motion.skeleton import get_skeleton
 from ..pipelines.final import OutOfDomainWarning, check_batch_request, finish_many, frames_for
 from ..pipelines.result import MotionResult
+from ..edit_plan import plan_edit
+from ..timeline_plan import DEFAULT_OVERLAP, plan_windows, segment_frames
 from .graphs import PortableGraphs
 from .sampling import sample
 
@@ -136,27 +138,70 @@ class PortablePipeline:
             for i, s in zip(unknown, self.predict_seconds([prompts[i] for i in unknown])):
                 secs[i] = s
         lengths = [frames_for(s, f, self.fps, self.min_frames) for s, f in zip(secs, frs)]
-        if max(lengths) > self.max_frames:
-            raise SMFError(f"the portable runtime makes motions of up to {self.max_frames / self.fps:g} s for now; "
-                           "longer ones are made window by window on the torch engines (pip install "
-                           "'stablemofusion[train]')")
         base = None if per_item else base_seed(seed)
         domains = self.domains(prompts)
-        results: list[MotionResult] = []
-        # 3. denoise in batches (batch k uses seed + k, as the torch path)
-        for k, start in enumerate(range(0, n, batch_size)):
-            idx = list(range(start, min(n, start + batch_size)))
+        results: list[MotionResult | None] = [None] * n
+        sampling = dict(guidance=guidance, sampler=sampler, steps=steps)
+        # 3. motions longer than one window: one-segment timelines
+        for i in (i for i in range(n) if lengths[i] > self.max_frames):
+            r = self._timeline([(prompts[i], lengths[i] / self.fps)], DEFAULT_OVERLAP,
+                               seed[i] if per_item else base + i, sampling, footskate, footskate_options)
+            r.prompt, r.domain = prompts[i], domains[i]
+            results[i] = r
+        # 4. denoise the others in batches (batch k uses seed + k, as the torch path)
+        short = [i for i in range(n) if lengths[i] <= self.max_frames]
+        for k, start in enumerate(range(0, len(short), batch_size)):
+            idx = short[start:start + batch_size]
             batch_seed = [seed[i] for i in idx] if per_item else base + k
             tokens, mask, _ = self.encode([prompts[i] for i in idx])
-            raw = sample(m, tokens, mask, [lengths[i] for i in idx], batch_seed, guidance=guidance, sampler=sampler,
-                         steps=steps)
-            # 4. post-process: the final stage of the batch's motions (their rigid fits together)
+            raw = sample(m, tokens, mask, [lengths[i] for i in idx], batch_seed, **sampling)
+            # 5. post-process: the final stage of the batch's motions (their rigid fits together)
             finished = finish_many([raw[j, :lengths[i]] for j, i in enumerate(idx)], self.skeleton, self.fps,
                                    self.rigid, footskate, footskate_options)
             for (f, motion), i in zip(finished, idx):
-                results.append(MotionResult.build(prompts[i], f, motion, self.skeleton, self.fps,
-                                                  seed[i] if per_item else batch_seed, domains[i]))
+                results[i] = MotionResult.build(prompts[i], f, motion, self.skeleton, self.fps,
+                                                seed[i] if per_item else batch_seed, domains[i])
         return results
+
+    def timeline(self, segments: list[tuple[str, float]], *, overlap: float = DEFAULT_OVERLAP, seed: int | None = None,
+                 guidance_scale: float | None = None, steps: int | None = None, sampler: str | None = None,
+                 footskate: str | None = None, footskate_options=None, engine: str | None = None,
+                 progress: bool | None = None) -> MotionResult:
+        """One continuous motion from (prompt, seconds) segments, window after window (window j uses ``seed + j``),
+        as the torch path's :class:`~stablemofusion.pipelines.timeline.TimelinePipeline` with ``impose="x0"``."""
+        m = self.model
+        guidance = m.guidance if check_guidance(guidance_scale) is None else float(guidance_scale)
+        steps = m.steps if check_steps(steps) is None else int(steps)
+        footskate = check_footskate(FOOTSKATE if footskate is None else footskate)
+        if footskate == "loop":
+            raise SMFError("footskate 'loop' runs inside the torch sampler; use 'post' or 'off' here")
+        return self._timeline(segments, overlap, base_seed(seed),
+                              dict(guidance=guidance, sampler=sampler or m.sampler, steps=steps), footskate,
+                              footskate_options)
+
+    def _timeline(self, segments, overlap: float, base: int, sampling: dict, footskate: str,
+                  footskate_options) -> MotionResult:
+        m = self.model
+        # 1. check inputs; 2. prepare: the windows
+        segs = segment_frames(segments, self.fps)
+        windows = plan_windows(segs, self.max_frames, int(round(overlap * self.fps)), self.min_frames)
+        # 3. denoise window after window, each continuing the motion so far (its last frames imposed on x0)
+        out = np.zeros((0, m.dim))
+        for j, w in enumerate(windows):
+            frames = max(w.frames, self.min_frames)
+            tokens, mask, _ = self.encode([w.prompt])
+            if w.keep == 0:
+                raw = sample(m, tokens, mask, [frames], [base + j], **sampling)[0]
+            else:
+                plan = plan_edit("prefix", out[-w.keep:], self.skeleton, keep_start=w.keep, frames=frames)
+                raw = sample(m, tokens, mask, [frames], [base + j], known=(plan.known[None], plan.mask[None]),
+                             **sampling)[0]
+                raw = plan.project(raw.astype(np.float64)).astype(np.float32)  # exact on the kept part
+            out = np.concatenate([out, raw[w.keep:w.keep + w.new].astype(np.float64)])
+        # 4. post-process: the final stage of the whole motion
+        (f, motion), = finish_many([out], self.skeleton, self.fps, self.rigid, footskate, footskate_options)
+        return MotionResult.build("; ".join(f"{p}:{s:g}" for p, s in segments), f, motion, self.skeleton, self.fps,
+                                  base)
 
 
 class _TextCache:

@@ -14,12 +14,16 @@ from .graphs import PortableModel, Table
 Denoiser = Callable[[np.ndarray, int], np.ndarray]  # (model input x (B, T, D), step k) -> x0 (B, T, D)
 
 
-def run_table(denoiser: Denoiser, table: Table, x: np.ndarray, step_noise: np.ndarray | None) -> np.ndarray:
+def run_table(denoiser: Denoiser, table: Table, x: np.ndarray, step_noise: np.ndarray | None,
+              x0_hook: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """The loop of a coefficient table: ``x`` the initial noise scaled by ``table.init_sigma``, ``step_noise``
-    (K, B, T, D) for stochastic tables. Returns the final sample."""
+    (K, B, T, D) for stochastic tables, ``x0_hook`` applied to every prediction (e.g. a known part imposed).
+    Returns the final sample."""
     prev = np.zeros_like(x)
     for k in range(table.steps):
         x0 = denoiser(x * table.c_in[k], k)
+        if x0_hook is not None:
+            x0 = x0_hook(x0)
         nxt = table.a[k] * x + table.b[k] * x0 + table.c[k] * prev
         if table.stochastic:
             nxt = nxt + table.d[k] * step_noise[k]
@@ -50,15 +54,20 @@ def guided_denoiser(model: PortableModel, tokens: np.ndarray, mask: np.ndarray, 
 
 
 def sample(model: PortableModel, tokens: np.ndarray, mask: np.ndarray, lengths: list[int], seed: int | list[int], *,
-           guidance: float, sampler: str, steps: int) -> np.ndarray:
+           guidance: float, sampler: str, steps: int, known: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """The model's raw features (B, max(lengths), D) in dataset units (float32), before the final stage: item k
-    draws its noise from ``seed`` (stream k) or ``seed[k]`` (:func:`stablemofusion.noise.batch_noise`)."""
+    draws its noise from ``seed`` (stream k) or ``seed[k]`` (:func:`stablemofusion.noise.batch_noise`).
+    ``known``: (features (B, T, D) in dataset units, mask (B, T, D)) imposed on every prediction (editing)."""
     table = model.table(sampler, steps)
     T = max(lengths)
     x = batch_noise(seed, lengths, model.dim, draw=0) * np.float32(table.init_sigma)
     step_noise = (np.stack([batch_noise(seed, lengths, model.dim, draw=1 + k) for k in range(table.steps)])
                   if table.stochastic else None)
-    x = run_table(guided_denoiser(model, tokens, mask, lengths, T, table, guidance), table, x, step_noise)
+    hook = None
+    if known is not None:
+        values = ((known[0].astype(np.float32) - model.mean) / model.std).astype(np.float32)
+        hook = (lambda x0: np.where(known[1], values, x0))  # noqa: E731
+    x = run_table(guided_denoiser(model, tokens, mask, lengths, T, table, guidance), table, x, step_noise, hook)
     return x * model.std + model.mean
 
 

@@ -30,9 +30,11 @@ from .motion.arrays import device as array_device
 from .motion.arrays import namespace
 from .motion.features import feature_slices
 from .motion.rigid import RigidMotion
+from .motion.root import follow_path, headings, land_at, root_xz
 from .motion.skeleton import Skeleton, get_skeleton
 
 SEAM_FRAMES = 10  # generated frames next to a kept block over which a seam is blended (0.5 s at 20 fps)
+MODE_FLAGS = {"prefix": ("keep_start",), "suffix": ("keep_end",), "inbetween": ("keep_start", "keep_end")}
 
 
 @dataclass
@@ -91,13 +93,11 @@ class PlanTensors:
         f = xp.where(self.mask, xp.astype(self.known, features.dtype), features)
         if bool(self.kept.any()) and not bool(self.kept.all()):
             f = blend_seams(f, self.kept)
-        if self.land is not None or self.path is not None:
-            from .motion.root import follow_path, land_at  # root constraints: torch (editing on the torch engines)
         if self.land is not None:
             start, frame, angle, xz = self.land
-            f = land_at(f, start, frame, angle, xz.to(f))
+            f = land_at(f, start, frame, angle, xp.astype(xz, f.dtype))
         if self.path is not None:
-            f = follow_path(f, self.path.to(f))
+            f = follow_path(f, xp.astype(self.path, f.dtype))
         return f
 
 
@@ -130,6 +130,38 @@ def edit_hooks(plan: EditPlan, mean, std, batch: int, device, dtype, impose: str
         return replace_x0(known, kmask, project), None
     x0_hook = None if project is None else (lambda x0, step: project(x0))
     return x0_hook, lambda eps, table: impute_xt(known, kmask, eps, table)
+
+
+def check_edit_inputs(mode: str, keep_start: float, keep_end: float, seconds: float | None) -> None:
+    """SMFError naming the flag: a bad mode, a negative length, or a mode without the length it needs."""
+    if mode not in EDIT_MODES:
+        raise SMFError(f"edit mode must be one of {', '.join(EDIT_MODES)}, got {mode!r}")
+    for name, value in (("keep_start", keep_start), ("keep_end", keep_end), ("seconds", seconds)):
+        if value is not None and not (np.isfinite(value) and value >= 0):
+            raise SMFError(f"--{name.replace('_', '-')} must be a finite number of seconds >= 0, got {value}")
+    values = {"keep_start": keep_start, "keep_end": keep_end}
+    for name in MODE_FLAGS.get(mode, ()):
+        if not values[name] > 0:
+            raise SMFError(f"a {mode} edit needs --{name.replace('_', '-')} SECONDS (the part of the source it "
+                           f"keeps)")
+
+
+def x0_constraint(plan: EditPlan, mean: np.ndarray, std: np.ndarray):
+    """The portable runtime's x0 hook imposing ``plan`` (``impose="x0"`` of :func:`edit_hooks`, in numpy): the known
+    entries replace the prediction's (B, T, D, normalised), then the root constraints are projected."""
+    mean32, std32 = np.asarray(mean, np.float32), np.asarray(std, np.float32)
+    known = ((plan.known.astype(np.float32) - mean32) / std32)[None]
+    mask = plan.mask[None]
+    arrays = plan.on(None)
+
+    def hook(x0: np.ndarray) -> np.ndarray:
+        x0 = np.where(mask, known, x0)
+        if plan.land is None and plan.path is None:
+            return x0
+        feats = x0.astype(np.float64) * std32.astype(np.float64) + mean32.astype(np.float64)
+        return np.stack([(arrays.project(f).astype(np.float32) - mean32) / std32 for f in feats])
+
+    return hook
 
 
 def blend_seams(features, kept, frames: int = SEAM_FRAMES):
@@ -268,14 +300,9 @@ def plan_edit(mode: str, source: np.ndarray, skeleton: Skeleton, *, keep_start: 
         known[T - keep_end:], source_frame[T - keep_end:] = src[Ts - keep_end:], np.arange(Ts - keep_end, Ts)
     if mode in ("prefix", "suffix", "inbetween"):
         mask[source_frame >= 0] = True
-    if mode in ("inbetween", "trajectory"):
-        import torch
-
-        from .motion.root import headings, root_xz
     if mode == "inbetween":
-        f = torch.from_numpy(src)
         a = Ts - keep_end
-        plan["land"] = (keep_start, T - keep_end, float(headings(f)[a]), root_xz(f)[a].numpy())
+        plan["land"] = (keep_start, T - keep_end, float(headings(src)[a]), root_xz(src)[a])
     if mode == "suffix":
         plan["anchor"] = (T - keep_end, Ts - keep_end)
     if mode in ("upper-body", "lower-body"):
@@ -288,10 +315,10 @@ def plan_edit(mode: str, source: np.ndarray, skeleton: Skeleton, *, keep_start: 
         source_frame[:] = np.arange(T)
     if mode == "trajectory":
         if path is None:
-            path = root_xz(torch.from_numpy(src)).numpy()
+            path = root_xz(src)
         plan["path"] = path - path[:1]
     return EditPlan(known=known, mask=mask, kept=mask.all(-1), source_frame=source_frame, **plan)
 
 
-__all__ = ["EDIT_MODES", "IMPOSE", "EditPlan", "PlanTensors", "edit_hooks", "plan_edit", "body_mask", "blend_seams", "source_features",
-           "splice_rigid"]
+__all__ = ["EDIT_MODES", "IMPOSE", "EditPlan", "PlanTensors", "check_edit_inputs", "edit_hooks", "plan_edit", "body_mask",
+           "blend_seams", "source_features", "splice_rigid", "x0_constraint"]

@@ -38,14 +38,14 @@ def run(args: argparse.Namespace) -> None:
     check_sampling(args)  # before the heavy imports below: a bad flag is answered at once
     import numpy as np
 
-    from ..edit_plan import source_features
+    from ..edit_plan import check_edit_inputs, source_features
     from ..errors import SMFError
     from ..motion.files import load_motion
     from ..output import parse_formats, write_results
-    from ..pipelines.edit import check_edit_inputs
     from .character import load_rig
-    from .options import load_pipeline, output_meta, sampling_kwargs, user_warnings
+    from .options import choose_engine, load_pipeline, output_meta, sampling_kwargs, user_warnings
 
+    choose_engine(args)
     formats = parse_formats(args.format)
     rig = load_rig(args, args.motion)
     if not args.text.strip():

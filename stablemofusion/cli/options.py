@@ -201,8 +201,11 @@ def output_meta(args, pipe, *, edit: bool = False) -> dict:
     from ..limits import PORTABLE_ENGINE
 
     if args.engine == PORTABLE_ENGINE:
+        from ..limits import STUDENT_EDIT_STEPS
+
         m = pipe.model
-        return {"sampler": args.sampler or m.sampler, "steps": args.steps or m.steps,
+        own = max(m.steps, STUDENT_EDIT_STEPS) if edit and m.student else m.steps
+        return {"sampler": args.sampler or m.sampler, "steps": args.steps or own,
                 "guidance": m.guidance if args.guidance is None else args.guidance, "student": m.student, "adapters": []}
     from ..pipelines.settings import Settings
 

@@ -3,93 +3,105 @@ the root velocities that make it follow a path or land somewhere (editing, long 
 
 Features store the root's yaw velocity (half-angles, radians per frame, feature 0) and its XZ velocity in
 the body frame (metres per frame, features 1:3); the decoder integrates them from frame 0 at the origin,
-facing +Z (:func:`stablemofusion.motion.features.root_from_features`). All functions here are pure, take
-and return torch tensors (T, D) in dataset units, and keep every other feature as it is.
+facing +Z (:func:`stablemofusion.motion.features.root_from_features`). All functions here are pure, written once
+against the array API (numpy or torch, :func:`stablemofusion.motion.arrays.namespace`), take and return features
+(T, D) in dataset units, and keep every other feature as it is.
 """
 
 from __future__ import annotations
 
-import torch
+import math
 
+import numpy as np
+
+from .arrays import namespace
 from .features import root_from_features
 from .rigid import RigidMotion
 from .rotation import qinv, qmul, qrot, quat_to_matrix, yaw_quat
 
 
-def headings(features: torch.Tensor) -> torch.Tensor:
+def headings(features):
     """(T, D) features -> (T,) integrated yaw half-angles (0 at frame 0)."""
+    xp = namespace(features)
     yaw = features[:, 0]
-    return torch.cat([yaw.new_zeros(1), torch.cumsum(yaw[:-1], 0)])
+    return xp.concat([xp.zeros_like(yaw[:1]), xp.cumulative_sum(yaw[:-1], axis=0)])
 
 
-def root_xz(features: torch.Tensor) -> torch.Tensor:
+def root_xz(features):
     """(T, D) features -> (T, 2) integrated root XZ position in metres (origin at frame 0)."""
-    return root_from_features(features)[1][:, [0, 2]]
+    root = root_from_features(features)[1]
+    return namespace(root).stack([root[:, 0], root[:, 2]], axis=-1)
 
 
-def _to_body(angle: torch.Tensor, xz: torch.Tensor) -> torch.Tensor:
+def _to_body(angle, xz):
     """World XZ vectors (N, 2) into the body frames of half-angles ``angle`` (N,): (N, 2)."""
-    v = torch.stack([xz[:, 0], torch.zeros_like(xz[:, 0]), xz[:, 1]], -1)
-    return qrot(yaw_quat(2.0 * angle), v)[:, [0, 2]]
+    xp = namespace(angle, xz)
+    v = xp.stack([xz[:, 0], xp.zeros_like(xz[:, 0]), xz[:, 1]], axis=-1)
+    out = qrot(yaw_quat(2.0 * angle), v)
+    return xp.stack([out[:, 0], out[:, 2]], axis=-1)
 
 
-def follow_path(features: torch.Tensor, path: torch.Tensor) -> torch.Tensor:
+def follow_path(features, path):
     """Set the root XZ velocities so the root follows ``path`` (T, 2) metres (``path[0]`` is frame 0's
     position: the origin) under the features' own headings; the last frame repeats the one before."""
-    f = features.clone()
+    xp = namespace(features)
+    f = features + 0  # a copy
     ang = headings(f)
     steps = path[1:] - path[:-1]  # world step into frame i, i = 1..T-1, taken by frame i-1's velocity
-    f[:-1, 1:3] = _to_body(ang[1:], steps.to(f.dtype))
+    f[:-1, 1:3] = _to_body(ang[1:], xp.astype(steps, f.dtype))
     f[-1, 1:3] = f[-2, 1:3]
     return f
 
 
-def land_at(features: torch.Tensor, start: int, frame: int, angle: float | torch.Tensor,
-            xz: torch.Tensor) -> torch.Tensor:
+def land_at(features, start: int, frame: int, angle, xz):
     """Spread a heading and a position change evenly over the velocities of frames [start, frame) so that
     frame ``frame`` integrates to the heading of half-angle ``angle`` (by the shortest turn) and root
     position ``xz`` (2,); frames before ``start`` and the features of every frame from ``frame`` on keep
     their values."""
     if not 0 <= start < frame < len(features):
         raise ValueError(f"need 0 <= start < frame < T, got start {start}, frame {frame}, T {len(features)}")
-    f = features.clone()
+    xp = namespace(features)
+    f = features + 0  # a copy
     n = frame - start
     turn = angle - headings(f)[frame]
-    turn = (turn + torch.pi / 2) % torch.pi - torch.pi / 2  # half-angles: the same heading every pi; take the
+    turn = (turn + math.pi / 2) % math.pi - math.pi / 2  # half-angles: the same heading every pi; take the
     f[start:frame, 0] += turn / n  # shortest turn, not a full spin
-    dp = (xz.to(f.dtype) - root_xz(f)[frame]) / n
+    dp = (xp.astype(xz, f.dtype) - root_xz(f)[frame]) / n
     ang = headings(f)
-    f[start:frame, 1:3] += _to_body(ang[start + 1:frame + 1], dp.expand(n, 2))
+    f[start:frame, 1:3] += _to_body(ang[start + 1:frame + 1], xp.broadcast_to(dp, (n, 2)))
     return f
 
 
-def place_like(joints: torch.Tensor, frame: int, angle: torch.Tensor, root: torch.Tensor,
-               target_angle: torch.Tensor, target_root: torch.Tensor) -> torch.Tensor:
+def place_like(joints: np.ndarray, frame: int, angle: float, root: np.ndarray, target_angle: float,
+               target_root: np.ndarray) -> np.ndarray:
     """Turn (about +Y) and move joints (T, J, 3) so that frame ``frame``, whose root is at half-angle
-    ``angle`` and XZ ``root`` (2,), ends at ``target_angle`` and ``target_root`` (2,)."""
+    ``angle`` and XZ ``root`` (2,), ends at ``target_angle`` and ``target_root`` (2,). numpy."""
     q = _turn(angle, target_angle)
-    shift = joints.new_zeros(3)
-    shift[[0, 2]] = root.to(joints.dtype)
-    moved = qrot(q.to(joints.dtype).expand(joints.shape[:-1] + (4,)), joints - shift)
+    joints = np.asarray(joints, dtype=np.float64)
+    shift = np.array([root[0], 0.0, root[1]], dtype=np.float64)
+    moved = qrot(np.broadcast_to(q, joints.shape[:-1] + (4,)), joints - shift)
     moved[..., 0] += target_root[0]
     moved[..., 2] += target_root[1]
     return moved
 
 
-def place_rigid_like(motion: RigidMotion, frame: int, angle: torch.Tensor, root: torch.Tensor,
-                     target_angle: torch.Tensor, target_root: torch.Tensor) -> RigidMotion:
+def place_rigid_like(motion: RigidMotion, frame: int, angle: float, root: np.ndarray, target_angle: float,
+                     target_root: np.ndarray) -> RigidMotion:
     """:func:`place_like` for a rigid motion: its root path and root rotation turned and moved the same way."""
-    q = _turn(angle, target_angle).double()
-    shift = torch.zeros(3, dtype=torch.float64)
-    shift[[0, 2]] = root.double()
-    path = qrot(q.expand(len(motion), 4), torch.from_numpy(motion.root) - shift)
+    q = _turn(angle, target_angle)
+    shift = np.array([root[0], 0.0, root[1]], dtype=np.float64)
+    path = qrot(np.broadcast_to(q, (len(motion), 4)), motion.root - shift)
     path[:, 0] += float(target_root[0])
     path[:, 2] += float(target_root[1])
     rotations = motion.rotations.copy()
-    rotations[:, 0] = quat_to_matrix(q.numpy()) @ rotations[:, 0]
-    return RigidMotion(motion.offsets, rotations, path.numpy(), motion.skeleton)
+    rotations[:, 0] = quat_to_matrix(q) @ rotations[:, 0]
+    return RigidMotion(motion.offsets, rotations, path, motion.skeleton)
 
 
-def _turn(angle: torch.Tensor, target_angle: torch.Tensor) -> torch.Tensor:
-    """(4,) the yaw quaternion taking a body frame at half-angle ``angle`` to one at ``target_angle``."""
-    return qmul(qinv(yaw_quat(2.0 * target_angle)), yaw_quat(2.0 * angle))
+def _turn(angle: float, target_angle: float) -> np.ndarray:
+    """(4,) the yaw quaternion taking a body frame at half-angle ``angle`` to one at ``target_angle`` (numpy)."""
+    a, b = np.asarray(float(angle)), np.asarray(float(target_angle))
+    return qmul(qinv(yaw_quat(2.0 * b)), yaw_quat(2.0 * a))
+
+
+__all__ = ["follow_path", "headings", "land_at", "place_like", "place_rigid_like", "root_xz"]

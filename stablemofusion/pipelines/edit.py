@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..edit_plan import EDIT_MODES, edit_hooks, plan_edit, splice_rigid
+from ..edit_plan import check_edit_inputs, edit_hooks, plan_edit, splice_rigid
 from ..diffusion.schedulers import sampler_spec
 from ..errors import SMFError
 from ..motion.rigid import rigid_to_features
@@ -18,7 +18,6 @@ from ..limits import base_seed, check_prompt
 from .settings import Settings
 
 PROGRESS_SECONDS = 5.0  # edits longer than this show a progress bar by default
-MODE_FLAGS = {"prefix": ("keep_start",), "suffix": ("keep_end",), "inbetween": ("keep_start", "keep_end")}
 
 
 class EditPipeline:
@@ -61,30 +60,17 @@ class EditPipeline:
                              settings.footskate_options)
         # 4. post-process: place the output like the source, splice the source's kept rigid body back in
         src = np.asarray(source, dtype=np.float64)
-        st, ft = torch.from_numpy(src), torch.from_numpy(f)
         anchor = None
         if plan.anchor is not None:  # the output is placed so that its kept end is where the source has it
             a, b = plan.anchor
-            anchor = (a, headings(ft)[a], root_xz(ft)[a], headings(st)[b], root_xz(st)[b])
+            anchor = (a, headings(f)[a], root_xz(f)[a], headings(src)[b], root_xz(src)[b])
         if motion is None:
             r = MotionResult.build(prompt, f, None, c.skeleton, c.fps, seed)
             if anchor is not None:
-                r.joints = place_like(torch.from_numpy(r.joints), *anchor).numpy()
+                r.joints = place_like(r.joints, *anchor)
             return r
         motion = motion if anchor is None else place_rigid_like(motion, *anchor)
         motion = splice_rigid(motion, c.finish(src)[1], plan)
         return MotionResult.build(prompt, rigid_to_features(motion, f, c.rigid)[1], motion, c.skeleton, c.fps, seed)
 
 
-def check_edit_inputs(mode: str, keep_start: float, keep_end: float, seconds: float | None) -> None:
-    """SMFError naming the flag: a bad mode, a negative length, or a mode without the length it needs."""
-    if mode not in EDIT_MODES:
-        raise SMFError(f"edit mode must be one of {', '.join(EDIT_MODES)}, got {mode!r}")
-    for name, value in (("keep_start", keep_start), ("keep_end", keep_end), ("seconds", seconds)):
-        if value is not None and not (np.isfinite(value) and value >= 0):
-            raise SMFError(f"--{name.replace('_', '-')} must be a finite number of seconds >= 0, got {value}")
-    values = {"keep_start": keep_start, "keep_end": keep_end}
-    for name in MODE_FLAGS.get(mode, ()):
-        if not values[name] > 0:
-            raise SMFError(f"a {mode} edit needs --{name.replace('_', '-')} SECONDS (the part of the source it "
-                           f"keeps)")

@@ -14,13 +14,14 @@ from types import SimpleNamespace
 import numpy as np
 
 from ..errors import SMFError
-from ..limits import (BATCH_SIZE, FOOTSKATE, PORTABLE_ENGINE, base_seed, check_batch_size, check_footskate,
-                      check_guidance, check_steps)
-from ..motion.rigid import DEFAULT_FIT
+from ..limits import (BATCH_SIZE, FOOTSKATE, PORTABLE_ENGINE, STUDENT_EDIT_STEPS, base_seed, check_batch_size,
+                      check_footskate, check_guidance, check_prompt, check_steps)
+from ..motion.rigid import DEFAULT_FIT, rigid_to_features
+from ..motion.root import headings, place_rigid_like, root_xz
 from ..motion.skeleton import get_skeleton
 from ..pipelines.final import OutOfDomainWarning, check_batch_request, finish_many, frames_for
 from ..pipelines.result import MotionResult
-from ..edit_plan import plan_edit
+from ..edit_plan import check_edit_inputs, plan_edit, splice_rigid, x0_constraint
 from ..timeline_plan import DEFAULT_OVERLAP, plan_windows, segment_frames
 from .graphs import PortableGraphs
 from .sampling import sample
@@ -179,6 +180,52 @@ class PortablePipeline:
                               dict(guidance=guidance, sampler=sampler or m.sampler, steps=steps), footskate,
                               footskate_options)
 
+    def edit(self, prompt: str, source: np.ndarray, mode: str, *, keep_start: float = 0.0, keep_end: float = 0.0,
+             seconds: float | None = None, path: np.ndarray | None = None, guidance_scale: float | None = None,
+             steps: int | None = None, sampler: str | None = None, seed: int | None = None, impose: str = "x0",
+             footskate: str | None = None, footskate_options=None, engine: str | None = None,
+             progress: bool | None = None) -> MotionResult:
+        """Edit ``source`` features (Ts, D) with ``prompt``, as the torch path's
+        :class:`~stablemofusion.pipelines.edit.EditPipeline` with ``impose="x0"`` (the known part imposed on every
+        prediction; ``impose="xt"`` needs the torch engines)."""
+        m = self.model
+        # 1. check inputs; the settings of an edit (a student: at least STUDENT_EDIT_STEPS)
+        check_prompt(prompt, "the prompt")
+        check_edit_inputs(mode, keep_start, keep_end, seconds)
+        if impose != "x0":
+            raise SMFError(f"impose {impose!r} runs on the torch engines (pip install 'stablemofusion[train]'); the "
+                           "portable runtime imposes on x0")
+        guidance = m.guidance if check_guidance(guidance_scale) is None else float(guidance_scale)
+        steps = (max(m.steps, STUDENT_EDIT_STEPS) if m.student else m.steps) if check_steps(steps) is None \
+            else int(steps)
+        footskate = check_footskate(FOOTSKATE if footskate is None else footskate)
+        if footskate == "loop":
+            raise SMFError("footskate 'loop' runs inside the torch sampler; use 'post' or 'off' here")
+        # 2. prepare: the plan and the seed
+        seed = base_seed(seed)
+        plan = plan_edit(mode, source, self.skeleton, keep_start=int(round(keep_start * self.fps)),
+                         keep_end=int(round(keep_end * self.fps)),
+                         frames=None if seconds is None else int(round(seconds * self.fps)), path=path)
+        if not self.min_frames <= plan.frames <= self.max_frames:
+            raise SMFError(f"an edit of {plan.frames / self.fps:g} s is outside the {self.min_frames / self.fps:g} "
+                           f"to {self.max_frames / self.fps:g} s this model generates at once; for longer motions use "
+                           "`smf generate --timeline`")
+        # 3. denoise, exact on the known part after the last step
+        tokens, mask, _ = self.encode([prompt])
+        raw = sample(m, tokens, mask, [plan.frames], [seed], guidance=guidance, sampler=sampler or m.sampler,
+                     steps=steps, x0_hook=x0_constraint(plan, m.mean, m.std))[0]
+        (f, motion), = finish_many([plan.project(raw.astype(np.float64)).astype(np.float32)], self.skeleton,
+                                   self.fps, self.rigid, footskate, footskate_options)
+        # 4. post-process: place the output like the source, splice the source's kept rigid body back in
+        src = np.asarray(source, dtype=np.float64)
+        if plan.anchor is not None:  # the output is placed so that its kept end is where the source has it
+            a, b = plan.anchor
+            motion = place_rigid_like(motion, a, headings(f)[a], root_xz(f)[a], headings(src)[b], root_xz(src)[b])
+        (_, source_body), = finish_many([src], self.skeleton, self.fps, self.rigid)
+        motion = splice_rigid(motion, source_body, plan)
+        return MotionResult.build(prompt, rigid_to_features(motion, f, self.rigid)[1], motion, self.skeleton,
+                                  self.fps, seed)
+
     def _timeline(self, segments, overlap: float, base: int, sampling: dict, footskate: str,
                   footskate_options) -> MotionResult:
         m = self.model
@@ -194,7 +241,7 @@ class PortablePipeline:
                 raw = sample(m, tokens, mask, [frames], [base + j], **sampling)[0]
             else:
                 plan = plan_edit("prefix", out[-w.keep:], self.skeleton, keep_start=w.keep, frames=frames)
-                raw = sample(m, tokens, mask, [frames], [base + j], known=(plan.known[None], plan.mask[None]),
+                raw = sample(m, tokens, mask, [frames], [base + j], x0_hook=x0_constraint(plan, m.mean, m.std),
                              **sampling)[0]
                 raw = plan.project(raw.astype(np.float64)).astype(np.float32)  # exact on the kept part
             out = np.concatenate([out, raw[w.keep:w.keep + w.new].astype(np.float64)])

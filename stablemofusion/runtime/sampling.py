@@ -54,20 +54,18 @@ def guided_denoiser(model: PortableModel, tokens: np.ndarray, mask: np.ndarray, 
 
 
 def sample(model: PortableModel, tokens: np.ndarray, mask: np.ndarray, lengths: list[int], seed: int | list[int], *,
-           guidance: float, sampler: str, steps: int, known: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+           guidance: float, sampler: str, steps: int,
+           x0_hook: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """The model's raw features (B, max(lengths), D) in dataset units (float32), before the final stage: item k
     draws its noise from ``seed`` (stream k) or ``seed[k]`` (:func:`stablemofusion.noise.batch_noise`).
-    ``known``: (features (B, T, D) in dataset units, mask (B, T, D)) imposed on every prediction (editing)."""
+    ``x0_hook``: applied to every prediction (normalised), e.g. an edit's known part
+    (:func:`stablemofusion.edit_plan.x0_constraint`)."""
     table = model.table(sampler, steps)
     T = max(lengths)
     x = batch_noise(seed, lengths, model.dim, draw=0) * np.float32(table.init_sigma)
     step_noise = (np.stack([batch_noise(seed, lengths, model.dim, draw=1 + k) for k in range(table.steps)])
                   if table.stochastic else None)
-    hook = None
-    if known is not None:
-        values = ((known[0].astype(np.float32) - model.mean) / model.std).astype(np.float32)
-        hook = (lambda x0: np.where(known[1], values, x0))  # noqa: E731
-    x = run_table(guided_denoiser(model, tokens, mask, lengths, T, table, guidance), table, x, step_noise, hook)
+    x = run_table(guided_denoiser(model, tokens, mask, lengths, T, table, guidance), table, x, step_noise, x0_hook)
     return x * model.std + model.mean
 
 

@@ -86,6 +86,37 @@ def test_timelines_and_long_motions_are_the_torch_paths(shipped, tmp_path):
     assert np.abs(joints - want).max() < 1e-3
 
 
+EDITS = {"prefix": dict(keep_start=1.0, seconds=4.0), "suffix": dict(keep_end=1.0, seconds=4.0),
+         "inbetween": dict(keep_start=1.0, keep_end=1.0), "upper-body": {}, "lower-body": {}, "trajectory": {}}
+
+
+def test_edits_are_the_torch_paths_in_every_mode(shipped, tmp_path):
+    """Against the torch path's default CPU engine (the table loop): its eager engine runs the student's
+    multi-step consistency sampling through diffusers, which draws its own step noise."""
+    from stablemofusion.edit_plan import source_features
+    from stablemofusion.motion.files import load_motion
+
+    rt, torch_pipe = shipped
+    src = source_features(load_motion("example:wave-both-hands"), torch_pipe.skeleton, torch_pipe.fps, None)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for mode, kw in EDITS.items():
+            a = rt.edit("a person walks forward", src, mode, seed=9, **kw)
+            b = torch_pipe.edit("a person walks forward", src, mode, seed=9, engine="fast", **kw)
+            assert a.frames == b.frames and np.abs(a.joints - b.joints).max() < 1e-3, mode
+    joints = tmp_path / "source_joints.npy"
+    np.save(joints, load_motion("example:wave-both-hands").joints)
+    run = _smf_without_torch("edit", "a person walks forward", "--motion", joints, "--mode", "upper-body", "--seed",
+                             "9", "--format", "npy,json", "--out", tmp_path / "out")
+    assert run.returncode == 0, run.stderr
+    got = np.load(next((tmp_path / "out").glob("*_joints.npy")))
+    src = source_features(load_motion(joints), torch_pipe.skeleton, torch_pipe.fps, None)
+    want = torch_pipe.edit("a person walks forward", src, "upper-body", seed=9, engine="fast").joints
+    assert np.abs(got - want).max() < 1e-3
+    assert json.loads(next((tmp_path / "out").glob("*.json")).read_text())["steps"] == torch_pipe.settings(
+        edit=True).steps
+
+
 def test_shipped_teacher_graphs_make_the_teachers_motions():
     from stablemofusion.pipeline import MotionPipeline
 
@@ -134,7 +165,8 @@ def test_the_command_line_generates_without_torch(tmp_path, shipped):
 def test_commands_that_need_torch_say_which_extra_to_install(tmp_path):
     joints = tmp_path / "m_joints.npy"
     np.save(joints, np.load(default_graphs_path().parent.parent / "examples" / "wave-both-hands.npy"))
-    for args in (["edit", "a person waves", "--motion", joints, "--mode", "upper-body", "--out", tmp_path],
+    for args in (["edit", "a person waves", "--motion", joints, "--mode", "upper-body", "--impose", "xt", "--out",
+                  tmp_path],
                  ["generate", "a person walks", "--engine", "eager", "--out", tmp_path],
                  ["info"]):
         run = _smf_without_torch(*args)

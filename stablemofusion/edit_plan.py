@@ -146,6 +146,20 @@ def check_edit_inputs(mode: str, keep_start: float, keep_end: float, seconds: fl
                            f"keeps)")
 
 
+def plan_edit_for(mode: str, source: np.ndarray, skeleton: Skeleton, fps: float, min_frames: int, max_frames: int, *,
+                  keep_start: float = 0.0, keep_end: float = 0.0, seconds: float | None = None,
+                  path: np.ndarray | None = None) -> EditPlan:
+    """:func:`plan_edit` with lengths in seconds at ``fps``, for a model that makes ``min_frames`` to ``max_frames``
+    at once (SMFError for an edit outside that range)."""
+    plan = plan_edit(mode, source, skeleton, keep_start=int(round(keep_start * fps)),
+                     keep_end=int(round(keep_end * fps)), frames=None if seconds is None else int(round(seconds * fps)),
+                     path=path)
+    if not min_frames <= plan.frames <= max_frames:
+        raise SMFError(f"an edit of {plan.frames / fps:g} s is outside the {min_frames / fps:g} to {max_frames / fps:g} "
+                       "s this model generates at once; for longer motions use `smf generate --timeline`")
+    return plan
+
+
 def x0_constraint(plan: EditPlan, mean: np.ndarray, std: np.ndarray):
     """The portable runtime's x0 hook imposing ``plan`` (``impose="x0"`` of :func:`edit_hooks`, in numpy): the known
     entries replace the prediction's (B, T, D, normalised), then the root constraints are projected."""
@@ -321,4 +335,4 @@ def plan_edit(mode: str, source: np.ndarray, skeleton: Skeleton, *, keep_start: 
 
 
 __all__ = ["EDIT_MODES", "IMPOSE", "EditPlan", "PlanTensors", "check_edit_inputs", "edit_hooks", "plan_edit", "body_mask",
-           "blend_seams", "source_features", "splice_rigid", "x0_constraint"]
+           "blend_seams", "plan_edit_for", "source_features", "splice_rigid", "x0_constraint"]

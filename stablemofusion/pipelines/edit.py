@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..edit_plan import check_edit_inputs, edit_hooks, plan_edit, splice_rigid
+from ..edit_plan import check_edit_inputs, edit_hooks, plan_edit_for, splice_rigid
 from ..diffusion.schedulers import sampler_spec
 from ..errors import SMFError
 from ..motion.rigid import rigid_to_features
@@ -44,13 +44,8 @@ class EditPipeline:
             raise SMFError(f"editing needs a sampler with a precomputed form, not {settings.sampler!r}")
         # 2. prepare: the plan, its hooks and the seed
         seed = base_seed(seed)
-        plan = plan_edit(mode, source, c.skeleton, keep_start=int(round(keep_start * c.fps)),
-                         keep_end=int(round(keep_end * c.fps)),
-                         frames=None if seconds is None else int(round(seconds * c.fps)), path=path)
-        if not c.min_frames <= plan.frames <= c.max_frames:
-            raise SMFError(f"an edit of {plan.frames / c.fps:g} s is outside the {c.min_frames / c.fps:g} to "
-                           f"{c.window_seconds:g} s this model generates at once; for longer motions use "
-                           "`smf generate --timeline`")
+        plan = plan_edit_for(mode, source, c.skeleton, c.fps, c.min_frames, c.max_frames, keep_start=keep_start,
+                             keep_end=keep_end, seconds=seconds, path=path)
         x0_hook, xt_hook = edit_hooks(plan, c.mean, c.std, 1, c.device, c.dtype, impose)
         # 3. denoise (the table loop: hooks run eagerly), exact on the known part after the last step
         show = plan.frames / c.fps > PROGRESS_SECONDS if progress is None else progress

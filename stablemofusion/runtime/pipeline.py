@@ -21,7 +21,7 @@ from ..motion.root import headings, place_rigid_like, root_xz
 from ..motion.skeleton import get_skeleton
 from ..pipelines.final import OutOfDomainWarning, check_batch_request, finish_many, frames_for
 from ..pipelines.result import MotionResult
-from ..edit_plan import check_edit_inputs, plan_edit, splice_rigid, x0_constraint
+from ..edit_plan import check_edit_inputs, plan_edit, plan_edit_for, splice_rigid, x0_constraint
 from ..timeline_plan import DEFAULT_OVERLAP, plan_windows, segment_frames
 from .graphs import PortableGraphs
 from .sampling import sample
@@ -203,13 +203,8 @@ class PortablePipeline:
             raise SMFError("footskate 'loop' runs inside the torch sampler; use 'post' or 'off' here")
         # 2. prepare: the plan and the seed
         seed = base_seed(seed)
-        plan = plan_edit(mode, source, self.skeleton, keep_start=int(round(keep_start * self.fps)),
-                         keep_end=int(round(keep_end * self.fps)),
-                         frames=None if seconds is None else int(round(seconds * self.fps)), path=path)
-        if not self.min_frames <= plan.frames <= self.max_frames:
-            raise SMFError(f"an edit of {plan.frames / self.fps:g} s is outside the {self.min_frames / self.fps:g} "
-                           f"to {self.max_frames / self.fps:g} s this model generates at once; for longer motions use "
-                           "`smf generate --timeline`")
+        plan = plan_edit_for(mode, source, self.skeleton, self.fps, self.min_frames, self.max_frames,
+                             keep_start=keep_start, keep_end=keep_end, seconds=seconds, path=path)
         # 3. denoise, exact on the known part after the last step
         tokens, mask, _ = self.encode([prompt])
         raw = sample(m, tokens, mask, [plan.frames], [seed], guidance=guidance, sampler=sampler or m.sampler,

@@ -41,9 +41,8 @@ def main() -> None:
     warnings.simplefilter("ignore")
     torch.set_num_threads(args.threads)
     prompts = [json.loads(line)["prompt"] for line in (HERE / "prompts_freeform.jsonl").read_text().splitlines()][:32]
-    runtimes = {"onnx": PortablePipeline.from_pretrained(threads=args.threads),
-                "torch-fast": MotionPipeline.from_pretrained(device="cpu"), "torch-eager": None}
-    runtimes["torch-eager"] = runtimes["torch-fast"]
+    portable, torch_pipe = PortablePipeline.from_pretrained(threads=args.threads), MotionPipeline.from_pretrained()
+    runtimes = {"onnx": portable, "torch-fast": torch_pipe, "torch-eager": torch_pipe}
     engines = {"onnx": None, "torch-fast": "fast", "torch-eager": "eager"}
     out = {"threads": args.threads, "repeats": args.repeats, "seconds": 4.0}
     for name, pipe in runtimes.items():

@@ -105,7 +105,6 @@ def _export(module: nn.Module, args: tuple, path: Path, inputs: list[str], outpu
     for name, m in (multiples or {}).items():
         dims[name] = m * torch.export.Dim(name + "_units", min=1, max=4096 // m)
     shapes = tuple({axis: dims[name] for axis, name in dynamic.get(i, {}).items()} or None for i in inputs)
-    dims = {k: v for k, v in dims.items() if any(k in axes.values() for i, axes in dynamic.items() if i in inputs)}
     import warnings
 
     module.eval()

@@ -120,18 +120,8 @@ class PortablePipeline:
         m = self.model
         # 1. check inputs, defaults from the model
         prompts, secs, frs, per_item = check_batch_request(prompts, seconds, frames, seed)
-        guidance = m.guidance if check_guidance(guidance_scale) is None else float(guidance_scale)
-        steps = m.steps if check_steps(steps) is None else int(steps)
-        if m.student and steps > m.max_steps:
-            raise SMFError(f"steps must be at most {m.max_steps} for this model (a distilled student: more steps drift "
-                           f"into motions no human makes), got {steps}")
-        sampler = sampler or m.sampler
-        footskate = check_footskate(FOOTSKATE if footskate is None else footskate)
-        if footskate == "loop":
-            raise SMFError("footskate 'loop' runs inside the torch sampler; use 'post' or 'off' here")
+        sampling, footskate = self._settings(guidance_scale, steps, sampler, footskate, engine)
         check_batch_size(batch_size)
-        if engine not in (None, "auto", PORTABLE_ENGINE):
-            raise SMFError(f"the portable runtime runs the engine {PORTABLE_ENGINE!r}, not {engine!r}")
         n = len(prompts)
         # 2. prepare: lengths (the model's estimate where none is given), seeds, domains
         unknown = [i for i in range(n) if secs[i] is None and frs[i] is None]
@@ -142,7 +132,6 @@ class PortablePipeline:
         base = None if per_item else base_seed(seed)
         domains = self.domains(prompts)
         results: list[MotionResult | None] = [None] * n
-        sampling = dict(guidance=guidance, sampler=sampler, steps=steps)
         # 3. motions longer than one window: one-segment timelines
         for i in (i for i in range(n) if lengths[i] > self.max_frames):
             r = self._timeline([(prompts[i], lengths[i] / self.fps)], DEFAULT_OVERLAP,
@@ -170,15 +159,8 @@ class PortablePipeline:
                  progress: bool | None = None) -> MotionResult:
         """One continuous motion from (prompt, seconds) segments, window after window (window j uses ``seed + j``),
         as the torch path's :class:`~stablemofusion.pipelines.timeline.TimelinePipeline` with ``impose="x0"``."""
-        m = self.model
-        guidance = m.guidance if check_guidance(guidance_scale) is None else float(guidance_scale)
-        steps = m.steps if check_steps(steps) is None else int(steps)
-        footskate = check_footskate(FOOTSKATE if footskate is None else footskate)
-        if footskate == "loop":
-            raise SMFError("footskate 'loop' runs inside the torch sampler; use 'post' or 'off' here")
-        return self._timeline(segments, overlap, base_seed(seed),
-                              dict(guidance=guidance, sampler=sampler or m.sampler, steps=steps), footskate,
-                              footskate_options)
+        sampling, footskate = self._settings(guidance_scale, steps, sampler, footskate, engine)
+        return self._timeline(segments, overlap, base_seed(seed), sampling, footskate, footskate_options)
 
     def edit(self, prompt: str, source: np.ndarray, mode: str, *, keep_start: float = 0.0, keep_end: float = 0.0,
              seconds: float | None = None, path: np.ndarray | None = None, guidance_scale: float | None = None,
@@ -195,20 +177,15 @@ class PortablePipeline:
         if impose != "x0":
             raise SMFError(f"impose {impose!r} runs on the torch engines (pip install 'stablemofusion[train]'); the "
                            "portable runtime imposes on x0")
-        guidance = m.guidance if check_guidance(guidance_scale) is None else float(guidance_scale)
-        steps = (max(m.steps, STUDENT_EDIT_STEPS) if m.student else m.steps) if check_steps(steps) is None \
-            else int(steps)
-        footskate = check_footskate(FOOTSKATE if footskate is None else footskate)
-        if footskate == "loop":
-            raise SMFError("footskate 'loop' runs inside the torch sampler; use 'post' or 'off' here")
+        sampling, footskate = self._settings(guidance_scale, steps, sampler, footskate, engine, edit=True)
         # 2. prepare: the plan and the seed
         seed = base_seed(seed)
         plan = plan_edit_for(mode, source, self.skeleton, self.fps, self.min_frames, self.max_frames,
                              keep_start=keep_start, keep_end=keep_end, seconds=seconds, path=path)
         # 3. denoise, exact on the known part after the last step
         tokens, mask, _ = self.encode([prompt])
-        raw = sample(m, tokens, mask, [plan.frames], [seed], guidance=guidance, sampler=sampler or m.sampler,
-                     steps=steps, x0_hook=x0_constraint(plan, m.mean, m.std))[0]
+        raw = sample(m, tokens, mask, [plan.frames], [seed], x0_hook=x0_constraint(plan, m.mean, m.std),
+                     **sampling)[0]
         (f, motion), = finish_many([plan.project(raw.astype(np.float64)).astype(np.float32)], self.skeleton,
                                    self.fps, self.rigid, footskate, footskate_options)
         # 4. post-process: place the output like the source, splice the source's kept rigid body back in
@@ -220,6 +197,24 @@ class PortablePipeline:
         motion = splice_rigid(motion, source_body, plan)
         return MotionResult.build(prompt, rigid_to_features(motion, f, self.rigid)[1], motion, self.skeleton,
                                   self.fps, seed)
+
+    def _settings(self, guidance_scale: float | None, steps: int | None, sampler: str | None, footskate: str | None,
+                  engine: str | None, *, edit: bool = False) -> tuple[dict, str]:
+        """A call's sampling keywords (guidance, sampler, steps: the model's where None; a student's edit at least
+        STUDENT_EDIT_STEPS) and footskate mode, checked as the torch path checks them."""
+        m = self.model
+        if engine not in (None, "auto", PORTABLE_ENGINE):
+            raise SMFError(f"the portable runtime runs the engine {PORTABLE_ENGINE!r}, not {engine!r}")
+        guidance = m.guidance if check_guidance(guidance_scale) is None else float(guidance_scale)
+        own = max(m.steps, STUDENT_EDIT_STEPS) if edit and m.student else m.steps
+        steps = own if check_steps(steps) is None else int(steps)
+        if m.student and steps > m.max_steps:
+            raise SMFError(f"steps must be at most {m.max_steps} for this model (a distilled student: more steps drift "
+                           f"into motions no human makes), got {steps}")
+        footskate = check_footskate(FOOTSKATE if footskate is None else footskate)
+        if footskate == "loop":
+            raise SMFError("footskate 'loop' runs inside the torch sampler; use 'post' or 'off' here")
+        return dict(guidance=guidance, sampler=sampler or m.sampler, steps=steps), footskate
 
     def _timeline(self, segments, overlap: float, base: int, sampling: dict, footskate: str,
                   footskate_options) -> MotionResult:

@@ -163,3 +163,17 @@ def test_strip_grid_of_motions_and_frames(tmp_path: Path) -> None:
     with pytest.raises(SMFError, match="out of range"):
         render_strip([("a", clip)], [10], tmp_path / "t.png")
     assert not (tmp_path / "t.png").exists()
+
+
+def test_mp4_without_ffmpeg_is_one_clear_error(tmp_path: Path, monkeypatch) -> None:
+    import importlib.util
+
+    from stablemofusion.output import parse_formats
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "imageio_ffmpeg" else real(name, *a))
+    with pytest.raises(SMFError, match=r"stablemofusion\[video\]"):
+        render_video(rest_pose_clip(), tmp_path / "x.mp4")
+    with pytest.raises(SMFError, match=r"stablemofusion\[video\]"):
+        parse_formats("npy,mp4")
+    assert parse_formats("npy,gif") == ["npy", "gif"] and not any(tmp_path.iterdir())

@@ -8,7 +8,7 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
-    from ..limits import BATCH_SIZE, ENGINES
+    from ..limits import BATCH_SIZE, ENGINES, PORTABLE_ENGINE
     from .flags import add_teacher_flag
 
     p = sub.add_parser(name,
@@ -18,22 +18,26 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--allow-host", action="append", default=[], metavar="NAME",
                    help="a Host header name to accept besides localhost, 127.0.0.1 and ::1 (repeatable; needed "
                         "when clients reach the server by another name or address)")
-    p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or run folder (default: shipped model)")
+    p.add_argument("--checkpoint", type=Path, default=None,
+                   help="checkpoint or run folder (default: shipped model); with --engine onnx a folder of portable "
+                        "graphs (smf export --onnx) or a model folder holding one")
     add_teacher_flag(p)
     p.add_argument("--adapter", type=Path, action="append", default=None,
                    help="an adapter file from `smf adapt`, served beside the model: requests name it with "
                         "\"adapter\" (repeatable)")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
-    p.add_argument("--engine", default="auto", choices=("auto",) + ENGINES,
-                   help="denoising engine of the worker (default auto; 'compiled' pays on a CPU server: a one-off "
-                        "compilation per shape, docs/inference.md)")
+    p.add_argument("--engine", default="auto", choices=("auto",) + ENGINES + (PORTABLE_ENGINE,),
+                   help=f"denoising engine of the worker (default auto: a torch engine where PyTorch is installed, "
+                        f"else {PORTABLE_ENGINE}, the portable graphs on ONNX Runtime; 'compiled' pays on a CPU server: "
+                        "a one-off compilation per shape, docs/inference.md)")
     p.add_argument("--max-batch", type=int, default=BATCH_SIZE, help="most requests in one sampling call")
     p.add_argument("--max-request-cost", type=float, default=None,
                    help="most work one request may ask for, in seconds x steps (default 2000: a 120 s timeline of "
                         "the shipped student with footskate loop; raise it on a faster machine)")
     p.add_argument("--wait-ms", type=float, default=5.0, help="how long to gather requests for a batch (default 5)")
     p.add_argument("--max-queue", type=int, default=256, help="waiting requests before 503 (default 256)")
-    p.add_argument("--threads", type=int, default=2, help="torch threads of the generating process (default 2)")
+    p.add_argument("--threads", type=int, default=2,
+                   help="threads of each generating process (torch or ONNX Runtime; default 2)")
     p.add_argument("--max-streams", type=int, default=None, metavar="N",
                    help="live streams at once on the WebSocket /v1/stream, made by a process of their own "
                         "(default 4; 0: no streams and no stream process)")
@@ -46,13 +50,12 @@ def run(args: argparse.Namespace) -> None:
 
     import uvicorn
 
-    from ..diffusion.checkpoint import read_config
     from ..errors import SMFError
-    from ..pipelines.components import model_folder
     from ..serve import ProcessWorker, WorkerSpec, create_app
     from ..serve.server_limits import MAX_STREAMS
     from ..serve.server import uvicorn_config
     from ..serve.live import StreamProcessWorker
+    from .options import choose_engine
 
     if not 0 < args.port < 65536:
         raise SMFError(f"--port must be 1-65535, got {args.port}")
@@ -64,12 +67,10 @@ def run(args: argparse.Namespace) -> None:
     if args.max_request_cost is not None and not args.max_request_cost > 0:
         raise SMFError(f"--max-request-cost must be positive, got {args.max_request_cost}")
     cost = {} if args.max_request_cost is None else {"max_request_cost": args.max_request_cost}
-    checkpoint = model_folder(args.checkpoint, teacher=args.teacher)
-    config = read_config(checkpoint)  # checks the folder; the worker process loads the model itself
-    adapters = served_adapters(args.adapter or [], checkpoint, config)
-    spec = WorkerSpec(str(checkpoint), args.device, args.threads, args.engine, tuple(str(a) for a in args.adapter or ()))
-    streams = StreamProcessWorker(replace(spec, adapters=()), config) if max_streams else None  # the base model
-    app = create_app(ProcessWorker(spec, config, adapters), max_batch=args.max_batch, wait_ms=args.wait_ms,
+    choose_engine(args, what="this engine")
+    spec, model, adapters = worker_spec(args)  # checks the folder; the worker process loads the model itself
+    streams = StreamProcessWorker(replace(spec, adapters=()), model) if max_streams else None  # the base model
+    app = create_app(ProcessWorker(spec, model, adapters), max_batch=args.max_batch, wait_ms=args.wait_ms,
                      max_queue=args.max_queue, allowed_hosts=tuple(args.allow_host), streams=streams,
                      max_streams=max_streams, **cost)
     sock = listening_socket(args.host, args.port)  # a busy port is one line, before anything starts
@@ -77,6 +78,31 @@ def run(args: argparse.Namespace) -> None:
     print(f"smf serve: http://{args.host}:{args.port} (POST /v1/generate, WebSocket /v1/stream, GET /v1/health; "
           "the model loads in the worker: /v1/health says when it is ready)", flush=True)
     uvicorn.Server(uvicorn_config(app, args.host, args.port)).run(sockets=[sock])
+
+
+def worker_spec(args):
+    """(WorkerSpec, ServedModel, adapter names) of the flags: the model folder checked and read, not loaded."""
+    from ..limits import PORTABLE_ENGINE
+    from ..serve.worker import ServedModel, WorkerSpec
+
+    if args.engine == PORTABLE_ENGINE:
+        from ..errors import SMFError
+        from ..runtime.pipeline import PortablePipeline
+
+        if args.adapter:
+            raise SMFError(f"--adapter runs on the torch engines for now, not --engine {PORTABLE_ENGINE} (pip install "
+                           "'stablemofusion[train]')")
+        model = ServedModel.of(PortablePipeline.from_pretrained(args.checkpoint, teacher=args.teacher))
+        folder = None if args.checkpoint is None else str(args.checkpoint)
+        return WorkerSpec(folder, None, args.threads, args.engine, teacher=args.teacher), model, ()
+    from ..diffusion.checkpoint import read_config
+    from ..pipelines.components import model_folder
+
+    checkpoint = model_folder(args.checkpoint, teacher=args.teacher)
+    config = read_config(checkpoint)
+    adapters = served_adapters(args.adapter or [], checkpoint, config)
+    spec = WorkerSpec(str(checkpoint), args.device, args.threads, args.engine, tuple(str(a) for a in args.adapter or ()))
+    return spec, ServedModel.from_config(config), adapters
 
 
 def served_adapters(paths: list[Path], checkpoint: Path, config) -> tuple[str, ...]:

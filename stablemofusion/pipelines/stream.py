@@ -1,142 +1,54 @@
-"""Live streams: one endless motion, made a short window at a time, that follows a prompt which may change
-between windows (the server's WebSocket /v1/stream, the viewer's live mode).
-
-Every window after the first keeps the last second of the motion so far as its known start (prefix editing
-with its seam blending, as timelines do: :mod:`stablemofusion.timeline_plan`) and adds ``chunk`` frames from the
-prompt current when it starts; it generates ``TAIL`` frames more and drops them (a motion's last frames are its
-least settled). Features are relative to the body, so the new frames continue the root path and heading; the
-stream keeps the world heading and position of its kept frames and places each window's joints there: the
-character continues from where it stands, with no pop.
-
-A stream can be cut back (:meth:`MotionStream.cut`) to any of its last ``rewind`` frames: the frames from there
-on are forgotten and the next window continues from the frames before the cut, with the prompt current then (the
-server makes windows ahead of play time and cuts back the ones it has not sent when a new prompt arrives).
-
-Joints come straight from the model's features (root-relative positions): the rigid final stage fits a whole
-motion at once, which a stream never has. Windows of several streams of the same shape are denoised in one
-batched call (:func:`advance`), each with its own prompt, guidance and seed.
-"""
+"""Live streams on the torch path: :class:`StreamPipeline` checks a stream's settings and builds a
+:class:`~stablemofusion.motion_stream.MotionStream` (written once for both runtimes) whose windows are sampled
+by :class:`TorchWindows`."""
 
 from __future__ import annotations
 
-from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 import torch
 
 from ..diffusion.schedulers import sampler_spec
 from ..diffusion.sampling import replace_x0
-from ..edit_plan import blend_seams
 from ..errors import SMFError
-from ..motion.features import joints_from_features, root_from_features
-from ..motion.root import headings
-from ..motion.rotation import qinv, qrot, yaw_quat
-from ..timeline_plan import TAIL
+from ..limits import base_seed, check_prompt
+from ..motion_stream import (STREAM_CHUNK, STREAM_KEEP, STREAM_REWIND, Chunk, MotionStream, advance,
+                             check_window)
 from .components import Components
 from .denoise import sample
-from ..limits import base_seed, check_prompt
 from .settings import Settings
 
-STREAM_KEEP = 20  # frames of the motion so far each window keeps as its start (1 s at 20 fps)
-STREAM_CHUNK = 12  # frames each window adds (0.6 s at 20 fps): with the kept second and the dropped tail a
-# window is 40 frames, the shipped model's shortest motion, so a window costs no more than a shorter chunk's
-STREAM_REWIND = 60  # frames a stream can be cut back (3 s at 20 fps): it remembers its last keep + rewind frames
 
+class TorchWindows:
+    """The :class:`~stablemofusion.motion_stream.WindowSampler` of a torch pipeline's components."""
 
-@dataclass(frozen=True)
-class Chunk:
-    """Frames ``start`` .. ``start + len(joints) - 1`` of a stream, made from its prompt number ``prompt_index``
-    (counted from 0): ``joints`` (n, J, 3) metres in the stream's world frame, ``features`` (n, D) dataset
-    units (body-relative, as the model makes them)."""
+    def __init__(self, components: Components):
+        self.c = components
+        self.skeleton, self.min_frames = components.skeleton, components.min_frames
+        self.dim = int(components.mean.shape[0])
 
-    start: int
-    prompt_index: int
-    prompt: str
-    joints: np.ndarray
-    features: np.ndarray
+    def __eq__(self, other) -> bool:  # streams of one pipeline are batched together
+        return isinstance(other, TorchWindows) and other.c is self.c
 
-    @property
-    def frames(self) -> int:
-        return len(self.joints)
+    def __hash__(self) -> int:
+        return id(self.c)
 
+    def with_guidance(self, settings: Settings, guidance: float) -> Settings:
+        return replace(settings, guidance_scale=guidance).check()
 
-class MotionStream:
-    """An endless motion: ``next(stream)`` makes the next :class:`Chunk`; :meth:`set_prompt` changes the prompt
-    from the next window on (``stream.send(prompt)`` does both, as a generator would); :meth:`cut` rolls the
-    stream back to an earlier frame. Window j (counted along the frames kept) uses ``seed + j``. Build with
-    :meth:`MotionPipeline.stream`."""
-
-    def __init__(self, c: Components, prompt: str, seed: int, settings: Settings, chunk: int, keep: int,
-                 rewind: int = STREAM_REWIND):
-        self.c, self.seed, self.settings, self.chunk, self.keep, self.rewind = c, seed, settings, chunk, keep, rewind
-        self.prompt, self.prompt_index = prompt, 0
-        self.frames = 0  # frames made so far (less those cut)
-        self.windows = 0  # windows made so far (less those cut)
-        self._seeded_at = 0  # the window the seed applies from
-        self._starts: deque[int] = deque()  # the first frames of the windows a cut may still drop
-        dim = int(c.mean.shape[0])
-        # the last keep + rewind frames (up to frame `frames`): features, world heading (yaw half-angles), root XZ
-        self._features = torch.zeros(0, dim, dtype=torch.float64)
-        self._angle = torch.zeros(0, dtype=torch.float64)
-        self._xz = torch.zeros(0, 2, dtype=torch.float64)
-
-    @property
-    def earliest_cut(self) -> int:
-        """The earliest frame :meth:`cut` accepts: the stream remembers the ``keep`` frames before it."""
-        first = self.frames - len(self._features)  # the first frame remembered
-        return first + self.keep if first else 0
-
-    def cut(self, frame: int) -> int:
-        """Roll the stream back to ``frame`` (``earliest_cut`` .. ``frames``): frames ``frame`` on are forgotten,
-        and the next chunk starts at ``frame``, continuing from the frames before it (their features, world
-        heading and position, as when they were made) with the prompt, seed and guidance current then; the
-        window count goes back to the windows that made the frames kept. Returns the frames dropped."""
-        frame = int(frame)
-        if not self.earliest_cut <= frame <= self.frames:
-            raise SMFError(f"a stream can be cut back to frames {self.earliest_cut} .. {self.frames}, not {frame}")
-        drop = self.frames - frame
-        n = len(self._features) - drop
-        self._features, self._angle, self._xz = self._features[:n], self._angle[:n], self._xz[:n]
-        self.frames = frame
-        while self._starts and self._starts[-1] >= frame:
-            self._starts.pop()
-            self.windows -= 1
-        self._seeded_at = min(self._seeded_at, self.windows)
-        return drop
-
-    def set_prompt(self, prompt: str, *, seed: int | None = None, guidance_scale: float | None = None) -> int:
-        """Use ``prompt`` from the next window on (and ``seed`` for that window, ``seed + 1`` for the one after,
-        ...; ``guidance_scale``, where given); returns its prompt index."""
-        self.prompt = check_prompt(prompt, "the prompt")
-        if guidance_scale is not None:
-            self.settings = replace(self.settings, guidance_scale=guidance_scale).check()
-        if seed is not None:
-            self.seed, self._seeded_at = int(seed), self.windows
-        self.prompt_index += 1
-        return self.prompt_index
-
-    @property
-    def window_seed(self) -> int:
-        """The seed of the next window."""
-        return self.seed + self.windows - self._seeded_at
-
-    def __iter__(self):
-        return self
-
-    def __next__(self) -> Chunk:
-        return advance(self.c, [self])[0]
-
-    def send(self, prompt: str | None) -> Chunk:
-        """Generator protocol: a new prompt (or None: the same), then the next chunk."""
-        if prompt is not None:
-            self.set_prompt(prompt)
-        return next(self)
-
-    def window_shape(self) -> tuple[int, int]:
-        """(frames kept, frames generated) of this stream's next window."""
-        keep = min(self.keep, self.frames)
-        return keep, max(keep + self.chunk + TAIL, self.c.min_frames)
+    @torch.no_grad()
+    def sample_window(self, prompts: list[str], frames: int, settings: Settings, seeds: list[int],
+                      known: np.ndarray | None) -> np.ndarray:
+        c, x0_hook = self.c, None
+        if known is not None:  # imposed on x0 at every step
+            full = torch.zeros(len(prompts), frames, self.dim, dtype=torch.float64)
+            full[:, :known.shape[1]] = torch.from_numpy(known)
+            mask = torch.zeros(full.shape, dtype=torch.bool)
+            mask[:, :known.shape[1]] = True
+            x0_hook = replace_x0(c.normalise(full), mask.to(c.device))
+        raw = sample(c, prompts, [frames] * len(prompts), settings, seeds, x0_hook=x0_hook)
+        return raw.double().numpy()
 
 
 class StreamPipeline:
@@ -156,77 +68,10 @@ class StreamPipeline:
                            f"not {settings.sampler!r}")
         if settings.footskate != "off":
             raise SMFError("streams have no footskate cleanup (it works on a whole motion); use footskate 'off'")
-        if not 0 < keep or not 0 < chunk or keep + chunk + TAIL > c.max_frames:
-            raise SMFError(f"a stream window keeps 1+ frames and adds 1+ frames, at most {c.max_frames - TAIL} in "
-                           f"all; got keep {keep}, chunk {chunk}")
-        if rewind < 0:
-            raise SMFError(f"a stream's rewind is 0 or more frames, not {rewind}")
+        check_window(keep, chunk, rewind, c.max_frames)
         # 2. prepare: the seed; the windows are denoised by `advance` as the stream is read
-        return MotionStream(c, prompt, base_seed(seed), settings, chunk, keep, rewind)
+        return MotionStream(TorchWindows(c), prompt, base_seed(seed), settings, chunk, keep, rewind)
 
 
-@torch.no_grad()
-def advance(c: Components, streams: list[MotionStream]) -> list[Chunk]:
-    """The next chunk of every stream: windows of the same shape and guidance in one sampling call."""
-    groups: dict[tuple, list[int]] = {}
-    for i, s in enumerate(streams):
-        groups.setdefault((s.window_shape(), s.settings), []).append(i)
-    out: list[Chunk | None] = [None] * len(streams)
-    for ((keep, frames), settings), idx in groups.items():
-        for i, chunk in zip(idx, _window(c, [streams[i] for i in idx], keep, frames, settings)):
-            out[i] = chunk
-    return out
-
-
-def _window(c: Components, streams: list[MotionStream], keep: int, frames: int, settings: Settings) -> list[Chunk]:
-    """One window of each stream (all keep ``keep`` frames and generate ``frames``)."""
-    # 1. the known start of every stream (its kept frames), imposed on x0 at every step
-    x0_hook, kept = None, torch.zeros(frames, dtype=torch.bool)
-    if keep:
-        kept[:keep] = True
-        known = torch.zeros(len(streams), frames, int(c.mean.shape[0]), dtype=torch.float64)
-        known[:, :keep] = torch.stack([s._features[-keep:] for s in streams])
-        mask = kept[None, :, None].expand(known.shape).to(c.device)
-        x0_hook = replace_x0(c.normalise(known), mask)
-    # 2. denoise, each stream with its prompt and its window's seed
-    raw = sample(c, [s.prompt for s in streams], [frames] * len(streams),
-                 settings, [s.window_seed for s in streams],
-                 x0_hook=x0_hook)
-    # 3. post-process: exact on the kept part, the seam blended; placed in each stream's world
-    chunks = []
-    for s, r in zip(streams, raw):
-        f = r.double()
-        if keep:
-            f[:keep] = s._features[-keep:]
-            f = blend_seams(f, kept)
-        chunks.append(_emit(c, s, f[:keep + s.chunk], keep))
-    return chunks
-
-
-def _emit(c: Components, s: MotionStream, f: torch.Tensor, keep: int) -> Chunk:
-    """Place window features ``f`` (keep + chunk frames, dataset units) in the stream's world, append the new
-    frames to the stream and return them as a chunk."""
-    a0 = s._angle[-keep] if keep else torch.zeros((), dtype=torch.float64)
-    p0 = s._xz[-keep] if keep else torch.zeros(2, dtype=torch.float64)
-    turn = qinv(yaw_quat(2.0 * a0))  # local (window frame 0 at the origin, facing +Z) -> world
-    local = joints_from_features(f, c.skeleton)  # (n, J, 3)
-    world = qrot(turn.expand(local.shape[:-1] + (4,)), local)
-    world[..., 0] += p0[0]
-    world[..., 2] += p0[1]
-    root = root_from_features(f)[1]
-    xz = qrot(turn.expand(root.shape[:-1] + (4,)), root)[:, [0, 2]] + p0
-    angle = a0 + headings(f)
-    chunk = Chunk(s.frames, s.prompt_index, s.prompt, world[keep:].float().numpy(), f[keep:].float().numpy())
-    remember = s.keep + s.rewind
-    s._features = torch.cat([s._features, f[keep:]])[-remember:]
-    s._angle = torch.cat([s._angle, angle[keep:]])[-remember:]
-    s._xz = torch.cat([s._xz, xz[keep:]])[-remember:]
-    s._starts.append(s.frames)
-    s.frames += chunk.frames
-    s.windows += 1
-    while s._starts and s._starts[0] < s.earliest_cut:  # never dropped by a cut: forgotten
-        s._starts.popleft()
-    return chunk
-
-
-__all__ = ["STREAM_CHUNK", "STREAM_KEEP", "STREAM_REWIND", "Chunk", "MotionStream", "StreamPipeline", "advance"]
+__all__ = ["STREAM_CHUNK", "STREAM_KEEP", "STREAM_REWIND", "Chunk", "MotionStream", "StreamPipeline", "TorchWindows",
+           "advance"]

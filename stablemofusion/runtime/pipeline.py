@@ -22,6 +22,7 @@ from ..motion.skeleton import get_skeleton
 from ..pipelines.final import OutOfDomainWarning, check_batch_request, finish_many, frames_for
 from ..pipelines.result import MotionResult
 from ..edit_plan import check_edit_inputs, plan_edit, plan_edit_for, splice_rigid, x0_constraint
+from ..motion_stream import STREAM_CHUNK, STREAM_KEEP, STREAM_REWIND, MotionStream, check_window
 from ..timeline_plan import DEFAULT_OVERLAP, plan_windows, segment_frames
 from .graphs import PortableGraphs
 from .sampling import sample
@@ -45,7 +46,7 @@ class PortablePipeline:
             raise SMFError("these graphs hold no teacher")
         self.graphs, self.model = graphs, model
         self.skeleton = get_skeleton(model.entry["skeleton"])
-        self.fps, self.min_frames, self.max_frames = model.fps, model.min_frames, model.max_frames
+        self.fps, self.min_frames, self.max_frames, self.dim = model.fps, model.min_frames, model.max_frames, model.dim
         self.rigid = DEFAULT_FIT
         self._cache: OrderedDict[str, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self._cache_size = text_cache_size
@@ -197,6 +198,39 @@ class PortablePipeline:
         motion = splice_rigid(motion, source_body, plan)
         return MotionResult.build(prompt, rigid_to_features(motion, f, self.rigid)[1], motion, self.skeleton,
                                   self.fps, seed)
+
+    def stream(self, prompt: str, *, guidance_scale: float | None = None, steps: int | None = None,
+               sampler: str | None = None, seed: int | None = None, chunk: int = STREAM_CHUNK,
+               engine: str | None = None, rewind: int = STREAM_REWIND) -> MotionStream:
+        """An endless motion following ``prompt``, as the torch path's ``MotionPipeline.stream``
+        (:mod:`stablemofusion.motion_stream`): windows of ``chunk`` frames, window j from ``seed + j``."""
+        # 1. check inputs
+        check_prompt(prompt, "the prompt")
+        sampling, _ = self._settings(guidance_scale, steps, sampler, "off", engine)
+        check_window(STREAM_KEEP, chunk, rewind, self.max_frames)
+        # 2. prepare: the seed; the windows are sampled (sample_window) as the stream is read
+        return MotionStream(self, prompt, base_seed(seed), tuple(sampling.items()), chunk, STREAM_KEEP, rewind)
+
+    def with_guidance(self, settings: tuple, guidance: float) -> tuple:
+        """A stream's ``settings`` with another guidance scale (:class:`~stablemofusion.motion_stream.WindowSampler`)."""
+        check_guidance(guidance)
+        return tuple({**dict(settings), "guidance": float(guidance)}.items())
+
+    def sample_window(self, prompts: list[str], frames: int, settings: tuple, seeds: list[int],
+                      known: np.ndarray | None) -> np.ndarray:
+        """Stream windows (:class:`~stablemofusion.motion_stream.WindowSampler`): raw features (n, frames, D), the
+        ``known`` start (n, keep, D) imposed on every x0 prediction."""
+        m, hook = self.model, None
+        if known is not None:
+            target, keep = (known.astype(np.float32) - m.mean) / m.std, known.shape[1]
+
+            def hook(x0: np.ndarray) -> np.ndarray:
+                x0 = x0.copy()
+                x0[:, :keep] = target
+                return x0
+        tokens, mask, _ = self.encode(prompts)
+        raw = sample(m, tokens, mask, [frames] * len(prompts), list(seeds), x0_hook=hook, **dict(settings))
+        return raw.astype(np.float64)
 
     def _settings(self, guidance_scale: float | None, steps: int | None, sampler: str | None, footskate: str | None,
                   engine: str | None, *, edit: bool = False) -> tuple[dict, str]:

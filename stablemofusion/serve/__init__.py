@@ -3,6 +3,6 @@
 from .app import create_app
 from .batcher import DynamicBatcher
 from .http_errors import ServeError
-from .worker import Job, ProcessWorker, ThreadWorker, WorkerSpec
+from .worker import Job, ProcessWorker, ServedModel, ThreadWorker, WorkerSpec
 
-__all__ = ["DynamicBatcher", "Job", "ProcessWorker", "ServeError", "ThreadWorker", "WorkerSpec", "create_app"]
+__all__ = ["DynamicBatcher", "Job", "ProcessWorker", "ServeError", "ServedModel", "ThreadWorker", "WorkerSpec", "create_app"]

@@ -132,7 +132,7 @@ def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.
         streams = ThreadStreamWorker(model, worker.executor)
     hub = StreamHub(streams, max_streams if streams is not None else 0)
     batcher = DynamicBatcher(worker, max_batch=max_batch, wait_ms=wait_ms, max_queue=max_queue)
-    cfg = worker.config
+    cfg = worker.model
     checks = RequestChecks(cfg, max_request_cost, getattr(worker, "adapters", ()))
     recent = RecentResults()
     converting = asyncio.Semaphore(1)  # one upload parsed at a time, on a thread

@@ -107,14 +107,14 @@ class RequestChecks:
     """Turns request bodies into jobs for a model of frame rate ``fps``, with the limits of every door
     (:mod:`stablemofusion.limits`)."""
 
-    def __init__(self, config, max_cost: float = MAX_REQUEST_COST, adapters: tuple[str, ...] = ()):
-        """``config``: the model's CheckpointConfig (frame rate, window, default steps and guidance); ``max_cost``
-        the most work one request may ask for; ``adapters`` the names of the adapters loaded beside the model."""
-        self.fps, self.max_cost, self.adapters = config.fps, max_cost, tuple(adapters)
-        self.window_s = config.max_frames / config.fps
-        self.default_steps = config.distil.sample_steps if config.student else limits.STEPS
-        self.default_guidance = limits.GUIDANCE if config.guidance is None else config.guidance
-        self.student = config.student
+    def __init__(self, model, max_cost: float = MAX_REQUEST_COST, adapters: tuple[str, ...] = ()):
+        """``model``: the served model's :class:`~stablemofusion.serve.worker.ServedModel` (frame rate, window,
+        default steps and guidance); ``max_cost`` the most work one request may ask for; ``adapters`` the names of
+        the adapters loaded beside the model."""
+        self.fps, self.max_cost, self.adapters = model.fps, max_cost, tuple(adapters)
+        self.window_s = model.max_frames / model.fps
+        self.default_steps, self.default_guidance = model.steps, model.guidance
+        self.student = model.student
 
     def _check_cost(self, seconds: float | None, body) -> None:
         """422 for a request whose work (limits.request_cost) is more than MAX_REQUEST_COST."""

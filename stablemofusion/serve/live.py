@@ -42,6 +42,7 @@ from .server_limits import (MAX_STREAM_MESSAGE_BYTES, MAX_STREAM_MESSAGES, MAX_S
                             MAX_STREAMS, STREAM_AHEAD_S, STREAM_DECIMALS, STREAM_GATHER_S, STREAM_JOIN_S,
                             STREAM_MESSAGE_FRAMES, STREAM_MESSAGE_WINDOW_S, STREAM_RECENT_WINDOWS, STREAM_SEND_LEAD_S,
                             STREAM_START_TIMEOUT_S, STREAM_SWITCH_FACTOR, WARM_STEPS)
+from ..motion_stream import advance
 from .worker import Failure, ProcessWorker, child_loop
 
 def _now() -> float:
@@ -118,11 +119,9 @@ def run_stream_jobs(pipe, streams: dict, jobs: list[StreamJob]) -> list:
 
 def _advance_isolated(pipe, streams: dict, jobs: list[StreamJob], live: list[int], out: list) -> None:
     """The windows of jobs ``live`` in one call; if it fails, each alone (a failing stream is dropped)."""
-    from ..pipelines.stream import advance
-
     for group in [live] + ([[i] for i in live] if len(live) > 1 else []):
         try:
-            chunks = advance(pipe, [streams[jobs[i].sid] for i in group])
+            chunks = advance([streams[jobs[i].sid] for i in group])
         except Exception as e:  # noqa: BLE001 - the batch: each alone next; one stream: its own failure
             if len(group) == 1:
                 out[group[0]] = _failure(e)
@@ -152,7 +151,7 @@ class ThreadStreamWorker:
     a thread of its own."""
 
     def __init__(self, pipe, executor: ThreadPoolExecutor | None = None):
-        self.pipe, self.config = pipe, pipe.config
+        self.pipe = pipe
         self._own = executor is None
         self._pool = executor or ThreadPoolExecutor(max_workers=1, thread_name_prefix="smf-stream")
         self._streams: dict = {}

@@ -49,6 +49,36 @@ class Job:
 
 
 @dataclass(frozen=True)
+class ServedModel:
+    """What the server knows of the model it serves before loading it: frame rate, shortest and longest motion of
+    one window (frames), whether it is a distilled student, its default steps and guidance scale."""
+
+    fps: float
+    min_frames: int
+    max_frames: int
+    student: bool
+    steps: int
+    guidance: float
+
+    @classmethod
+    def from_config(cls, config) -> "ServedModel":
+        """From a torch checkpoint's CheckpointConfig."""
+        from ..limits import GUIDANCE, STEPS
+
+        return cls(config.fps, config.min_frames, config.max_frames, bool(config.student),
+                   config.distil.sample_steps if config.student else STEPS,
+                   GUIDANCE if config.guidance is None else config.guidance)
+
+    @classmethod
+    def of(cls, pipe) -> "ServedModel":
+        """From a loaded pipeline: a MotionPipeline (its config) or a PortablePipeline (its graphs' manifest)."""
+        if hasattr(pipe, "config"):
+            return cls.from_config(pipe.config)
+        m = pipe.model
+        return cls(m.fps, m.min_frames, m.max_frames, m.student, m.steps, m.guidance)
+
+
+@dataclass(frozen=True)
 class Failure:
     """The outcome of a job that failed: its own HTTP status and one-line message."""
 
@@ -116,8 +146,8 @@ class ThreadWorker:
     """Generates with ``pipe`` on one thread of this process (tests and embedding)."""
 
     def __init__(self, pipe):
-        self.pipe, self.config = pipe, pipe.config
-        self.adapters = tuple(pipe.variants)  # the adapters requests may name
+        self.pipe, self.model = pipe, ServedModel.of(pipe)
+        self.adapters = tuple(getattr(pipe, "variants", ()))  # the adapters requests may name
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="smf-generate")
         self._warm: Future | None = None
 
@@ -146,13 +176,15 @@ class ThreadWorker:
 
 @dataclass(frozen=True)
 class WorkerSpec:
-    """What the worker process loads: checkpoint (None: the shipped model), device, torch threads, engine."""
+    """What the worker process loads: checkpoint (None: the shipped model; with the portable engine, a graphs folder
+    or a model folder holding one), device, threads, engine (PORTABLE_ENGINE: the portable runtime, no torch)."""
 
     checkpoint: str | None
     device: str | None = None
     threads: int = 2
     engine: str = "auto"
     adapters: tuple[str, ...] = ()  # adapter files, each served as a model of its own beside the base
+    teacher: bool = False  # the portable engine: the graphs' teacher (a torch checkpoint names its folder)
 
 
 def call_deadline(jobs: list) -> float:
@@ -183,15 +215,9 @@ def child_loop(conn, spec: WorkerSpec, name: str, warm_up, handle, beat=None) ->
 
     if beat is not None:
         heartbeat(beat)
-    import torch
-
-    from ..pipeline import MotionPipeline
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the server stops the worker
     logging.basicConfig(level=logging.INFO, format=f"smf serve {name}: %(levelname)s %(message)s")
-    torch.set_num_threads(spec.threads)
-    pipe = MotionPipeline.from_pretrained(spec.checkpoint, device=spec.device, engine=spec.engine)
-    pipe.add_variants(spec.adapters)
+    pipe = load_pipeline(spec)
     conn.send(("loaded", None))
     warm_up(pipe)
     conn.send(("ready", None))
@@ -203,6 +229,25 @@ def child_loop(conn, spec: WorkerSpec, name: str, warm_up, handle, beat=None) ->
         if message is None:
             return
         conn.send(handle(pipe, message))
+
+
+def load_pipeline(spec: WorkerSpec):
+    """The pipeline a worker process serves: the portable runtime's for PORTABLE_ENGINE, else the torch one's
+    with its adapters."""
+    from ..limits import PORTABLE_ENGINE
+
+    if spec.engine == PORTABLE_ENGINE:
+        from ..runtime.pipeline import PortablePipeline
+
+        return PortablePipeline.from_pretrained(spec.checkpoint, teacher=spec.teacher, threads=spec.threads)
+    import torch
+
+    from ..pipeline import MotionPipeline
+
+    torch.set_num_threads(spec.threads)
+    pipe = MotionPipeline.from_pretrained(spec.checkpoint, device=spec.device, engine=spec.engine)
+    pipe.add_variants(spec.adapters)
+    return pipe
 
 
 def _child_main(conn, spec: WorkerSpec, beat=None) -> None:
@@ -218,8 +263,8 @@ class ProcessWorker:
     """A supervised worker process: started (and restarted after it dies) by a supervising thread; jobs in
     flight when it dies fail with a 503; after ``WORKER_MAX_FAILED_STARTS`` deaths before ready it gives up."""
 
-    def __init__(self, spec: WorkerSpec, config, adapters: tuple[str, ...] = ()):
-        self.spec, self.config = spec, config  # config: the checkpoint's CheckpointConfig (frame rate, range)
+    def __init__(self, spec: WorkerSpec, model: ServedModel, adapters: tuple[str, ...] = ()):
+        self.spec, self.model = spec, model  # what the server knows of the model before the process loads it
         self.adapters = tuple(adapters)  # the names of spec.adapters: what requests may name
         self._inbox: queue.Queue = queue.Queue()
         self._state, self._loaded, self._warm, self._restarts, self._busy = "stopped", False, False, 0, False
@@ -306,7 +351,7 @@ class ProcessWorker:
         return quiet if quiet > WORKER_BEAT_TIMEOUT_S else None
 
     def _spawn(self):
-        ctx = multiprocessing.get_context("spawn")  # no forked torch threads
+        ctx = multiprocessing.get_context("spawn")  # no forked threads (torch's, ONNX Runtime's)
         parent, child = ctx.Pipe()
         self._beat = ctx.Value("d", time.monotonic(), lock=False)
         self._proc = ctx.Process(target=self.child_main, args=(child, self.spec, self._beat), name=self.process_name,

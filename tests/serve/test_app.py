@@ -119,9 +119,9 @@ def test_dynamic_batching_gathers_requests_and_matches_generating_alone(pipe):
 
 def test_a_worker_process_generates_the_same_motions(pipe, checkpoint):
     """`smf serve` generates in a worker process that loads the checkpoint itself: same batching, same motions."""
-    from stablemofusion.serve import ProcessWorker, WorkerSpec
+    from stablemofusion.serve import ProcessWorker, ServedModel, WorkerSpec
 
-    worker = ProcessWorker(WorkerSpec(str(checkpoint), "cpu", threads=1), pipe.config)
+    worker = ProcessWorker(WorkerSpec(str(checkpoint), "cpu", threads=1), ServedModel.of(pipe))
     app = create_app(worker, wait_ms=300)
     try:
         worker.start()

@@ -240,10 +240,9 @@ def test_a_half_open_connection_is_closed():
 
     class NoModel(ThreadWorker):
         def __init__(self):
-            from stablemofusion.diffusion.config import CheckpointConfig
-            from stablemofusion.models.base import ModelConfig
+            from stablemofusion.serve.worker import ServedModel
 
-            self.config = CheckpointConfig.for_skeleton(ModelConfig(arch="unet"))
+            self.model = ServedModel(fps=20.0, min_frames=40, max_frames=196, student=False, steps=10, guidance=2.5)
 
         def start(self):
             pass

@@ -14,7 +14,7 @@ import time
 
 import httpx
 
-from stablemofusion.serve import ProcessWorker, WorkerSpec, create_app
+from stablemofusion.serve import ProcessWorker, ServedModel, WorkerSpec, create_app
 
 from serve_helpers import free_port
 
@@ -39,7 +39,7 @@ async def until_health(client, ready: bool = True, seen: list | None = None, pol
 
 
 def test_a_killed_worker_is_restarted_and_its_request_gets_503(pipe, checkpoint):
-    worker = ProcessWorker(WorkerSpec(str(checkpoint), "cpu", threads=1), pipe.config)
+    worker = ProcessWorker(WorkerSpec(str(checkpoint), "cpu", threads=1), ServedModel.of(pipe))
     app = create_app(worker, max_request_cost=ANY_COST)
 
     async def until_ready(client, seen):
@@ -89,7 +89,7 @@ def test_serve_reads_the_config_and_loads_no_pipeline_in_the_parent(checkpoint, 
     monkeypatch.setattr(uvicorn.Server, "run", lambda self, sockets=None: apps.append(self.config.app))
     assert main(["serve", "--checkpoint", str(checkpoint), "--port", "8123", "--allow-host", "motion.lan"]) == 0
     worker = apps[0].state.worker
-    assert isinstance(worker, ProcessWorker) and worker.config.fps == 20.0 and worker.health()["state"] == "stopped"
+    assert isinstance(worker, ProcessWorker) and worker.model.fps == 20.0 and worker.health()["state"] == "stopped"
 
 
 def test_sigterm_stops_the_worker_and_answers_requests_in_flight_in_json(checkpoint, tmp_path):
@@ -164,7 +164,7 @@ def test_a_stopped_worker_is_found_by_its_heartbeat_answered_503_and_restarted(p
     than WORKER_BEAT_TIMEOUT_S, the request gets a 503, and a new worker answers after."""
     from stablemofusion.serve.server_limits import WORKER_BEAT_TIMEOUT_S
 
-    worker = ProcessWorker(WorkerSpec(str(checkpoint), "cpu", threads=1), pipe.config)
+    worker = ProcessWorker(WorkerSpec(str(checkpoint), "cpu", threads=1), ServedModel.of(pipe))
     app = create_app(worker, max_request_cost=ANY_COST)
     until = until_health
 

@@ -9,13 +9,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .cleanup import CleanupConfig, CleanupResult, align_yaw_xz, cleanup_features, cleanup_joints
+from .cleanup import CleanupConfig, CleanupResult, align_yaw_xz, cleanup_features, cleanup_features_many, cleanup_joints
 from .contacts import KinematicContactConfig, contacts_from_vgrf, kinematic_contacts
 from .metrics import footskate_metrics, joint_change
 
 __all__ = [
     "CleanupConfig", "CleanupResult", "FootskateOptions", "KinematicContactConfig", "align_yaw_xz",
-    "cleanup_features", "cleanup_joints", "contacts_from_vgrf", "footskate_metrics", "joint_change",
+    "cleanup_features", "cleanup_features_many", "cleanup_joints", "contacts_from_vgrf", "footskate_metrics", "joint_change",
     "kinematic_contacts",
 ]
 

@@ -29,7 +29,7 @@ import numpy as np
 from ..errors import SMFError
 from ..motion.features import feature_slices, features_from_joints
 from ..motion.rigid import (CM, DEFAULT_FIT, RigidFitConfig, RigidMotion, fit_rigid, optimise_pose,
-                            rigid_from_features, rigid_to_features)
+                            rigid_from_features_many, rigid_to_features)
 from .contacts import HML_FOOT_JOINTS, KinematicContactConfig, contacts_from_vgrf, kinematic_contacts, runs
 
 VgrfModel = Callable  # torch: (B, T, 22, 3) metres, Y up, 20 fps -> (B, T, 2, 16); the vGRF route needs torch
@@ -76,15 +76,21 @@ class CleanupResult:
 
 def split_contact(points: np.ndarray, max_shift: float) -> list[tuple[int, int]]:
     """Split one contact interval of a joint's positions (n, 3) into [(start, stop)) pieces in which no
-    position lies further than ``max_shift`` (m, horizontally) from the piece's mean."""
-    pieces, a = [], 0
-    for b in range(1, len(points) + 1):
-        xz = points[a:b, [0, 2]]
-        if np.linalg.norm(xz - xz.mean(0), axis=-1).max() > max_shift:
-            pieces.append((a, b - 1))
-            a = b - 1
-    pieces.append((a, len(points)))
-    return pieces
+    position lies further than ``max_shift`` (m, horizontally) from the piece's mean: a piece grows frame by
+    frame until one of its positions strays, and the next piece starts at its last frame."""
+    pieces, a, n = [], 0, len(points)
+    while True:
+        xz = points[a:, [0, 2]]
+        means = np.cumsum(xz, 0) / np.arange(1, len(xz) + 1)[:, None]  # row m: the mean of the first m + 1
+        far = np.linalg.norm(xz[None] - means[:, None], axis=-1)  # (m, i): position i from that mean
+        worst = np.where(np.tri(len(xz), dtype=bool), far, 0.0).max(1)  # over the positions i <= m
+        over = np.flatnonzero(worst > max_shift)
+        if not len(over):
+            pieces.append((a, n))
+            return pieces
+        b = a + int(over[0])  # the piece a .. b strays: it ends before b, the next starts at b - 1
+        pieces.append((a, b))
+        a = b
 
 
 def anchor_targets(joints: np.ndarray, contacts: np.ndarray, *, floor: bool = True, max_shift: float = np.inf,
@@ -236,18 +242,31 @@ def features_from_cleaned(joints: np.ndarray) -> np.ndarray:
     return feats
 
 
+def cleanup_features_many(features: list[np.ndarray], config: CleanupConfig = CleanupConfig(), *,
+                          vgrf_model: VgrfModel | None = None, fps: float = 20.0,
+                          rigid: RigidFitConfig = DEFAULT_FIT) -> list[tuple[np.ndarray, RigidMotion]]:
+    """HumanML3D features (T_i, 263) in dataset units -> per motion the cleaned features (T_i, 263) and the cleaned
+    rigid body they decode to: the rigid fits of all the features together (``rigid``; each motion's fit is the
+    one it gets alone), :func:`cleanup_rigid` of each, then each body written in its input's body frames
+    (:func:`~stablemofusion.motion.rigid.rigid_to_features`)."""
+    fs = [np.asarray(f, dtype=np.float64) for f in features]
+    for f in fs:
+        if f.ndim != 2 or f.shape[1] != 263 or len(f) < 2:
+            raise SMFError(f"expected features of shape (T>=2, 263), got {tuple(f.shape)}")
+    out = []
+    for body, f in zip(rigid_from_features_many(fs, "humanml3d", rigid), fs):
+        res = cleanup_rigid(body, fps, config, vgrf_model=vgrf_model)
+        motion, written = rigid_to_features(res.motion, f, rigid)
+        out.append((written, motion))
+    return out
+
+
 def cleanup_features(features: np.ndarray, config: CleanupConfig = CleanupConfig(), *,
                      vgrf_model: VgrfModel | None = None, fps: float = 20.0,
                      rigid: RigidFitConfig = DEFAULT_FIT) -> tuple[np.ndarray, RigidMotion]:
     """HumanML3D features (T, 263) in dataset units -> cleaned features (T, 263) and the cleaned rigid body
-    they decode to: the rigid fit of the features (``rigid``), :func:`cleanup_rigid`, then the body written in
-    the input's body frames (:func:`~stablemofusion.motion.rigid.rigid_to_features`)."""
-    f = np.asarray(features, dtype=np.float64)
-    if f.ndim != 2 or f.shape[1] != 263 or len(f) < 2:
-        raise SMFError(f"expected features of shape (T>=2, 263), got {tuple(f.shape)}")
-    res = cleanup_rigid(rigid_from_features(f, "humanml3d", rigid), fps, config, vgrf_model=vgrf_model)
-    motion, out = rigid_to_features(res.motion, f, rigid)
-    return out, motion
+    they decode to (:func:`cleanup_features_many` of one)."""
+    return cleanup_features_many([features], config, vgrf_model=vgrf_model, fps=fps, rigid=rigid)[0]
 
 
 def align_yaw_xz(moving: np.ndarray, fixed: np.ndarray) -> np.ndarray:

@@ -142,6 +142,11 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+def _tree_sum(v: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(T, J, 3) -> (T, J, 3): out[:, k] = sum_j weights[j, k] v[:, j] (one matrix product for all frames)."""
+    return np.tensordot(v, weights, axes=([1], [0])).transpose(0, 2, 1)
+
+
 class _PoseParams:
     """The parametrisation of :func:`optimise_pose` as one flat vector: bone vectors of the free bones in cm
     (T, F, 3), scaled 6D orientations of the branching joints (T, B, 6), the root's shift in cm (T, 3); the
@@ -171,6 +176,9 @@ class _PoseParams:
         for c in range(J - 1, 0, -1):
             sub[parents[c]] += sub[c]
         self.subtree = np.minimum(sub, 1.0)
+        # (C, B, 3): each bone under a branching joint's offset, in that joint's column
+        self.off_by_branch = np.zeros((len(self.under_branch), len(self.branch), 3))
+        self.off_by_branch[np.arange(len(self.under_branch)), self.branch_of] = self.off[self.under_branch]
 
     def split(self, theta: np.ndarray) -> list[np.ndarray]:
         out, a = [], 0
@@ -195,22 +203,21 @@ class _PoseParams:
         bones = np.zeros((len(u), self.J, 3))
         bones[:, self.free] = self.length[self.free, None] * u / nu
         bones[:, self.under_branch] = np.einsum("tcij,cj->tci", rot[:, self.branch_of], self.off[self.under_branch])
-        X = forward_kinematics(bones, None, self.root0 + shift, self.parents)
+        X = _tree_sum(bones, self.subtree) + (self.root0 + shift)[:, None]  # each joint: its root and bones above
         return X, (u, nu, a, na, b, x, y, z, w, nw, shift)
 
     def objective(self, loss: PoseLoss):
         def f(theta: np.ndarray) -> tuple[float, np.ndarray]:
             X, (u, nu, a, na, b, x, y, z, w, nw, shift) = self.positions(theta)
             value, gX, gshift = loss(X, shift)
-            g_bone = np.matmul(self.subtree, gX)  # (T, J, 3): a bone moves its whole subtree
+            g_bone = _tree_sum(gX, self.subtree.T)  # (T, J, 3): a bone moves its whole subtree
             # free bones: bone = length * u / |u|
             gb = g_bone[:, self.free]
             n = u / nu
             g_u = self.length[self.free, None] / nu * (gb - n * np.sum(n * gb, -1, keepdims=True))
             # branching joints: bone_c = R_b off_c, R = Gram-Schmidt of (a, b)
-            g_rot = np.zeros(x.shape[:2] + (3, 3))
-            np.add.at(g_rot, (slice(None), self.branch_of),
-                      np.einsum("tci,cj->tcij", g_bone[:, self.under_branch], self.off[self.under_branch]))
+            g_rot = np.tensordot(g_bone[:, self.under_branch], self.off_by_branch, axes=([1], [0]))  # (T, 3, B, 3)
+            g_rot = g_rot.transpose(0, 2, 1, 3)
             gx, gy, gz = g_rot[..., 0], g_rot[..., 1], g_rot[..., 2]
             gz = gz + _cross(x, gy)  # y = z x x
             gx = gx + _cross(gy, z)

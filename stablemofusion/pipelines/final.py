@@ -76,10 +76,10 @@ def finish_many(features: list[np.ndarray], skeleton: Skeleton, fps: float, rigi
         return [(f, None) for f in fs]
     if footskate == "post":
         from ..footskate import FootskateOptions
-        from ..footskate.cleanup import cleanup_features
+        from ..footskate.cleanup import cleanup_features_many
 
         options = footskate_options or FootskateOptions()
-        return [cleanup_features(f, options.config, vgrf_model=options.vgrf_model, fps=fps, rigid=rigid) for f in fs]
+        return cleanup_features_many(fs, options.config, vgrf_model=options.vgrf_model, fps=fps, rigid=rigid)
     out = []
     for motion, f in zip(rigid_from_features_many(fs, skeleton, rigid), fs):
         moved, written = rigid_to_features(motion, f, rigid)

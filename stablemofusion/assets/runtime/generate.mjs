@@ -1,0 +1,37 @@
+// Text to motion from Node.js on a site folder written by `smf site` (its model and vendored ONNX Runtime Web):
+//   node runtime/generate.mjs "a person waves both hands" [--seconds 4] [--seed 0]   (run inside the site folder)
+// prints {"joints": [frames][22][3] metres, "fps", "prompt", "seed", "similarity", "outOfDomain", "closest"} as JSON.
+import { readFile } from 'node:fs/promises';
+import { dirname, join } from 'node:path';
+import { fileURLToPath, pathToFileURL } from 'node:url';
+import { MotionRuntime } from './smf.js';
+
+const site = join(dirname(fileURLToPath(import.meta.url)), '..');
+const args = process.argv.slice(2);
+const option = (name, fallback) => {
+  const i = args.indexOf(name);
+  if (i < 0) return fallback;
+  const [, value] = args.splice(i, 2);
+  return value;
+};
+const seconds = option('--seconds', undefined);
+const seed = Number(option('--seed', '0'));
+const prompt = args.join(' ');
+
+const ortDir = join(site, 'vendor', 'onnxruntime-web');
+const ort = await import(pathToFileURL(join(ortDir, 'ort.wasm.min.mjs')).href);
+ort.env.wasm.numThreads = 1;
+ort.env.wasm.wasmPaths = pathToFileURL(ortDir + '/').href;
+const { Tokenizer } = await import(pathToFileURL(join(site, 'vendor', 'tokenizers', 'tokenizers.min.mjs')).href);
+const read = async (name, kind) => {
+  const bytes = await readFile(join(site, 'model', name));
+  return kind === 'json' ? JSON.parse(bytes.toString('utf8')) : new Uint8Array(bytes);
+};
+try {
+  const runtime = await MotionRuntime.load({ ort, Tokenizer, read });
+  const motion = await runtime.generate({ prompt, seconds, seed });
+  process.stdout.write(JSON.stringify(motion));
+} catch (e) {
+  process.stderr.write(`generate.mjs: ${e.message}\n`);
+  process.exit(2);
+}

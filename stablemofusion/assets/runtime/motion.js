@@ -1,0 +1,172 @@
+// Motion math of the portable runtime in JavaScript, for one motion: the JavaScript twin of
+// stablemofusion/motion/features.py (joints_from_features) and of the rigid stage's block-sweep fit
+// (stablemofusion/motion/rigid_batch.py: closed_form_body, sweep, polar_rotation; its docstring explains them).
+// Arrays are flat Float64Arrays, frame-major: joints[(t * J + j) * 3 + k] metres, Y up.
+
+function yawRotate(c, s, v0, v1, v2, out, o) {
+  // qrot(q, v) for q = (c, 0, s, 0) (a rotation about +Y), written out
+  const uv0 = s * v2, uv2 = -s * v0; // u x v with u = (0, s, 0)
+  const uuv0 = s * uv2, uuv2 = -s * uv0; // u x (u x v)
+  out[o] = v0 + 2 * (c * uv0 + uuv0);
+  out[o + 1] = v1;
+  out[o + 2] = v2 + 2 * (c * uv2 + uuv2);
+}
+
+// Features (T, D) in dataset units -> joints (T, J, 3) metres through the root-relative positions.
+export function jointsFromFeatures(features, T, D, J) {
+  const out = new Float64Array(T * J * 3);
+  const tmp = new Float64Array(3);
+  let angle = 0, rx = 0, rz = 0;
+  for (let t = 0; t < T; t++) {
+    const f = t * D;
+    if (t > 0) {
+      const p = (t - 1) * D;
+      angle += features[p]; // the yaw half-angle, integrated
+      // the root's step of the previous frame, turned by the inverse yaw of this frame
+      yawRotate(Math.cos(angle), -Math.sin(angle), features[p + 1], 0, features[p + 2], tmp, 0);
+      rx += tmp[0];
+      rz += tmp[2];
+    }
+    const c = Math.cos(angle), s = -Math.sin(angle); // qinv of (cos a, 0, sin a, 0)
+    const o = t * J * 3;
+    out[o] = rx;
+    out[o + 1] = features[f + 3];
+    out[o + 2] = rz;
+    for (let j = 1; j < J; j++) {
+      const q = f + 4 + 3 * (j - 1);
+      yawRotate(c, s, features[q], features[q + 1], features[q + 2], out, o + 3 * j);
+      out[o + 3 * j] += rx;
+      out[o + 3 * j + 2] += rz;
+    }
+  }
+  return out;
+}
+
+const EPS = 1e-12;
+const POLAR_STEPS = 8;
+
+function cross(a, b) {
+  return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+}
+const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+function unit(v) {
+  const n = Math.hypot(v[0], v[1], v[2]) + EPS;
+  return [v[0] / n, v[1] / n, v[2] / n];
+}
+const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+// a rotation as its three columns [x, y, z]: R v = x v0 + y v1 + z v2; R^T v = (x.v, y.v, z.v)
+const rotate = (R, v) => [0, 1, 2].map((i) => R[0][i] * v[0] + R[1][i] * v[1] + R[2][i] * v[2]);
+const rotateT = (R, v) => [dot(R[0], v), dot(R[1], v), dot(R[2], v)];
+
+// The rotation (columns) maximising tr(R^T K), K given by columns: its polar factor by scaled Newton steps;
+// `fallback` where det(K) <= 0.
+export function polarRotation(K, fallback) {
+  let x = K;
+  let ok = null;
+  for (let step = 0; step < POLAR_STEPS; step++) {
+    const [a, b, c] = x;
+    const cof = [cross(b, c), cross(c, a), cross(a, b)]; // det(x) x^-T, by columns
+    const det = dot(a, cof[0]);
+    if (ok === null) ok = det > 0;
+    const safe = ok ? det : 1;
+    const g = Math.pow(safe, -1 / 3);
+    x = x.map((col, k) => col.map((v, i) => 0.5 * (g * v + cof[k][i] / (safe * g))));
+  }
+  return ok ? x : fallback;
+}
+
+// The skeleton's tree as the site's model description gives it (smf site: web.json "skeleton").
+function prepare(tree) {
+  const J = tree.parents.length;
+  const subtree = Array.from({ length: J }, (_, j) => {
+    const row = new Array(J).fill(0);
+    row[j] = 1;
+    return row;
+  });
+  for (let c = J - 1; c > 0; c--) for (let k = 0; k < J; k++) subtree[tree.parents[c]][k] = Math.min(1, subtree[tree.parents[c]][k] + subtree[c][k]);
+  const members = subtree.map((row) => row.flatMap((v, k) => (v ? [k] : [])));
+  return { ...tree, J, members };
+}
+
+// Rigid joints (T, J, 3) fitted to joints `targets` (T, J, 3) with bone `lengths` (J,): the closed-form body,
+// `sweeps` exact block sweeps, then moved so that the first root sits at the XZ origin (the pipeline's final
+// stage with footskate off).
+export function fitRigid(targets, T, tree, lengths, sweeps) {
+  const t = prepare(tree);
+  const J = t.J;
+  const at = (arr, n, j) => [arr[(n * J + j) * 3], arr[(n * J + j) * 3 + 1], arr[(n * J + j) * 3 + 2]];
+  // 1. the closed form: branch frames and their children's mean offsets, bones along the targets
+  const B = t.branches.length;
+  const frames = [];
+  for (let n = 0; n < T; n++) {
+    frames.push(t.branches.map((b, i) => {
+      const [c0, c1, c2] = t.branch_children[i];
+      const x = unit(sub(at(targets, n, c1), at(targets, n, c0)));
+      let y = sub(at(targets, n, c2), at(targets, n, b)).map((v) => v * Math.sign(t.rest[c2][1]));
+      const d = dot(y, x);
+      y = unit(y.map((v, k) => v - d * x[k]));
+      return [x, y, cross(x, y)];
+    }));
+  }
+  const offsets = t.branches.map((b, i) => t.branch_children[i].map((c) => {
+    const m = [0, 0, 0];
+    for (let n = 0; n < T; n++) {
+      const local = rotateT(frames[n][i], sub(at(targets, n, c), at(targets, n, b)));
+      for (let k = 0; k < 3; k++) m[k] += local[k] / T;
+    }
+    return unit(m).map((v) => v * lengths[c]);
+  }));
+  const x = new Float64Array(T * J * 3);
+  for (let n = 0; n < T; n++) {
+    const bones = Array.from({ length: J }, (_, j) => (j === 0 ? at(targets, n, 0)
+      : unit(sub(at(targets, n, j), at(targets, n, t.parents[j]))).map((v) => v * lengths[j])));
+    t.branches.forEach((b, i) => t.branch_children[i].forEach((c, k) => { bones[c] = rotate(frames[n][i], offsets[i][k]); }));
+    for (let j = 0; j < J; j++) for (const k of t.members[j]) for (let d = 0; d < 3; d++) x[(n * J + k) * 3 + d] += bones[j][d];
+  }
+  // 2. block sweeps, frame by frame (every frame is its own problem once the offsets are fixed)
+  const sizes = t.members.map((m) => m.length);
+  const p = new Float64Array(J * 3);
+  for (let n = 0; n < T; n++) {
+    for (let s = 0; s < sweeps; s++) {
+      for (let j = 0; j < J; j++) for (let d = 0; d < 3; d++) p[j * 3 + d] = x[(n * J + j) * 3 + d];
+      const tg = (j) => at(targets, n, j);
+      const xj = (j) => [p[j * 3], p[j * 3 + 1], p[j * 3 + 2]];
+      const move = (j, delta) => { for (const k of t.members[j]) for (let d = 0; d < 3; d++) p[k * 3 + d] += delta[d]; };
+      const wantOf = (j, from) => { // where j's subtree wants j, relative to `from`
+        const r = [0, 0, 0];
+        for (const k of t.members[j]) { const e = sub(tg(k), xj(k)); for (let d = 0; d < 3; d++) r[d] += e[d] / sizes[j]; }
+        const here = xj(j), base = xj(from);
+        return [0, 1, 2].map((d) => here[d] + r[d] - base[d]);
+      };
+      // the root block: the whole body by the mean residual
+      const r = [0, 0, 0];
+      for (let j = 0; j < J; j++) { const e = sub(tg(j), xj(j)); for (let d = 0; d < 3; d++) r[d] += e[d] / J; }
+      move(0, r);
+      for (const [free, branchIds] of t.levels) {
+        for (const i of branchIds) {
+          const b = t.branches[i], ch = t.branch_children[i];
+          const want = ch.map((c) => wantOf(c, b));
+          const K = [[0, 0, 0], [0, 0, 0], [0, 0, 0]]; // by columns: K[col j][row i] = sum_c n_c want_c[i] off_c[j]
+          ch.forEach((c, k) => { for (let jj = 0; jj < 3; jj++) for (let ii = 0; ii < 3; ii++) K[jj][ii] += sizes[c] * want[k][ii] * offsets[i][k][jj]; });
+          frames[n][i] = polarRotation(K, frames[n][i]);
+          const base = xj(b);
+          const deltas = ch.map((c, k) => { const m = rotate(frames[n][i], offsets[i][k]); return sub(m.map((v, d) => v + base[d]), xj(c)); });
+          ch.forEach((c, k) => move(c, deltas[k]));
+        }
+        if (free.length) {
+          const deltas = free.map((f) => {
+            const parent = xj(t.parents[f]);
+            const dir = unit(wantOf(f, t.parents[f]));
+            return sub(dir.map((v, d) => parent[d] + lengths[f] * v), xj(f));
+          });
+          free.forEach((f, k) => move(f, deltas[k]));
+        }
+      }
+      for (let j = 0; j < J; j++) for (let d = 0; d < 3; d++) x[(n * J + j) * 3 + d] = p[j * 3 + d];
+    }
+  }
+  // 3. the first root at the XZ origin
+  const ox = x[0], oz = x[2];
+  for (let i = 0; i < T * J; i++) { x[i * 3] -= ox; x[i * 3 + 2] -= oz; }
+  return x;
+}

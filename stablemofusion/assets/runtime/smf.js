@@ -1,0 +1,139 @@
+// Text to motion in JavaScript on the portable graphs (a folder written by `smf site`, model/): the JavaScript twin
+// of stablemofusion/runtime/pipeline.py for one prompt with footskate off: the same tokenizer, graphs, sampler
+// table, seeded noise and rigid stage, so the same prompt, seed and length give the same joints. It runs in a
+// browser and in Node.js; the caller passes ONNX Runtime (onnxruntime-web) and the Tokenizer class
+// (@huggingface/tokenizers) and a function that reads a file of the folder.
+import { normal } from './noise.js';
+import { fitRigid, jointsFromFeatures } from './motion.js';
+
+export class MotionRuntime {
+  // read(name, kind) -> Promise of the file `name` of the model folder: kind 'json' (an object) or 'bytes'
+  // (a Uint8Array); onProgress(loaded, total) after each file.
+  static async load({ ort, Tokenizer, read, onProgress = () => {} }) {
+    const info = await read('web.json', 'json');
+    const files = ['text_encoder', 'condition', 'denoise', 'length', 'ood'];
+    const total = files.length + 2;
+    let loaded = 0;
+    const step = () => onProgress(++loaded, total);
+    const tokenizer = new Tokenizer(await read(info.tokenizer, 'json'), {});
+    step();
+    const actions = new Float32Array((await read(info.actions.embeddings, 'bytes')).slice().buffer);
+    step();
+    const sessions = {};
+    for (const name of files) {
+      sessions[name] = await ort.InferenceSession.create(await read(info.files[name], 'bytes'),
+        { executionProviders: ['wasm'], graphOptimizationLevel: 'all' });
+      step();
+    }
+    return new MotionRuntime(ort, tokenizer, sessions, info, actions);
+  }
+
+  constructor(ort, tokenizer, sessions, info, actions) {
+    Object.assign(this, { ort, tokenizer, sessions, info, actions });
+    this.cache = new Map(); // prompt -> its encoding (most recent last)
+  }
+
+  get fps() { return this.info.fps; }
+
+  // Frozen tokens (1, L, C), mask (L) and unit sentence embedding of a prompt (cached).
+  async encode(prompt) {
+    if (this.cache.has(prompt)) return this.cache.get(prompt);
+    let ids = this.tokenizer.encode(prompt).ids;
+    if (ids.length > this.info.max_tokens) ids = [...ids.slice(0, this.info.max_tokens - 1), ids[ids.length - 1]];
+    const L = ids.length;
+    const T = this.ort.Tensor;
+    const out = await this.sessions.text_encoder.run({
+      input_ids: new T('int64', BigInt64Array.from(ids.map(BigInt)), [1, L]),
+      attention_mask: new T('int64', new BigInt64Array(L).fill(1n), [1, L]),
+    });
+    const enc = { tokens: out.tokens, L, sentence: out.sentence.data };
+    this.cache.set(prompt, enc);
+    if (this.cache.size > 256) this.cache.delete(this.cache.keys().next().value);
+    return enc;
+  }
+
+  mask(n) { return new this.ort.Tensor('bool', new Uint8Array(n).fill(1), [1, n]); }
+
+  // The closest known actions, the in-domain score and whether the prompt is out of domain.
+  async domain(enc) {
+    const a = this.info.actions, C = enc.sentence.length;
+    const best = new Array(a.names.length).fill(-1);
+    a.owner.forEach((k, e) => {
+      let s = 0;
+      for (let c = 0; c < C; c++) s += enc.sentence[c] * this.actions[e * C + c];
+      best[k] = Math.max(best[k], s);
+    });
+    const order = best.map((s, k) => [a.names[k], s]).sort((x, y) => y[1] - x[1]).slice(0, a.top);
+    const out = await this.sessions.ood.run({ sentence: new this.ort.Tensor('float32', Float32Array.from(enc.sentence), [1, C]) });
+    const score = out.score.data[0];
+    return { similarity: score, closest: order, outOfDomain: score < a.threshold };
+  }
+
+  // The length of a motion in frames: `seconds` rounded as every runtime rounds it, or the length model's.
+  async frames(enc, seconds) {
+    const i = this.info;
+    let n;
+    if (seconds === undefined || seconds === null || seconds === '') {
+      const out = await this.sessions.length.run({ tokens: enc.tokens, mask: this.mask(enc.L) });
+      n = Math.min(Math.max(Number(out.frames.data[0]), i.min_frames), i.max_frames);
+    } else {
+      const s = Number(seconds);
+      if (!(s > 0) || !Number.isFinite(s)) throw new RangeError(`seconds must be more than 0, got ${seconds}`);
+      n = Math.round(s * i.fps);
+    }
+    n = Math.floor(Math.max(n, i.min_frames) / i.length_multiple) * i.length_multiple;
+    if (n > i.max_frames) throw new RangeError(`this page makes motions of at most ${(i.max_frames / i.fps).toFixed(1)} s`);
+    return n;
+  }
+
+  // One motion: {joints (T x J x 3 nested arrays, metres), frames, fps, prompt, seed, similarity, closest,
+  // outOfDomain}.
+  async generate({ prompt, seconds, seed = 0, footskate = 'off' }) {
+    const i = this.info, T = this.ort.Tensor;
+    prompt = String(prompt ?? '').trim();
+    if (!prompt) throw new RangeError('the prompt must be a non-empty text');
+    if (prompt.length > i.max_prompt_chars) throw new RangeError(`the prompt must be at most ${i.max_prompt_chars} characters`);
+    if (!Number.isSafeInteger(seed) || seed < 0) throw new RangeError(`seed must be a whole number from 0 to 2**53 - 1, got ${seed}`);
+    if (footskate !== 'off') throw new RangeError(`footskate '${footskate}' runs in Python (smf generate, smf serve); this page makes 'off'`);
+    // 1. text: tokens, condition, domain, length
+    const enc = await this.encode(prompt);
+    const domain = await this.domain(enc);
+    const n = await this.frames(enc, seconds);
+    const cond = await this.sessions.condition.run({ tokens: enc.tokens, mask: this.mask(enc.L),
+      guidance: new T('float32', Float32Array.of(i.guidance), [1]) });
+    // 2. denoise: the sampler table on the portable noise (stream 0 of the seed), frames padded to pad_multiple
+    const D = i.motion_dim, P = Math.ceil(n / i.pad_multiple) * i.pad_multiple;
+    const tab = i.table;
+    const motionMask = new Uint8Array(P);
+    motionMask.fill(1, 0, n);
+    const inputs = { features: cond.features, text_mask: this.mask(enc.L), keep: new T('bool', Uint8Array.of(1), [1]),
+      motion_mask: new T('bool', motionMask, [1, P]) };
+    if (cond.sentence) inputs.sentence = cond.sentence;
+    let x = normal(seed, n * D, { stream: 0, draw: 0 }).map((v) => v * tab.init_sigma);
+    let prev = new Float32Array(n * D);
+    for (let k = 0; k < tab.t.length; k++) {
+      const xin = new Float32Array(P * D);
+      for (let e = 0; e < n * D; e++) xin[e] = x[e] * tab.c_in[k];
+      const out = await this.sessions.denoise.run({ ...inputs, x: new T('float32', xin, [1, P, D]),
+        t: new T('float32', Float32Array.of(tab.t[k]), [1]) });
+      const x0 = out.x0.data.subarray(0, n * D);
+      const noise = tab.stochastic ? normal(seed, n * D, { stream: 0, draw: 1 + k }) : null;
+      const next = new Float32Array(n * D);
+      for (let e = 0; e < n * D; e++) next[e] = tab.a[k] * x[e] + tab.b[k] * x0[e] + tab.c[k] * prev[e] + (noise ? tab.d[k] * noise[e] : 0);
+      prev = Float32Array.from(x0);
+      x = next;
+    }
+    const features = new Float64Array(n * D);
+    for (let e = 0; e < n * D; e++) features[e] = x[e] * i.std[e % D] + i.mean[e % D];
+    // 3. the final stage: decode, then the rigid fit (one skeleton of fixed bone lengths)
+    const J = i.skeleton.parents.length;
+    const flat = fitRigid(jointsFromFeatures(features, n, D, J), n, i.skeleton, i.skeleton.bone_lengths, i.rigid_sweeps);
+    const joints = [];
+    for (let f = 0; f < n; f++) {
+      const frame = [];
+      for (let j = 0; j < J; j++) frame.push([flat[(f * J + j) * 3], flat[(f * J + j) * 3 + 1], flat[(f * J + j) * 3 + 2]]);
+      joints.push(frame);
+    }
+    return { joints, frames: n, fps: i.fps, prompt, seed, ...domain };
+  }
+}

@@ -1,0 +1,111 @@
+"""The static site (`smf site --out DIR`): a page that generates motions in the browser with no server, on a model's
+portable graphs (ONNX Runtime Web, WebAssembly), with the JavaScript twin of the runtime
+(``assets/runtime/smf.js``: tokenizer, sampler table, seeded noise, rigid stage).
+
+The folder holds the page (``index.html``, ``site.js``, ``site.css``), the JavaScript runtime (``runtime/``), the
+vendored npm assets (``vendor/``: onnxruntime-web, @huggingface/tokenizers, three.js) and the model (``model/``: the
+graphs the page runs, the tokenizer, the known actions' embeddings and ``web.json``, the model's description for
+JavaScript). Any static file server can host it; it makes no request outside its own origin.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from .errors import SMFError
+from .limits import LENGTH_MULTIPLE, MAX_PROMPT_CHARS
+from .motion.rigid import DEFAULT_FIT
+from .motion.rigid_batch import tree
+from .motion.skeleton import get_skeleton
+
+SITE_GRAPHS = ("text_encoder", "condition", "denoise", "length", "ood")  # what the page runs: the student's path
+MODEL_LICENCE = ("The model's weights were trained on Bandai-Namco motion capture (CC BY-NC 4.0): non-commercial "
+                 "use only. MiniLM (the text encoder): Apache-2.0.")
+
+
+def web_description(graphs) -> dict:
+    """``web.json``: what the JavaScript runtime needs of a model's graphs (:class:`~stablemofusion.runtime.graphs.
+    PortableGraphs`): file names, frame rate and lengths, the default sampler's table, the normalisation, the
+    skeleton's tree and bone lengths for the rigid stage, the known actions."""
+    m, manifest = graphs.model, graphs.manifest
+    if graphs.manifest.get("actions") is None or not graphs.has_length_model:
+        raise SMFError("the site needs a model with a length model and known actions (the shipped model has both)")
+    table = m.table(m.sampler, m.steps)
+    sk = get_skeleton(m.entry["skeleton"])
+    t = tree(sk)
+    if sk.bone_lengths is None or DEFAULT_FIT.bone_lengths != "dataset" or DEFAULT_FIT.method != "sweeps":
+        raise SMFError("the site's rigid stage fits the skeleton's dataset bone lengths by block sweeps")
+    actions = manifest["actions"]
+    return {
+        "fps": m.fps, "min_frames": m.min_frames, "max_frames": m.max_frames, "length_multiple": LENGTH_MULTIPLE,
+        "pad_multiple": m.pad_multiple, "motion_dim": m.dim, "guidance": m.guidance, "sampler": m.sampler,
+        "steps": m.steps, "student": m.student, "max_tokens": graphs.max_tokens, "max_prompt_chars": MAX_PROMPT_CHARS,
+        "table": {"t": table.t.tolist(), "c_in": table.c_in.tolist(), "a": table.a.tolist(), "b": table.b.tolist(),
+                  "c": table.c.tolist(), "d": table.d.tolist(), "init_sigma": table.init_sigma,
+                  "stochastic": table.stochastic},
+        "mean": m.mean.astype(np.float64).tolist(), "std": m.std.astype(np.float64).tolist(),
+        "skeleton": {"name": sk.name, "parents": [int(p) for p in t.parents], "branches": list(t.branches),
+                     "branch_children": [c.tolist() for c in t.branch_children],
+                     "levels": [[free.tolist(), list(ids)] for free, ids in t.levels], "rest": t.rest.tolist(),
+                     "bone_lengths": list(sk.bone_lengths)},
+        "rigid_sweeps": DEFAULT_FIT.iterations,
+        "actions": {"names": list(actions["actions"]), "threshold": actions["threshold"], "top": int(actions["top"]),
+                    "owner": [i for i, examples in enumerate(actions["actions"].values()) for _ in examples],
+                    "embeddings": "actions.bin"},
+        "tokenizer": "tokenizer.json",
+        "files": {name: f"{name}.onnx" for name in SITE_GRAPHS},
+        "licence": MODEL_LICENCE,
+    }
+
+
+def _graph_file(graphs, name: str) -> Path:
+    m = graphs.manifest
+    where = {"text_encoder": m["text_encoder"]["file"], "condition": m["model"]["files"]["condition"],
+             "denoise": m["model"]["files"]["denoise"], "length": m.get("length", {}).get("file"),
+             "ood": (m.get("actions") or {}).get("detector")}[name]
+    return graphs.folder / where
+
+
+def write_model(graphs, out: Path) -> Path:
+    """The ``model/`` folder of a site (also what Node.js reads): graphs, tokenizer, embeddings, ``web.json``."""
+    out.mkdir(parents=True, exist_ok=True)
+    info = web_description(graphs)
+    for name in SITE_GRAPHS:
+        shutil.copyfile(_graph_file(graphs, name), out / info["files"][name])
+    shutil.copyfile(graphs.folder / graphs.manifest["text_encoder"]["tokenizer"], out / info["tokenizer"])
+    emb = np.load(graphs.folder / graphs.manifest["actions"]["embeddings"]).astype("<f4")
+    (out / info["actions"]["embeddings"]).write_bytes(emb.tobytes())
+    (out / "web.json").write_text(json.dumps(info), encoding="utf-8")
+    (out / "LICENCE.txt").write_text(MODEL_LICENCE + "\n", encoding="utf-8")
+    return out
+
+
+def write_site(out: Path, graphs) -> Path:
+    """The whole static folder at ``out`` (made anew: the folder must be absent or a site written before)."""
+    assets = Path(str(resources.files("stablemofusion") / "assets"))
+    if out.exists() and any(out.iterdir()) and not (out / "model" / "web.json").is_file():
+        raise SMFError(f"{out} exists and is not a site written by `smf site`: choose an empty or new folder")
+    tmp = out.with_name(out.name + ".partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    shutil.copytree(assets / "site", tmp, ignore=shutil.ignore_patterns("README.md", "__pycache__"))
+    (tmp / "vendor" / "README.md").write_bytes((assets / "site" / "vendor" / "README.md").read_bytes())
+    shutil.copytree(assets / "runtime", tmp / "runtime")
+    shutil.copytree(assets / "viewer" / "vendor", tmp / "vendor" / "three")
+    write_model(graphs, tmp / "model")
+    if out.exists():
+        shutil.rmtree(out)
+    tmp.rename(out)
+    return out
+
+
+def folder_size(path: Path) -> int:
+    """Bytes of every file under ``path``."""
+    return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
+
+
+__all__ = ["MODEL_LICENCE", "SITE_GRAPHS", "folder_size", "web_description", "write_model", "write_site"]

@@ -96,6 +96,8 @@ def write_site(out: Path, graphs) -> Path:
     (tmp / "vendor" / "README.md").write_bytes((assets / "site" / "vendor" / "README.md").read_bytes())
     shutil.copytree(assets / "runtime", tmp / "runtime")
     shutil.copytree(assets / "viewer" / "vendor", tmp / "vendor" / "three")
+    for name in ("figure.js", "viewer.css"):  # the viewer's stick figure and style
+        shutil.copyfile(assets / "viewer" / name, tmp / name)
     write_model(graphs, tmp / "model")
     if out.exists():
         shutil.rmtree(out)

@@ -19,6 +19,7 @@ COMMANDS = {
     "render": ("render", "stick-figure video or still of a joints/features .npy or .bvh"),
     "serve": ("serve", "serve text-to-motion over HTTP, with a 3D viewer"),
     "adapt": ("adapt", "teach a model your moves: BVH clips and captions to a small adapter file"),
+    "site": ("site", "write a static web page that generates motions in the browser, no server"),
     "addon": ("addon", "write the Blender add-on as a zip to install from Blender's preferences"),
     "info": ("info", "parameter counts of model presets, or a model folder's settings"),
     "prepare": ("prepare", "build a text-motion corpus in the HumanML3D layout"),

@@ -3,14 +3,8 @@
 import * as THREE from 'three';
 import { OrbitControls } from '/viewer/vendor/OrbitControls.js';
 import { loadGlb, glbJoints } from '/viewer/glb.js';
+import { Figure, contactsOf, floorGrid } from '/viewer/figure.js';
 
-const PARENTS = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19];
-const LEFT = new Set([1, 4, 7, 10, 13, 16, 18, 20]);
-const RIGHT = new Set([2, 5, 8, 11, 14, 17, 19, 21]);
-const FEET = [7, 10, 8, 11]; // left ankle, left toe, right ankle, right toe
-const CONTACT_HEIGHT = 0.05; // m above the joint's lowest point in the motion
-const CONTACT_SPEED = 0.5; // m/s
-const COLORS = { left: 0x1f77b4, right: 0xd62728, spine: 0x333333, contact: 0x2ca02c };
 const JOINT_NAMES = ['pelvis', 'left_hip', 'right_hip', 'spine1', 'left_knee', 'right_knee', 'spine2', 'left_ankle',
   'right_ankle', 'spine3', 'left_foot', 'right_foot', 'neck', 'left_collar', 'right_collar', 'head', 'left_shoulder',
   'right_shoulder', 'left_elbow', 'right_elbow', 'left_wrist', 'right_wrist']; // the .glb's joint nodes
@@ -40,44 +34,7 @@ const sun = new THREE.DirectionalLight(0xffffff, 1.5);
 sun.position.set(2, 5, 3);
 scene.add(sun);
 
-// A floor grid of short segments (every line cut at each crossing): software WebGL (SwiftShader) drops a
-// whole line that passes behind the camera, which hid the near half of a plain GridHelper.
-function floorGrid(half, step) {
-  const pts = [], cols = [];
-  const major = new THREE.Color(0x888888), minor = new THREE.Color(0xbbbbbb);
-  for (let a = -half; a <= half + 1e-9; a += step) {
-    const c = Math.abs(a) < 1e-9 ? major : minor;
-    for (let b = -half; b < half - 1e-9; b += step) {
-      pts.push(a, 0, b, a, 0, b + step, b, 0, a, b + step, 0, a);
-      for (let k = 0; k < 4; k++) cols.push(c.r, c.g, c.b);
-    }
-  }
-  const g = new THREE.BufferGeometry();
-  g.setAttribute('position', new THREE.Float32BufferAttribute(pts, 3));
-  g.setAttribute('color', new THREE.Float32BufferAttribute(cols, 3));
-  return new THREE.LineSegments(g, new THREE.LineBasicMaterial({ vertexColors: true }));
-}
-
-const bonePositions = new Float32Array(21 * 2 * 3);
-const boneColors = new Float32Array(21 * 2 * 3);
-PARENTS.slice(1).forEach((p, i) => {
-  const j = i + 1;
-  const c = new THREE.Color(LEFT.has(j) ? COLORS.left : RIGHT.has(j) ? COLORS.right : COLORS.spine);
-  for (const k of [0, 1]) boneColors.set([c.r, c.g, c.b], (2 * i + k) * 3);
-});
-const boneGeometry = new THREE.BufferGeometry();
-boneGeometry.setAttribute('position', new THREE.BufferAttribute(bonePositions, 3));
-boneGeometry.setAttribute('color', new THREE.BufferAttribute(boneColors, 3));
-const bones = new THREE.LineSegments(boneGeometry, new THREE.LineBasicMaterial({ vertexColors: true }));
-scene.add(bones);
-const jointMeshes = PARENTS.map((_, j) => {
-  const m = new THREE.Mesh(new THREE.SphereGeometry(j === 15 ? 0.08 : 0.025, 16, 12),
-    new THREE.MeshBasicMaterial({ color: COLORS.spine }));
-  scene.add(m);
-  return m;
-});
-bones.visible = false;
-jointMeshes.forEach((m) => { m.visible = false; });
+const figure = new Figure(scene);
 
 function resize() {
   const w = view.clientWidth, h = view.clientHeight;
@@ -90,22 +47,6 @@ new ResizeObserver(resize).observe(view);  // the header may wrap to two lines (
 resize();
 
 // motion
-function contactsOf(joints, frames, fps) {
-  const out = FEET.map(() => new Uint8Array(frames));
-  FEET.forEach((j, k) => {
-    let low = Infinity;
-    for (let t = 0; t < frames; t++) low = Math.min(low, joints[(t * 22 + j) * 3 + 1]);
-    for (let t = 0; t < frames; t++) {
-      const a = Math.max(0, t - 1), b = Math.min(frames - 1, t + 1);
-      let d = 0;
-      for (let c = 0; c < 3; c++) d += (joints[(b * 22 + j) * 3 + c] - joints[(a * 22 + j) * 3 + c]) ** 2;
-      const speed = b > a ? Math.sqrt(d) * fps / (b - a) : 0;
-      out[k][t] = joints[(t * 22 + j) * 3 + 1] - low < CONTACT_HEIGHT && speed < CONTACT_SPEED ? 1 : 0;
-    }
-  });
-  return out;
-}
-
 function setMotion(joints, frames, fps, label) {
   state.joints = Float32Array.from(joints.flat(2));
   state.frames = frames;
@@ -114,8 +55,7 @@ function setMotion(joints, frames, fps, label) {
   $('scrub').max = String(frames - 1);
   $('scrub').disabled = false;
   $('play').disabled = false;
-  bones.visible = true;
-  jointMeshes.forEach((m) => { m.visible = true; });
+  figure.visible = true;
   const r = state.joints;
   controls.target.set(r[0], 0.85, r[2]);
   camera.position.set(r[0] + 3, 1.7, r[2] + 4.5);
@@ -130,17 +70,7 @@ function setFrame(t) {
   if (!state.joints) return;
   state.frame = Math.max(0, Math.min(state.frames - 1, Math.round(t)));
   const base = state.frame * 22 * 3, J = state.joints;
-  PARENTS.slice(1).forEach((p, i) => {
-    bonePositions.set(J.subarray(base + p * 3, base + p * 3 + 3), (2 * i) * 3);
-    bonePositions.set(J.subarray(base + (i + 1) * 3, base + (i + 1) * 3 + 3), (2 * i + 1) * 3);
-  });
-  boneGeometry.attributes.position.needsUpdate = true;
-  boneGeometry.computeBoundingSphere();
-  jointMeshes.forEach((m, j) => {
-    m.position.set(J[base + j * 3], J[base + j * 3 + 1], J[base + j * 3 + 2]);
-    const k = FEET.indexOf(j);
-    m.material.color.setHex(k >= 0 && state.contacts[k][state.frame] ? COLORS.contact : COLORS.spine);
-  });
+  figure.pose(J, state.frame, state.contacts);
   // follow the root over the floor: the camera keeps its offset from the body as it travels
   const dx = J[base] - controls.target.x, dz = J[base + 2] - controls.target.z;
   controls.target.x += dx;
@@ -346,8 +276,7 @@ function liveAppend(m) {
   L.index = m.prompt_index;
   if (L.start === null) {
     L.start = performance.now();
-    bones.visible = true;
-    jointMeshes.forEach((mesh) => { mesh.visible = true; });
+    figure.visible = true;
     controls.target.set(joints[0], 0.85, joints[2]);
     camera.position.set(joints[0] + 3, 1.7, joints[2] + 4.5);
     state.ready = true;

@@ -1,0 +1,161 @@
+// The static site: text to motion in the page (runtime/smf.js on ONNX Runtime Web), played on the viewer's stick
+// figure. window.smf is the page's API (for tests and pages that embed it):
+//   await window.smf.generate({prompt, seconds, seed, footskate: 'off'}) -> the motion; window.smf.lastMotion
+//   {joints (frames x 22 x 3 metres), fps, prompt, seed}; window.smf.ready: a promise of the loaded model;
+//   window.smf.timings: {loadMs, firstMotionMs, lastMotionMs}.
+import * as THREE from 'three';
+import { OrbitControls } from './vendor/three/OrbitControls.js';
+import { Figure, contactsOf, floorGrid } from './figure.js';
+import { MotionRuntime } from './runtime/smf.js';
+
+const $ = (id) => document.getElementById(id);
+const started = performance.now();
+const smf = { lastMotion: null, timings: {}, generate: null, ready: null };
+window.smf = smf;
+
+// the model: files of model/ fetched from this origin, with progress in bytes
+async function load() {
+  const ort = await import('./vendor/onnxruntime-web/ort.wasm.min.mjs');
+  ort.env.wasm.wasmPaths = new URL('vendor/onnxruntime-web/', location.href).href;
+  // threads need cross-origin isolation (COOP/COEP headers); a plain static server gives one thread
+  ort.env.wasm.numThreads = self.crossOriginIsolated ? Math.min(4, navigator.hardwareConcurrency || 1) : 1;
+  const { Tokenizer } = await import('./vendor/tokenizers/tokenizers.min.mjs');
+  let got = 0;
+  const read = async (name, kind) => {
+    const res = await fetch(`model/${name}`);
+    if (!res.ok) throw new Error(`model/${name}: ${res.status} ${res.statusText}`);
+    if (kind === 'json') return res.json();
+    const total = Number(res.headers.get('content-length')) || 0;
+    const reader = res.body.getReader();
+    const parts = [];
+    let n = 0;
+    for (;;) {
+      const { done, value } = await reader.read();
+      if (done) break;
+      parts.push(value);
+      n += value.length;
+      got += value.length;
+      status(`Loading the model: ${(got / 1e6).toFixed(0)} MB${total ? ` (${name} ${Math.round(100 * n / total)}%)` : ''}`);
+    }
+    const out = new Uint8Array(n);
+    let o = 0;
+    for (const p of parts) { out.set(p, o); o += p.length; }
+    return out;
+  };
+  const runtime = await MotionRuntime.load({ ort, Tokenizer, read });
+  smf.timings.loadMs = performance.now() - started;
+  smf.timings.threads = ort.env.wasm.numThreads;
+  $('licence-text').textContent = runtime.info.licence;
+  return runtime;
+}
+smf.ready = load();
+
+smf.generate = async (request) => {
+  const runtime = await smf.ready;
+  const t0 = performance.now();
+  const motion = await runtime.generate(request);
+  const ms = performance.now() - t0;
+  smf.timings.lastMotionMs = ms;
+  if (smf.timings.firstMotionMs === undefined) smf.timings.firstMotionMs = performance.now() - started;
+  smf.lastMotion = { joints: motion.joints, fps: motion.fps, prompt: motion.prompt, seed: motion.seed };
+  show(motion, ms);
+  return motion;
+};
+
+// scene
+const view = $('view');
+const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+renderer.setPixelRatio(window.devicePixelRatio);
+view.appendChild(renderer.domElement);
+const scene = new THREE.Scene();
+scene.background = new THREE.Color(0xf4f4f2);
+const camera = new THREE.PerspectiveCamera(45, 1, 0.05, 100);
+camera.position.set(3, 1.7, 4.5);
+const controls = new OrbitControls(camera, renderer.domElement);
+controls.target.set(0, 0.9, 0);
+scene.add(floorGrid(10, 0.5));
+scene.add(new THREE.HemisphereLight(0xffffff, 0x888880, 2.0));
+const figure = new Figure(scene);
+function resize() {
+  const w = view.clientWidth, h = view.clientHeight;
+  renderer.setSize(w, h);
+  camera.aspect = w / Math.max(h, 1);
+  camera.updateProjectionMatrix();
+}
+new ResizeObserver(resize).observe(view);
+resize();
+
+const player = { joints: null, frames: 0, fps: 20, frame: 0, playing: true, contacts: null };
+function setFrame(t) {
+  if (!player.joints) return;
+  player.frame = Math.max(0, Math.min(player.frames - 1, Math.round(t)));
+  const J = player.joints, base = player.frame * 66;
+  figure.pose(J, player.frame, player.contacts);
+  const dx = J[base] - controls.target.x, dz = J[base + 2] - controls.target.z;
+  controls.target.x += dx; controls.target.z += dz;
+  camera.position.x += dx; camera.position.z += dz;
+  $('scrub').value = String(player.frame);
+  $('frame').textContent = `frame ${player.frame + 1} / ${player.frames} (${(player.frame / player.fps).toFixed(2)} s)`;
+}
+function show(motion, ms) {
+  Object.assign(player, { joints: Float32Array.from(motion.joints.flat(2)), frames: motion.frames, fps: motion.fps });
+  player.contacts = contactsOf(player.joints, player.frames, player.fps);
+  figure.visible = true;
+  $('scrub').max = String(player.frames - 1);
+  for (const id of ['scrub', 'play', 'json']) $(id).disabled = false;
+  setFrame(0);
+  status(`${motion.prompt}: ${motion.frames} frames, seed ${motion.seed}, made in ${ms.toFixed(0)} ms`);
+  $('warning').textContent = motion.outOfDomain
+    ? `"${motion.prompt}" is unlike the actions this model knows (closest: ${motion.closest.map((c) => c[0]).join(', ')}); the motion may not follow it.`
+    : '';
+}
+let last = performance.now(), clock = 0;
+function loop(now) {
+  const dt = (now - last) / 1000;
+  last = now;
+  if (player.playing && player.joints) {
+    clock += dt * player.fps;
+    if (clock >= 1) { setFrame((player.frame + Math.floor(clock)) % player.frames); clock -= Math.floor(clock); }
+  }
+  controls.update();
+  renderer.render(scene, camera);
+  requestAnimationFrame(loop);
+}
+requestAnimationFrame(loop);
+
+// UI
+function status(text, error = false) {
+  $('status').textContent = text;
+  $('status').className = error ? 'error' : '';
+}
+$('play').addEventListener('click', () => {
+  player.playing = !player.playing;
+  $('play').textContent = player.playing ? 'Pause' : 'Play';
+});
+$('scrub').addEventListener('input', () => { player.playing = false; $('play').textContent = 'Play'; setFrame(Number($('scrub').value)); });
+$('json').addEventListener('click', () => {
+  const m = smf.lastMotion;
+  const url = URL.createObjectURL(new Blob([JSON.stringify(m)], { type: 'application/json' }));
+  const a = Object.assign(document.createElement('a'), { href: url, download: 'motion.json' });
+  a.click();
+  URL.revokeObjectURL(url);
+});
+$('form').addEventListener('submit', async (ev) => {
+  ev.preventDefault();
+  const seconds = $('seconds').value.trim();
+  const seedText = $('seed').value.trim();
+  const seed = seedText === '' ? Math.floor(Math.random() * 2 ** 31) : Number(seedText);
+  $('generate').disabled = true;
+  status('Generating ...');
+  try {
+    await smf.generate({ prompt: $('prompt').value, seconds: seconds === '' ? undefined : Number(seconds), seed });
+  } catch (e) {
+    status(e.message, true);
+  } finally {
+    $('generate').disabled = false;
+  }
+});
+smf.ready.then(() => {
+  $('generate').disabled = false;
+  status(`Model loaded in ${(smf.timings.loadMs / 1000).toFixed(1)} s. Type a prompt and press Generate.`);
+}, (e) => status(`The model could not be loaded: ${e.message}`, true));

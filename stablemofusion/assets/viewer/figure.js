@@ -1,0 +1,91 @@
+// The stick figure of the viewer and the static site: a HumanML3D skeleton (22 joints) drawn as coloured bones and
+// joint spheres (feet green while in contact), and the floor grid.
+import * as THREE from 'three';
+
+export const PARENTS = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19];
+const LEFT = new Set([1, 4, 7, 10, 13, 16, 18, 20]);
+const RIGHT = new Set([2, 5, 8, 11, 14, 17, 19, 21]);
+const FEET = [7, 10, 8, 11]; // left ankle, left toe, right ankle, right toe
+const CONTACT_HEIGHT = 0.05; // m above the joint's lowest point in the motion
+const CONTACT_SPEED = 0.5; // m/s
+const COLORS = { left: 0x1f77b4, right: 0xd62728, spine: 0x333333, contact: 0x2ca02c };
+
+// A floor grid of short segments (every line cut at each crossing): software WebGL (SwiftShader) drops a
+// whole line that passes behind the camera, which hid the near half of a plain GridHelper.
+export function floorGrid(half, step) {
+  const pts = [], cols = [];
+  const major = new THREE.Color(0x888888), minor = new THREE.Color(0xbbbbbb);
+  for (let a = -half; a <= half + 1e-9; a += step) {
+    const c = Math.abs(a) < 1e-9 ? major : minor;
+    for (let b = -half; b < half - 1e-9; b += step) {
+      pts.push(a, 0, b, a, 0, b + step, b, 0, a, b + step, 0, a);
+      for (let k = 0; k < 4; k++) cols.push(c.r, c.g, c.b);
+    }
+  }
+  const g = new THREE.BufferGeometry();
+  g.setAttribute('position', new THREE.Float32BufferAttribute(pts, 3));
+  g.setAttribute('color', new THREE.Float32BufferAttribute(cols, 3));
+  return new THREE.LineSegments(g, new THREE.LineBasicMaterial({ vertexColors: true }));
+}
+
+// Foot contacts (4 x frames, 0/1) of flat joints (frames x 22 x 3): low and slow.
+export function contactsOf(joints, frames, fps) {
+  const out = FEET.map(() => new Uint8Array(frames));
+  FEET.forEach((j, k) => {
+    let low = Infinity;
+    for (let t = 0; t < frames; t++) low = Math.min(low, joints[(t * 22 + j) * 3 + 1]);
+    for (let t = 0; t < frames; t++) {
+      const a = Math.max(0, t - 1), b = Math.min(frames - 1, t + 1);
+      let d = 0;
+      for (let c = 0; c < 3; c++) d += (joints[(b * 22 + j) * 3 + c] - joints[(a * 22 + j) * 3 + c]) ** 2;
+      const speed = b > a ? Math.sqrt(d) * fps / (b - a) : 0;
+      out[k][t] = joints[(t * 22 + j) * 3 + 1] - low < CONTACT_HEIGHT && speed < CONTACT_SPEED ? 1 : 0;
+    }
+  });
+  return out;
+}
+
+export class Figure {
+  constructor(scene) {
+    this.positions = new Float32Array(21 * 2 * 3);
+    const colors = new Float32Array(21 * 2 * 3);
+    PARENTS.slice(1).forEach((p, i) => {
+      const j = i + 1;
+      const c = new THREE.Color(LEFT.has(j) ? COLORS.left : RIGHT.has(j) ? COLORS.right : COLORS.spine);
+      for (const k of [0, 1]) colors.set([c.r, c.g, c.b], (2 * i + k) * 3);
+    });
+    this.geometry = new THREE.BufferGeometry();
+    this.geometry.setAttribute('position', new THREE.BufferAttribute(this.positions, 3));
+    this.geometry.setAttribute('color', new THREE.BufferAttribute(colors, 3));
+    this.bones = new THREE.LineSegments(this.geometry, new THREE.LineBasicMaterial({ vertexColors: true }));
+    scene.add(this.bones);
+    this.joints = PARENTS.map((_, j) => {
+      const m = new THREE.Mesh(new THREE.SphereGeometry(j === 15 ? 0.08 : 0.025, 16, 12),
+        new THREE.MeshBasicMaterial({ color: COLORS.spine }));
+      scene.add(m);
+      return m;
+    });
+    this.visible = false;
+  }
+
+  set visible(on) {
+    this.bones.visible = on;
+    this.joints.forEach((m) => { m.visible = on; });
+  }
+
+  // Pose the figure at frame `frame` of flat joints J (frames x 22 x 3), feet coloured by `contacts`.
+  pose(J, frame, contacts) {
+    const base = frame * 22 * 3;
+    PARENTS.slice(1).forEach((p, i) => {
+      this.positions.set(J.subarray(base + p * 3, base + p * 3 + 3), (2 * i) * 3);
+      this.positions.set(J.subarray(base + (i + 1) * 3, base + (i + 1) * 3 + 3), (2 * i + 1) * 3);
+    });
+    this.geometry.attributes.position.needsUpdate = true;
+    this.geometry.computeBoundingSphere();
+    this.joints.forEach((m, j) => {
+      m.position.set(J[base + j * 3], J[base + j * 3 + 1], J[base + j * 3 + 2]);
+      const k = FEET.indexOf(j);
+      m.material.color.setHex(k >= 0 && contacts && contacts[k][frame] ? COLORS.contact : COLORS.spine);
+    });
+  }
+}

@@ -1,0 +1,28 @@
+"""`smf site --out DIR [--checkpoint GRAPHS]`: a static folder that generates motions in the browser, with no server
+(docs/site.md)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_parser(sub, name: str) -> None:
+    p = sub.add_parser(name, description="Write a static web page that generates motions in the browser (ONNX "
+                                         "Runtime Web, WebAssembly): host the folder with any static file server; "
+                                         "docs/site.md.")
+    p.add_argument("--out", type=Path, required=True, help="folder to write (new, or a site written before)")
+    p.add_argument("--checkpoint", type=Path, default=None,
+                   help="a folder of portable graphs (smf export --onnx) or a model folder holding one (default: "
+                        "the shipped model's)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> None:
+    from ..runtime.pipeline import PortablePipeline
+    from ..site import folder_size, write_site
+
+    graphs = PortablePipeline.from_pretrained(args.checkpoint).graphs
+    out = write_site(args.out, graphs)
+    print(f"wrote {out} ({folder_size(out) / 1e6:.0f} MB): serve it with any static file server, for example "
+          f"`python -m http.server -d {out}`, and open http://127.0.0.1:8000/")

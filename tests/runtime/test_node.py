@@ -1,0 +1,54 @@
+"""The JavaScript runtime (runtime/smf.js of a site folder) run by Node.js on the vendored ONNX Runtime Web: the
+Python runtime's joints for the same prompt, seed and length. Skipped where Node.js is absent (CI has it)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from stablemofusion.runtime.pipeline import PortablePipeline
+from stablemofusion.site import write_site
+
+NODE = shutil.which("node")
+pytestmark = pytest.mark.skipif(NODE is None, reason="Node.js is not installed (apt-get install nodejs)")
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    pipe = PortablePipeline.from_pretrained(threads=1)
+    return write_site(tmp_path_factory.mktemp("site") / "site", pipe.graphs), pipe
+
+
+def node_generate(folder, *args) -> subprocess.CompletedProcess:
+    return subprocess.run([NODE, str(folder / "runtime" / "generate.mjs"), *map(str, args)], capture_output=True,
+                          text=True, timeout=300)
+
+
+@pytest.mark.parametrize("prompt, seconds, seed", [("a person waves both hands happily", 4, 7),
+                                                   ("an old man walks forward slowly", 6.3, 123456789012),
+                                                   ("someone bows politely", None, 0)])
+def test_node_reproduces_the_python_runtime(site, prompt, seconds, seed):
+    folder, pipe = site
+    extra = [] if seconds is None else ["--seconds", seconds]
+    run = node_generate(folder, prompt, *extra, "--seed", seed)
+    assert run.returncode == 0, run.stderr
+    got = json.loads(run.stdout)
+    want = pipe(prompt, seconds=seconds, seed=seed, footskate="off")[0]
+    joints = np.asarray(got["joints"])
+    assert joints.shape == want.joints.shape  # the length model's length too, where none is given
+    assert np.abs(joints - want.joints).max() < 1e-3
+    assert got["outOfDomain"] == want.domain.out_of_domain
+    assert [c[0] for c in got["closest"]] == [c[0] for c in want.domain.closest]
+    assert abs(got["similarity"] - want.domain.similarity) < 1e-4
+
+
+def test_node_gives_one_clear_error_for_bad_input(site):
+    folder, _ = site
+    for args, why in [(["", "--seed", "1"], "prompt"), (["a person walks", "--seed", "-3"], "seed"),
+                      (["a person walks", "--seconds", "30"], "at most")]:
+        run = node_generate(folder, *args)
+        assert run.returncode == 2 and why in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr

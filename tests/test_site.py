@@ -1,0 +1,78 @@
+"""The static site (`smf site`) in Debian's Chromium, served by `python -m http.server` (no cross-origin isolation:
+single-threaded WebAssembly): window.smf at the load event, a 4 s motion within 5 mm of the runtime's joints for
+the same prompt, seed and length, no request outside its origin, no console error, the stick figure drawn.
+Skipped where Chromium or Playwright is absent (CI installs both)."""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from stablemofusion.cli.main import main
+from stablemofusion.runtime.pipeline import PortablePipeline
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
+pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (apt-get install chromium)")
+FLAGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--disable-background-networking",
+         "--disable-component-update", "--disable-sync", "--no-first-run"]
+PROMPT, SEED = "a person waves both hands happily", 7
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """`smf site` written and served by python -m http.server on a free loopback port."""
+    folder = tmp_path_factory.mktemp("site") / "site"
+    assert main(["site", "--out", str(folder)]) == 0
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = subprocess.Popen([sys.executable, "-m", "http.server", str(port), "-b", "127.0.0.1", "-d", str(folder)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    url = f"http://127.0.0.1:{port}/"
+    for _ in range(100):
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            break
+        except OSError:
+            time.sleep(0.05)
+    yield url
+    server.terminate()
+    server.wait(10)
+
+
+def test_the_page_generates_the_runtimes_motion_offline(served, tmp_path):
+    with playwright.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS)
+        page = browser.new_page(viewport={"width": 900, "height": 600})
+        logs, outside = [], []
+        page.on("console", lambda m: logs.append(m.text) if m.type in ("error", "warning") else None)
+        page.on("pageerror", lambda e: logs.append(str(e)))
+        page.on("request", lambda r: None if r.url.startswith(served) else outside.append(r.url))
+        page.goto(served, wait_until="load")
+        assert page.evaluate("typeof window.smf.generate") == "function"  # there at the load event
+        joints = page.evaluate(f"window.smf.generate({{prompt: '{PROMPT}', seconds: 4, seed: {SEED}, footskate: 'off'}})"
+                               ".then(() => window.smf.lastMotion.joints)")
+        bad = page.evaluate("window.smf.generate({prompt: 'a person walks', seconds: 4, seed: 1, footskate: 'post'})"
+                            ".then(() => '', (e) => e.message)")
+        page.wait_for_timeout(300)
+        shot = tmp_path / "site.png"
+        page.screenshot(path=str(shot))
+        status = page.inner_text("#status")
+        browser.close()
+    want = PortablePipeline.from_pretrained(threads=1)(PROMPT, seconds=4, seed=SEED, footskate="off")[0].joints
+    got = np.asarray(joints)
+    assert got.shape == want.shape and np.abs(got - want).max() < 5e-3
+    assert "post" in bad  # one clear message: cleanup runs in Python
+    assert not outside and not logs, (outside, logs)
+    assert f"seed {SEED}" in status
+    from PIL import Image
+
+    image = np.asarray(Image.open(shot).convert("L"), dtype=float)
+    assert (image[60:500] < 100).sum() > 200  # the figure's dark joints and bones are drawn over the light floor

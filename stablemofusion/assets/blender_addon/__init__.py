@@ -27,10 +27,23 @@ class SMF_PG_settings(bpy.types.PropertyGroup):
     seconds: FloatProperty(name="Seconds", default=4.0, min=2.0, max=9.8)
     seed: IntProperty(name="Seed", default=0, min=0)
     backend: EnumProperty(name="Run", items=[
-        ("AUTO", "Auto", "in Blender when the stablemofusion package is importable, else the server"),
-        ("LOCAL", "In Blender", "the stablemofusion package imported into Blender's Python"),
+        ("AUTO", "Auto", "in Blender when the stablemofusion runtime is importable, else the server"),
+        ("LOCAL", "In Blender", "the stablemofusion runtime (ONNX Runtime) in Blender's own Python: nothing else "
+                                "running"),
         ("SERVER", "Server", "a running `smf serve`")], default="AUTO")
     server: StringProperty(name="Server", default="http://127.0.0.1:8000")
+
+
+class SMF_AP_preferences(bpy.types.AddonPreferences):
+    bl_idname = __name__
+
+    packages: StringProperty(
+        name="Python packages", subtype="DIR_PATH", default="",
+        description="a site-packages folder holding the stablemofusion runtime (pip install stablemofusion, made "
+                    "with Blender's Python version), for generating in Blender; empty: Blender's own")
+
+    def draw(self, context):
+        self.layout.prop(self, "packages")
 
 
 class SMF_OT_generate(bpy.types.Operator):
@@ -46,7 +59,10 @@ class SMF_OT_generate(bpy.types.Operator):
             self.report({"ERROR"}, "the prompt is empty")
             return {"CANCELLED"}
         try:
-            joints, fps, source = motion.generate_joints(s.prompt.strip(), s.seconds, s.seed, s.server, s.backend)
+            prefs = context.preferences.addons[__name__].preferences
+            joints, fps, source = motion.generate_joints(s.prompt.strip(), s.seconds, s.seed, s.server, s.backend,
+                                                         bpy.path.abspath(prefs.packages) if prefs.packages else "")
+            motion.LAST_JOINTS = joints
             arm = context.active_object
             if arm is None or arm.type != "ARMATURE" or not arm.select_get():
                 arm = motion.create_our_armature(joints)
@@ -78,7 +94,7 @@ class SMF_PT_panel(bpy.types.Panel):
         col.operator(SMF_OT_generate.bl_idname, icon="ARMATURE_DATA")
 
 
-CLASSES = (SMF_PG_settings, SMF_OT_generate, SMF_PT_panel)
+CLASSES = (SMF_PG_settings, SMF_AP_preferences, SMF_OT_generate, SMF_PT_panel)
 
 
 def register():

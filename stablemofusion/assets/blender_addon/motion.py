@@ -16,6 +16,7 @@ from . import rig as rigmath
 # Y up (ours) -> Z up (Blender): v_blender = C @ v_ours
 C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 MAPS = Path(__file__).resolve().parent / "joint_maps"
+LAST_JOINTS = None  # the joints (T, 22, 3) of the last motion made, Y up (for scripts and tests)
 
 # our skeleton (HumanML3D's 22 joints; stablemofusion/motion/skeleton.py, a test keeps them equal)
 JOINT_NAMES = (
@@ -30,19 +31,46 @@ class MotionError(Exception):
     """A motion could not be made or applied (shown in Blender's status bar)."""
 
 
-def generate_joints(prompt: str, seconds: float, seed: int, server: str, backend: str = "AUTO"
-                    ) -> tuple[np.ndarray, float, str]:
-    """(joints (T, 22, 3) metres Y up, fps, where it came from): in-process when the stablemofusion package
-    is importable (``backend`` AUTO or LOCAL), else from a running `smf serve` at ``server``."""
-    if backend in ("AUTO", "LOCAL"):
+_PIPELINES: dict = {}  # the portable pipeline, loaded once per Blender session
+
+
+def local_pipeline(packages: str = "", required: bool = False):
+    """The portable runtime's pipeline (stablemofusion.runtime, ONNX Runtime: no torch) in Blender's Python, its
+    packages found where Blender finds its own or in the ``packages`` folder (a site-packages folder of a runtime
+    install made with Blender's Python version; its .pth files are read). None when it is not importable, or with
+    ``required`` a MotionError saying what to install."""
+    import site
+    import sys
+
+    if packages and packages not in sys.path:
+        site.addsitedir(packages)  # after Blender's own folders: Blender's numpy stays the one imported
+    if "pipe" not in _PIPELINES:
         try:
-            from stablemofusion import MotionPipeline
-        except ImportError:
-            if backend == "LOCAL":
-                raise MotionError("the stablemofusion package is not importable in Blender's Python") from None
-        else:
-            r = MotionPipeline.from_pretrained()([prompt], seconds=seconds, seed=seed)[0]
-            return np.asarray(r.joints, np.float64), float(r.fps), "in-process"
+            from stablemofusion.runtime.pipeline import PortablePipeline
+        except ImportError as e:
+            if not required:
+                return None
+            v = sys.version_info
+            raise MotionError(f"the stablemofusion runtime is not importable in Blender's Python ({e.name or e} is "
+                              f"missing): install it for Python {v.major}.{v.minor} and set the add-on's Python "
+                              "packages folder (docs/character.md)") from None
+        _PIPELINES["pipe"] = PortablePipeline.from_pretrained(threads=1)
+    return _PIPELINES["pipe"]
+
+
+def generate_joints(prompt: str, seconds: float, seed: int, server: str, backend: str = "AUTO", packages: str = ""
+                    ) -> tuple[np.ndarray, float, str]:
+    """(joints (T, 22, 3) metres Y up, fps, where it came from): in Blender's Python on the portable runtime when it
+    is importable (``backend`` AUTO or LOCAL; ``packages`` a folder to find it in), else from a running `smf serve`
+    at ``server``."""
+    if backend in ("AUTO", "LOCAL"):
+        pipe = local_pipeline(packages, required=backend == "LOCAL")
+        if pipe is not None:
+            try:
+                r = pipe([prompt], seconds=seconds, seed=seed)[0]
+            except Exception as e:  # noqa: BLE001 - the package's one-line errors (SMFError) and any other
+                raise MotionError(str(e)) from None
+            return np.asarray(r.joints, np.float64), float(r.fps), "in Blender"
     body = json.dumps({"prompt": prompt, "seconds": seconds, "seed": seed}).encode()
     url = server.rstrip("/") + "/v1/generate"
     req = urllib.request.Request(url, data=body, headers={"Content-Type": "application/json"}, method="POST")
@@ -182,25 +210,43 @@ def apply_motion(arm, joints: np.ndarray, fps: float, action_name: str = "stable
     return map_name
 
 
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
 def create_our_armature(joints: np.ndarray, name: str = "stablemofusion"):
-    """A new armature object with our 22 joints as bones, in our rest pose: each bone along our rest direction
-    (stablemofusion/motion/skeleton.py) with its mean length over the motion."""
+    """A new armature object with our 22 joints as bones, in our rest pose, facing +Z: each bone along our rest
+    direction (stablemofusion/motion/skeleton.py) with its mean length over the motion, except the children of the
+    branching joints (pelvis, upper spine), which sit where they sit in the motion around their joint (its frame:
+    X from the right child to the left one, Y towards the third), so that the armature can take the motion's
+    every pose exactly."""
     import bpy
 
     X = np.asarray(joints, np.float64)
     dirs = np.array(REST_DIRECTIONS)
     lengths = np.array([0.0] + [np.linalg.norm(X[:, j] - X[:, p], axis=-1).mean() for j, p in enumerate(PARENTS) if p >= 0])
+    kids = {j: [c for c, p in enumerate(PARENTS) if p == j] for j in range(22)}
+    local = {}  # child of a branching joint -> its mean offset in the joint's frame
+    for b, ch in kids.items():
+        if len(ch) < 2:
+            continue
+        side = sorted(ch, key=lambda c: dirs[c][0])  # -X child, then the one straight up or down, then +X
+        x = _unit(X[:, side[-1]] - X[:, side[0]])
+        y = (X[:, side[1]] - X[:, b]) * np.sign(dirs[side[1]][1])
+        y = _unit(y - (y * x).sum(-1, keepdims=True) * x)
+        frame = np.stack([x, y, np.cross(x, y)], -1)  # (T, 3, 3) columns x, y, z
+        for c in ch:
+            local[c] = np.einsum("tij,ti->j", frame, X[:, c] - X[:, b]) / len(X)
     rest = np.zeros((22, 3))
     rest[0] = [0.0, X[:, 0, 1].mean(), 0.0]
     for j, p in enumerate(PARENTS):
         if p >= 0:
-            rest[j] = rest[p] + dirs[j] * lengths[j]
+            rest[j] = rest[p] + (local[j] if j in local else dirs[j] * lengths[j])
     data = bpy.data.armatures.new(name)
     obj = bpy.data.objects.new(name, data)
     bpy.context.scene.collection.objects.link(obj)
     bpy.context.view_layer.objects.active = obj
     bpy.ops.object.mode_set(mode="EDIT")
-    kids = {j: [c for c, p in enumerate(PARENTS) if p == j] for j in range(22)}
     for j, n in enumerate(JOINT_NAMES):
         eb = data.edit_bones.new(n)
         head = rest[j] @ C.T

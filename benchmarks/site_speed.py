@@ -1,0 +1,91 @@
+"""The static site (`smf site`) in Debian's headless Chromium, as a visitor meets it: time from opening the page to
+the model loaded and to the first motion, then per motion (4 s, text encoding included: a new prompt each time),
+the bytes the page downloads and the folder's size; served by `python -m http.server` (no cross-origin isolation:
+one WebAssembly thread) and, with --isolated, by a server that sets COOP/COEP (threads); and the joints against
+the Python runtime (footskate off).
+
+    python benchmarks/site_speed.py [--motions 20] [--isolated]
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import shutil
+import tempfile
+import threading
+import time
+from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+FLAGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--disable-background-networking",
+         "--disable-component-update", "--disable-sync", "--no-first-run"]
+
+
+class Isolated(SimpleHTTPRequestHandler):
+    def end_headers(self):
+        self.send_header("Cross-Origin-Opener-Policy", "same-origin")
+        self.send_header("Cross-Origin-Embedder-Policy", "require-corp")
+        super().end_headers()
+
+    def log_message(self, *args):
+        pass
+
+
+class Plain(SimpleHTTPRequestHandler):
+    def log_message(self, *args):
+        pass
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--motions", type=int, default=20)
+    ap.add_argument("--isolated", action="store_true", help="serve with COOP/COEP headers (WebAssembly threads)")
+    args = ap.parse_args()
+    from playwright.sync_api import sync_playwright
+
+    from stablemofusion.runtime.pipeline import PortablePipeline
+    from stablemofusion.site import folder_size, write_site
+
+    pipe = PortablePipeline.from_pretrained(threads=1)
+    prompts = [json.loads(line)["prompt"] for line in (HERE / "prompts_freeform.jsonl").read_text().splitlines()]
+    prompts = prompts[:args.motions + 1]
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = write_site(Path(tmp) / "site", pipe.graphs)
+        handler = functools.partial(Isolated if args.isolated else Plain, directory=str(folder))
+        server = ThreadingHTTPServer(("127.0.0.1", 0), handler)
+        threading.Thread(target=server.serve_forever, daemon=True).start()
+        url = f"http://127.0.0.1:{server.server_address[1]}/"
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=shutil.which("chromium"), args=FLAGS)
+            page = browser.new_page()
+            sizes: list[int] = []
+            page.on("response", lambda r: sizes.append(int(r.headers.get("content-length", 0))))
+            t0 = time.perf_counter()
+            page.goto(url, wait_until="load")
+            page.evaluate("window.smf.ready")
+            loaded = time.perf_counter() - t0
+            first = page.evaluate(f"window.smf.generate({{prompt: {json.dumps(prompts[0])}, seconds: 4, seed: 0}})"
+                                  ".then(m => m.joints)")
+            to_first = time.perf_counter() - t0
+            per = [page.evaluate(f"window.smf.generate({{prompt: {json.dumps(q)}, seconds: 4, seed: {i}}})"
+                                 ".then(() => window.smf.timings.lastMotionMs)") for i, q in enumerate(prompts[1:])]
+            threads = page.evaluate("window.smf.timings.threads")
+            browser.close()
+        server.shutdown()
+        want = pipe(prompts[0], seconds=4, seed=0, footskate="off")[0].joints
+        out = {"served": "COOP/COEP (isolated)" if args.isolated else "plain static server", "wasm_threads": threads,
+               "page_to_model_loaded_s": round(loaded, 2), "page_to_first_motion_s": round(to_first, 2),
+               "per_motion_ms_median": round(float(np.median(per)), 1),
+               "per_motion_ms_range": [round(min(per), 1), round(max(per), 1)], "motions": len(per),
+               "downloaded_MB": round(sum(sizes) / 1e6, 1), "folder_MB": round(folder_size(folder) / 1e6, 1),
+               "max_joint_difference_mm": round(float(np.abs(np.asarray(first) - want).max()) * 1000, 4)}
+    print(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -49,7 +49,7 @@ def web_description(graphs) -> dict:
                   "c": table.c.tolist(), "d": table.d.tolist(), "init_sigma": table.init_sigma,
                   "stochastic": table.stochastic},
         "mean": m.mean.astype(np.float64).tolist(), "std": m.std.astype(np.float64).tolist(),
-        "skeleton": {"name": sk.name, "parents": [int(p) for p in t.parents], "branches": list(t.branches),
+        "skeleton": {"name": sk.name, "names": list(sk.joint_names), "parents": [int(p) for p in t.parents], "branches": list(t.branches),
                      "branch_children": [c.tolist() for c in t.branch_children],
                      "levels": [[free.tolist(), list(ids)] for free, ids in t.levels], "rest": t.rest.tolist(),
                      "bone_lengths": list(sk.bone_lengths)},

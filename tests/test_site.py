@@ -1,7 +1,8 @@
 """The static site (`smf site`) in Debian's Chromium, served by `python -m http.server` (no cross-origin isolation:
 single-threaded WebAssembly): window.smf at the load event, a 4 s motion within 5 mm of the runtime's joints for
-the same prompt, seed and length, no request outside its origin, no console error, the stick figure drawn.
-Skipped where Chromium or Playwright is absent (CI installs both)."""
+the same prompt, seed and length, its BVH and .glb made in the page (read back: the same joints; the .glb valid
+for the Khronos validator where it is installed), no request outside its origin, no console error, the stick
+figure drawn. Skipped where Chromium or Playwright is absent (CI installs both)."""
 
 from __future__ import annotations
 
@@ -11,10 +12,15 @@ import subprocess
 import sys
 import time
 
+import json
+
 import numpy as np
 import pytest
+from motion.gltf_tools import VALIDATE_JS, gltf_validator_dir, play_node_tree
 
 from stablemofusion.cli.main import main
+from stablemofusion.motion.bvh import forward_kinematics, read_bvh
+from stablemofusion.motion.skeleton import HUMANML3D
 from stablemofusion.runtime.pipeline import PortablePipeline
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -59,6 +65,8 @@ def test_the_page_generates_the_runtimes_motion_offline(served, tmp_path):
         assert page.evaluate("typeof window.smf.generate") == "function"  # there at the load event
         joints = page.evaluate(f"window.smf.generate({{prompt: '{PROMPT}', seconds: 4, seed: {SEED}, footskate: 'off'}})"
                                ".then(() => window.smf.lastMotion.joints)")
+        bvh = page.evaluate("window.smf.file('bvh')")
+        glb = page.evaluate("window.smf.file('glb').then((b) => Array.from(b))")
         bad = page.evaluate("window.smf.generate({prompt: 'a person walks', seconds: 4, seed: 1, footskate: 'post'})"
                             ".then(() => '', (e) => e.message)")
         page.wait_for_timeout(300)
@@ -70,6 +78,20 @@ def test_the_page_generates_the_runtimes_motion_offline(served, tmp_path):
     got = np.asarray(joints)
     assert got.shape == want.shape and np.abs(got - want).max() < 5e-3
     assert "post" in bad  # one clear message: cleanup runs in Python
+    names = list(HUMANML3D.joint_names)
+    (tmp_path / "m.bvh").write_text(bvh)
+    b = read_bvh(tmp_path / "m.bvh")
+    assert np.abs(forward_kinematics(b)[:, [b.names.index(n) for n in names]] - want).max() < 1e-3
+    (tmp_path / "m.glb").write_bytes(bytes(glb))
+    node_names, times, pos = play_node_tree(tmp_path / "m.glb")
+    assert len(times) == len(want) and np.abs(pos[:, [node_names.index(n) for n in names]] - want).max() < 1e-3
+    tools = gltf_validator_dir()
+    if tools is not None:
+        (tmp_path / "validate.cjs").write_text(VALIDATE_JS)
+        out = subprocess.run(["node", str(tmp_path / "validate.cjs"), str(tmp_path / "m.glb"),
+                              str(tools / "node_modules" / "gltf-validator")], capture_output=True, text=True, timeout=120)
+        report = json.loads(out.stdout)
+        assert report["numErrors"] == 0 and report["numWarnings"] == 0, report["messages"][:5]
     assert not outside and not logs, (outside, logs)
     assert f"seed {SEED}" in status
     from PIL import Image

@@ -43,6 +43,7 @@ export function jointsFromFeatures(features, T, D, J) {
 }
 
 const EPS = 1e-12;
+const GIMBAL_COS = 1e-9; // motion/rotation.py's: below it the first and third Euler axes coincide
 const POLAR_STEPS = 8;
 
 function cross(a, b) {
@@ -75,6 +76,17 @@ export function polarRotation(K, fallback) {
   return ok ? x : fallback;
 }
 
+// The frame (columns x, y, z) of branching joint number i of joints `at(j)`: X from its -X child to its +X child,
+// Y towards its remaining child (up or down by that child's rest direction), Z = X x Y.
+function branchFrame(at, t, i) {
+  const [c0, c1, c2] = t.branch_children[i];
+  const x = unit(sub(at(c1), at(c0)));
+  let y = sub(at(c2), at(t.branches[i])).map((v) => v * Math.sign(t.rest[c2][1]));
+  const d = dot(y, x);
+  y = unit(y.map((v, k) => v - d * x[k]));
+  return [x, y, cross(x, y)];
+}
+
 // The skeleton's tree as the site's model description gives it (smf site: web.json "skeleton").
 function prepare(tree) {
   const J = tree.parents.length;
@@ -98,16 +110,7 @@ export function fitRigid(targets, T, tree, lengths, sweeps) {
   // 1. the closed form: branch frames and their children's mean offsets, bones along the targets
   const B = t.branches.length;
   const frames = [];
-  for (let n = 0; n < T; n++) {
-    frames.push(t.branches.map((b, i) => {
-      const [c0, c1, c2] = t.branch_children[i];
-      const x = unit(sub(at(targets, n, c1), at(targets, n, c0)));
-      let y = sub(at(targets, n, c2), at(targets, n, b)).map((v) => v * Math.sign(t.rest[c2][1]));
-      const d = dot(y, x);
-      y = unit(y.map((v, k) => v - d * x[k]));
-      return [x, y, cross(x, y)];
-    }));
-  }
+  for (let n = 0; n < T; n++) frames.push(t.branches.map((b, i) => branchFrame((j) => at(targets, n, j), t, i)));
   const offsets = t.branches.map((b, i) => t.branch_children[i].map((c) => {
     const m = [0, 0, 0];
     for (let n = 0; n < T; n++) {
@@ -169,4 +172,124 @@ export function fitRigid(targets, T, tree, lengths, sweeps) {
   const ox = x[0], oz = x[2];
   for (let i = 0; i < T * J; i++) { x[i * 3] -= ox; x[i * 3 + 2] -= oz; }
   return x;
+}
+
+// ---- the pose of the rigid joints and its BVH (stablemofusion/motion/rigid_batch.py: pose_of_joints; motion/bvh.py)
+const quatToMatrix = ([w, x, y, z]) => [ // rows
+  [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+  [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+  [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]];
+const matMul = (A, B) => A.map((row) => [0, 1, 2].map((k) => row[0] * B[0][k] + row[1] * B[1][k] + row[2] * B[2][k]));
+const transpose = (A) => [0, 1, 2].map((i) => [A[0][i], A[1][i], A[2][i]]);
+const apply = (A, v) => A.map((row) => dot(row, v));
+const IDENTITY = [[1, 0, 0], [0, 1, 0], [0, 0, 1]];
+
+// the rotation (rows) taking unit vector a onto b by the shortest arc (a half turn about an axis normal to a when
+// they are opposite)
+function shortestArc(a, b) {
+  let q = [1 + dot(a, b), ...cross(a, b)];
+  if (q[0] < 1e-6) {
+    const k = [0, 1, 2].reduce((m, i) => (Math.abs(a[i]) < Math.abs(a[m]) ? i : m), 0);
+    const e = [0, 0, 0];
+    e[k] = 1;
+    q = [0, ...cross(a, e)];
+  }
+  const n = Math.hypot(...q);
+  return quatToMatrix(q.map((v) => v / n));
+}
+
+// Closed-form inverse kinematics of rigid joints (T, J, 3) with bone `lengths`: rest offsets (J x 3) and local
+// rotations (T x J, 3 x 3 rows): branching joints take the frame their children span, every other bone turns by the
+// shortest arc from its parent's rotation onto its bone, leaves keep their parent's rotation.
+export function poseOfJoints(joints, T, tree, lengths) {
+  const t = prepare(tree);
+  const J = t.J;
+  const at = (n, j) => [joints[(n * J + j) * 3], joints[(n * J + j) * 3 + 1], joints[(n * J + j) * 3 + 2]];
+  const offsets = t.rest.map((r, j) => r.map((v) => v * lengths[j]));
+  const frames = [];
+  for (let n = 0; n < T; n++) frames.push(t.branches.map((b, i) => transpose(branchFrame((j) => at(n, j), t, i))));
+  t.branches.forEach((b, i) => t.branch_children[i].forEach((c) => {
+    const m = [0, 0, 0];
+    for (let n = 0; n < T; n++) {
+      const local = apply(transpose(frames[n][i]), sub(at(n, c), at(n, b)));
+      for (let k = 0; k < 3; k++) m[k] += local[k] / T;
+    }
+    offsets[c] = unit(m).map((v) => v * lengths[c]);
+  }));
+  offsets[0] = [0, 0, 0];
+  const depth = t.parents.map(() => 0);
+  for (let j = 1; j < J; j++) depth[j] = depth[t.parents[j]] + 1;
+  const order = [...Array(J).keys()].filter((j) => !t.branches.includes(j)).sort((a, b) => depth[a] - depth[b]);
+  const kid = (j) => t.parents.indexOf(j);
+  const local = [];
+  for (let n = 0; n < T; n++) {
+    const glob = new Array(J);
+    t.branches.forEach((b, i) => { glob[b] = frames[n][i]; });
+    for (const j of order) {
+      const parentRot = t.parents[j] < 0 ? IDENTITY : glob[t.parents[j]];
+      const c = kid(j);
+      if (c < 0) { glob[j] = parentRot; continue; }
+      glob[j] = matMul(shortestArc(apply(parentRot, t.rest[c]), unit(sub(at(n, c), at(n, j)))), parentRot);
+    }
+    local.push(glob.map((g, j) => (j === 0 ? g : matMul(transpose(glob[t.parents[j]]), g))));
+  }
+  return { offsets, local };
+}
+
+// Intrinsic Euler angles (degrees) of a rotation (rows) about the axes of `order` (R = R_a R_b R_c), as
+// stablemofusion/motion/rotation.py: matrix_to_euler.
+export function matrixToEuler(r, order) {
+  const [i, j, k] = [...order].map((a) => 'XYZ'.indexOf(a));
+  const s = (j - i + 3) % 3 === 1 ? 1 : -1;
+  const cosB = Math.hypot(r[i][i], r[i][j]);
+  const b = Math.atan2(s * r[i][k], cosB);
+  let a = Math.atan2(-s * r[j][k], r[k][k]);
+  let c = Math.atan2(-s * r[i][j], r[i][i]);
+  if (cosB < GIMBAL_COS) {
+    const p = (j + 1) % 3, q = (j + 2) % 3;
+    const rj = [[0, 0, 0], [0, 0, 0], [0, 0, 0]];
+    rj[j][j] = 1;
+    rj[p][p] = rj[q][q] = Math.cos(b);
+    rj[q][p] = Math.sin(b);
+    rj[p][q] = -Math.sin(b);
+    const ri = matMul(r, transpose(rj));
+    const p2 = (i + 1) % 3, q2 = (i + 2) % 3;
+    a = Math.atan2(ri[q2][p2], ri[p2][p2]);
+    c = 0;
+  }
+  return [a, b, c].map((v) => v * 180 / Math.PI);
+}
+
+// The BVH text (metres, Y up) of rigid joints (T, J, 3): the skeleton of `poseOfJoints`, ZXY rotation channels,
+// as `smf generate --format bvh` writes it.
+export function bvhText(joints, T, tree, lengths, fps, precision = 6) {
+  const { offsets, local } = poseOfJoints(joints, T, tree, lengths);
+  const J = tree.parents.length, names = tree.names, order = 'ZXY';
+  const num = (v) => (Math.round(v * 10 ** precision) / 10 ** precision + 0).toFixed(precision);
+  const children = [...Array(J)].map(() => []);
+  for (let j = 1; j < J; j++) children[tree.parents[j]].push(j);
+  const rot = [...order].map((a) => `${a}rotation`).join(' ');
+  const out = ['HIERARCHY'];
+  const written = [];
+  const emit = (j, depth) => {
+    const ind = '\t'.repeat(depth);
+    written.push(j);
+    out.push(`${ind}${j === 0 ? 'ROOT' : 'JOINT'} ${names[j]}`, `${ind}{`, `${ind}\tOFFSET ${offsets[j].map(num).join(' ')}`,
+      j === 0 ? `${ind}\tCHANNELS 6 Xposition Yposition Zposition ${rot}` : `${ind}\tCHANNELS 3 ${rot}`);
+    for (const c of children[j]) emit(c, depth + 1);
+    if (!children[j].length) {
+      const len = Math.hypot(...offsets[j]);
+      const site = len > 1e-9 ? offsets[j].map((v) => v * 0.05 / len) : [0, 0.05, 0];
+      out.push(`${ind}\tEnd Site`, `${ind}\t{`, `${ind}\t\tOFFSET ${site.map(num).join(' ')}`, `${ind}\t}`);
+    }
+    out.push(`${ind}}`);
+  };
+  emit(0, 0);
+  out.push('MOTION', `Frames: ${T}`, `Frame Time: ${Number((1 / fps).toPrecision(9))}`);
+  for (let n = 0; n < T; n++) {
+    const row = [joints[n * J * 3], joints[n * J * 3 + 1], joints[n * J * 3 + 2]];
+    for (const j of written) row.push(...matrixToEuler(local[n][j], order));
+    out.push(row.map(num).join(' '));
+  }
+  return out.join('\n') + '\n';
 }

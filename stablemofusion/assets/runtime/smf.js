@@ -4,7 +4,7 @@
 // browser and in Node.js; the caller passes ONNX Runtime (onnxruntime-web) and the Tokenizer class
 // (@huggingface/tokenizers) and a function that reads a file of the folder.
 import { normal } from './noise.js';
-import { fitRigid, jointsFromFeatures } from './motion.js';
+import { bvhText, fitRigid, jointsFromFeatures } from './motion.js';
 
 export class MotionRuntime {
   // read(name, kind) -> Promise of the file `name` of the model folder: kind 'json' (an object) or 'bytes'
@@ -134,6 +134,14 @@ export class MotionRuntime {
       for (let j = 0; j < J; j++) frame.push([flat[(f * J + j) * 3], flat[(f * J + j) * 3 + 1], flat[(f * J + j) * 3 + 2]]);
       joints.push(frame);
     }
-    return { joints, frames: n, fps: i.fps, prompt, seed, ...domain };
+    const motion = { joints, frames: n, fps: i.fps, prompt, seed, ...domain };
+    Object.defineProperty(motion, 'flat', { value: flat }); // (T x J x 3) as one array, not serialised
+    return motion;
+  }
+
+  // The BVH text of a motion made by `generate`, as `smf generate --format bvh` writes it.
+  bvh(motion) {
+    const sk = this.info.skeleton;
+    return bvhText(motion.flat, motion.frames, sk, sk.bone_lengths, motion.fps);
   }
 }

@@ -2,15 +2,18 @@
 // figure. window.smf is the page's API (for tests and pages that embed it):
 //   await window.smf.generate({prompt, seconds, seed, footskate: 'off'}) -> the motion; window.smf.lastMotion
 //   {joints (frames x 22 x 3 metres), fps, prompt, seed}; window.smf.ready: a promise of the loaded model;
-//   window.smf.timings: {loadMs, firstMotionMs, lastMotionMs}.
+//   window.smf.timings: {loadMs, firstMotionMs, lastMotionMs}; await window.smf.file('bvh' | 'glb' | 'json') -> the
+//   last motion's download (a string, or bytes for glb).
 import * as THREE from 'three';
 import { OrbitControls } from './vendor/three/OrbitControls.js';
 import { Figure, contactsOf, floorGrid } from './figure.js';
 import { MotionRuntime } from './runtime/smf.js';
+import { glbBytes } from './glb.js';
 
 const $ = (id) => document.getElementById(id);
 const started = performance.now();
-const smf = { lastMotion: null, timings: {}, generate: null, ready: null };
+const smf = { lastMotion: null, timings: {}, generate: null, ready: null, file: null };
+let made = null; // the last motion, as generate returned it
 window.smf = smf;
 
 // the model: files of model/ fetched from this origin, with progress in bytes
@@ -58,8 +61,21 @@ smf.generate = async (request) => {
   smf.timings.lastMotionMs = ms;
   if (smf.timings.firstMotionMs === undefined) smf.timings.firstMotionMs = performance.now() - started;
   smf.lastMotion = { joints: motion.joints, fps: motion.fps, prompt: motion.prompt, seed: motion.seed };
+  made = motion;
   show(motion, ms);
   return motion;
+};
+
+const DOWNLOADS = { bvh: ['motion.bvh', 'text/plain'], glb: ['motion.glb', 'model/gltf-binary'],
+  json: ['motion.json', 'application/json'] };
+smf.file = async (format) => {
+  const runtime = await smf.ready;
+  if (!made) throw new Error('no motion yet: generate one first');
+  const sk = runtime.info.skeleton;
+  if (format === 'bvh') return runtime.bvh(made);
+  if (format === 'glb') return glbBytes(made.flat, made.frames, sk, sk.bone_lengths, made.fps);
+  if (format === 'json') return JSON.stringify(smf.lastMotion);
+  throw new Error(`no download '${format}': choose bvh, glb or json`);
 };
 
 // scene
@@ -102,7 +118,7 @@ function show(motion, ms) {
   player.contacts = contactsOf(player.joints, player.frames, player.fps);
   figure.visible = true;
   $('scrub').max = String(player.frames - 1);
-  for (const id of ['scrub', 'play', 'json']) $(id).disabled = false;
+  for (const id of ['scrub', 'play', ...Object.keys(DOWNLOADS)]) $(id).disabled = false;
   setFrame(0);
   status(`${motion.prompt}: ${motion.frames} frames, seed ${motion.seed}, made in ${ms.toFixed(0)} ms`);
   $('warning').textContent = motion.outOfDomain
@@ -133,13 +149,18 @@ $('play').addEventListener('click', () => {
   $('play').textContent = player.playing ? 'Pause' : 'Play';
 });
 $('scrub').addEventListener('input', () => { player.playing = false; $('play').textContent = 'Play'; setFrame(Number($('scrub').value)); });
-$('json').addEventListener('click', () => {
-  const m = smf.lastMotion;
-  const url = URL.createObjectURL(new Blob([JSON.stringify(m)], { type: 'application/json' }));
-  const a = Object.assign(document.createElement('a'), { href: url, download: 'motion.json' });
-  a.click();
-  URL.revokeObjectURL(url);
-});
+for (const format of Object.keys(DOWNLOADS)) {
+  $(format).addEventListener('click', async () => {
+    try {
+      const [name, type] = DOWNLOADS[format];
+      const url = URL.createObjectURL(new Blob([await smf.file(format)], { type }));
+      Object.assign(document.createElement('a'), { href: url, download: name }).click();
+      setTimeout(() => URL.revokeObjectURL(url), 1000);
+    } catch (e) {
+      status(e.message, true);
+    }
+  });
+}
 $('form').addEventListener('submit', async (ev) => {
   ev.preventDefault();
   const seconds = $('seconds').value.trim();

@@ -1,8 +1,8 @@
 """The static site (`smf site`) in Debian's headless Chromium, as a visitor meets it: time from opening the page to
-the model loaded and to the first motion, then per motion (4 s, text encoding included: a new prompt each time),
-the bytes the page downloads and the folder's size; served by `python -m http.server` (no cross-origin isolation:
-one WebAssembly thread) and, with --isolated, by a server that sets COOP/COEP (threads); and the joints against
-the Python runtime (footskate off).
+the model loaded and to the first motion, then per motion (4 s, text encoding included: a new prompt each time)
+with footskate post (the default) and off, the bytes the page downloads and the folder's size; served by a plain
+static server (no cross-origin isolation: one WebAssembly thread) and, with --isolated, by one that sets COOP/COEP
+(threads); and the first motion's joints against the Python runtime's.
 
     python benchmarks/site_speed.py [--motions 20] [--isolated]
 """
@@ -53,7 +53,7 @@ def main() -> None:
 
     pipe = PortablePipeline.from_pretrained(threads=1)
     prompts = [json.loads(line)["prompt"] for line in (HERE / "prompts_freeform.jsonl").read_text().splitlines()]
-    prompts = prompts[:args.motions + 1]
+    prompts = prompts[:2 * args.motions + 1]  # every motion timed has a prompt of its own
     with tempfile.TemporaryDirectory() as tmp:
         folder = write_site(Path(tmp) / "site", pipe.graphs)
         handler = functools.partial(Isolated if args.isolated else Plain, directory=str(folder))
@@ -72,16 +72,19 @@ def main() -> None:
             first = page.evaluate(f"window.smf.generate({{prompt: {json.dumps(prompts[0])}, seconds: 4, seed: 0}})"
                                   ".then(m => m.joints)")
             to_first = time.perf_counter() - t0
-            per = [page.evaluate(f"window.smf.generate({{prompt: {json.dumps(q)}, seconds: 4, seed: {i}}})"
-                                 ".then(() => window.smf.timings.lastMotionMs)") for i, q in enumerate(prompts[1:])]
+            per = {fs: [page.evaluate(f"window.smf.generate({{prompt: {json.dumps(q)}, seconds: 4, seed: {i}, "
+                                      f"footskate: '{fs}'}}).then(() => window.smf.timings.lastMotionMs)")
+                        for i, q in enumerate(prompts[1 + k * args.motions:1 + (k + 1) * args.motions])]
+                   for k, fs in enumerate(("post", "off"))}
             threads = page.evaluate("window.smf.timings.threads")
             browser.close()
         server.shutdown()
-        want = pipe(prompts[0], seconds=4, seed=0, footskate="off")[0].joints
+        want = pipe(prompts[0], seconds=4, seed=0)[0].joints  # footskate post, as the page's default
         out = {"served": "COOP/COEP (isolated)" if args.isolated else "plain static server", "wasm_threads": threads,
                "page_to_model_loaded_s": round(loaded, 2), "page_to_first_motion_s": round(to_first, 2),
-               "per_motion_ms_median": round(float(np.median(per)), 1),
-               "per_motion_ms_range": [round(min(per), 1), round(max(per), 1)], "motions": len(per),
+               **{f"per_motion_ms_{fs}": {"median": round(float(np.median(v)), 1), "range": [round(min(v), 1),
+                                                                                        round(max(v), 1)]}
+                  for fs, v in per.items()}, "motions": len(per["post"]),
                "downloaded_MB": round(sum(sizes) / 1e6, 1), "folder_MB": round(folder_size(folder) / 1e6, 1),
                "max_joint_difference_mm": round(float(np.abs(np.asarray(first) - want).max()) * 1000, 4)}
     print(json.dumps(out, indent=1))

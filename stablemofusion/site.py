@@ -54,6 +54,7 @@ def web_description(graphs) -> dict:
                      "levels": [[free.tolist(), list(ids)] for free, ids in t.levels], "rest": t.rest.tolist(),
                      "bone_lengths": list(sk.bone_lengths)},
         "rigid_sweeps": DEFAULT_FIT.iterations,
+        "cleanup": cleanup_settings(m.fps),
         "actions": {"names": list(actions["actions"]), "threshold": actions["threshold"], "top": int(actions["top"]),
                     "owner": [i for i, examples in enumerate(actions["actions"].values()) for _ in examples],
                     "embeddings": "actions.bin"},
@@ -61,6 +62,28 @@ def web_description(graphs) -> dict:
         "files": {name: f"{name}.onnx" for name in SITE_GRAPHS},
         "licence": MODEL_LICENCE,
     }
+
+
+def cleanup_settings(fps: float) -> dict:
+    """The footskate cleanup's settings for the JavaScript runtime (``assets/runtime/cleanup.js``): the Python
+    defaults (:class:`~stablemofusion.footskate.cleanup.CleanupConfig`, its contact thresholds) and the joints they
+    name; contact durations in frames at ``fps``, rounded as the Python rounds them."""
+    from dataclasses import asdict
+
+    from .footskate.cleanup import FOOT_CHAINS, LEG_JOINTS, CleanupConfig
+    from .footskate.contacts import HML_FOOT_JOINTS
+    from .motion.rigid import BRANCH_SCALE
+
+    config = CleanupConfig()
+    if config.contacts != "kinematic":
+        raise SMFError("the site's cleanup finds contacts kinematically")
+    out = {k: v for k, v in asdict(config).items() if k not in ("kinematic", "contacts", "w_vgrf")}
+    k = config.kinematic
+    out.update(height_on=k.height_on, height_off=k.height_off, speed_on=k.speed_on, speed_off=k.speed_off,
+               floor_percentile=k.floor_percentile, min_contact_frames=max(1, round(k.min_contact * fps)),
+               min_gap_frames=max(1, round(k.min_gap * fps)), foot_joints=list(HML_FOOT_JOINTS),
+               foot_chains=[list(c) for c in FOOT_CHAINS], leg_joints=list(LEG_JOINTS), branch_scale=BRANCH_SCALE)
+    return out
 
 
 def _graph_file(graphs, name: str) -> Path:

@@ -65,19 +65,23 @@ def test_the_page_generates_the_runtimes_motion_offline(served, tmp_path):
         assert page.evaluate("typeof window.smf.generate") == "function"  # there at the load event
         joints = page.evaluate(f"window.smf.generate({{prompt: '{PROMPT}', seconds: 4, seed: {SEED}, footskate: 'off'}})"
                                ".then(() => window.smf.lastMotion.joints)")
-        bvh = page.evaluate("window.smf.file('bvh')")
-        glb = page.evaluate("window.smf.file('glb').then((b) => Array.from(b))")
-        bad = page.evaluate("window.smf.generate({prompt: 'a person walks', seconds: 4, seed: 1, footskate: 'post'})"
+        bad = page.evaluate("window.smf.generate({prompt: 'a person walks', seconds: 4, seed: 1, footskate: 'loop'})"
                             ".then(() => '', (e) => e.message)")
+        bvh = page.evaluate("window.smf.file('bvh')")  # of the motion made with footskate off
+        glb = page.evaluate("window.smf.file('glb').then((b) => Array.from(b))")
+        cleaned = page.evaluate(f"window.smf.generate({{prompt: '{PROMPT}', seconds: 4, seed: {SEED}}})"  # default: post
+                                ".then(() => window.smf.lastMotion.joints)")
         page.wait_for_timeout(300)
         shot = tmp_path / "site.png"
         page.screenshot(path=str(shot))
         status = page.inner_text("#status")
         browser.close()
-    want = PortablePipeline.from_pretrained(threads=1)(PROMPT, seconds=4, seed=SEED, footskate="off")[0].joints
+    pipe = PortablePipeline.from_pretrained(threads=1)
+    want = pipe(PROMPT, seconds=4, seed=SEED, footskate="off")[0].joints
     got = np.asarray(joints)
     assert got.shape == want.shape and np.abs(got - want).max() < 5e-3
-    assert "post" in bad  # one clear message: cleanup runs in Python
+    assert np.abs(np.asarray(cleaned) - pipe(PROMPT, seconds=4, seed=SEED)[0].joints).max() < 5e-3
+    assert "footskate" in bad  # one clear message
     names = list(HUMANML3D.joint_names)
     (tmp_path / "m.bvh").write_text(bvh)
     b = read_bvh(tmp_path / "m.bvh")

@@ -28,16 +28,20 @@ def node_generate(folder, *args) -> subprocess.CompletedProcess:
                           text=True, timeout=300)
 
 
-@pytest.mark.parametrize("prompt, seconds, seed", [("a person waves both hands happily", 4, 7),
-                                                   ("an old man walks forward slowly", 6.3, 123456789012),
-                                                   ("someone bows politely", None, 0)])
-def test_node_reproduces_the_python_runtime(site, prompt, seconds, seed):
+@pytest.mark.parametrize("prompt, seconds, seed, footskate", [("a person waves both hands happily", 4, 7, "off"),
+                                                              ("a person waves both hands happily", 4, 7, "post"),
+                                                              ("an old man walks forward slowly", 6.3, 123456789012, "post"),
+                                                              ("a person runs forward", 3, 5, "post"),
+                                                              ("someone bows politely", None, 0, "off")])
+def test_node_reproduces_the_python_runtime(site, prompt, seconds, seed, footskate):
+    """Text, sampling, decoding, the rigid stage and the footskate cleanup (its contacts, anchors and L-BFGS):
+    the Python runtime's joints."""
     folder, pipe = site
     extra = [] if seconds is None else ["--seconds", seconds]
-    run = node_generate(folder, prompt, *extra, "--seed", seed)
+    run = node_generate(folder, prompt, *extra, "--seed", seed, "--footskate", footskate)
     assert run.returncode == 0, run.stderr
     got = json.loads(run.stdout)
-    want = pipe(prompt, seconds=seconds, seed=seed, footskate="off")[0]
+    want = pipe(prompt, seconds=seconds, seed=seed, footskate=footskate)[0]
     joints = np.asarray(got["joints"])
     assert joints.shape == want.joints.shape  # the length model's length too, where none is given
     assert np.abs(joints - want.joints).max() < 1e-3
@@ -49,6 +53,7 @@ def test_node_reproduces_the_python_runtime(site, prompt, seconds, seed):
 def test_node_gives_one_clear_error_for_bad_input(site):
     folder, _ = site
     for args, why in [(["", "--seed", "1"], "prompt"), (["a person walks", "--seed", "-3"], "seed"),
-                      (["a person walks", "--seconds", "30"], "at most")]:
+                      (["a person walks", "--seconds", "30"], "at most"),
+                      (["a person walks", "--footskate", "loop"], "footskate")]:
         run = node_generate(folder, *args)
         assert run.returncode == 2 and why in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr

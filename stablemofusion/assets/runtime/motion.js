@@ -100,9 +100,8 @@ function prepare(tree) {
   return { ...tree, J, members };
 }
 
-// Rigid joints (T, J, 3) fitted to joints `targets` (T, J, 3) with bone `lengths` (J,): the closed-form body,
-// `sweeps` exact block sweeps, then moved so that the first root sits at the XZ origin (the pipeline's final
-// stage with footskate off).
+// Rigid joints (T, J, 3) fitted to joints `targets` (T, J, 3) with bone `lengths` (J,): the closed-form body, then
+// `sweeps` exact block sweeps.
 export function fitRigid(targets, T, tree, lengths, sweeps) {
   const t = prepare(tree);
   const J = t.J;
@@ -168,7 +167,11 @@ export function fitRigid(targets, T, tree, lengths, sweeps) {
       for (let j = 0; j < J; j++) for (let d = 0; d < 3; d++) x[(n * J + j) * 3 + d] = p[j * 3 + d];
     }
   }
-  // 3. the first root at the XZ origin
+  return x;
+}
+
+// Joints (T, J, 3) moved so that the first root sits at the XZ origin, where features start (in place).
+export function recentre(x, T, J) {
   const ox = x[0], oz = x[2];
   for (let i = 0; i < T * J; i++) { x[i * 3] -= ox; x[i * 3 + 2] -= oz; }
   return x;

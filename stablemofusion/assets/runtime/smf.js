@@ -1,10 +1,11 @@
 // Text to motion in JavaScript on the portable graphs (a folder written by `smf site`, model/): the JavaScript twin
-// of stablemofusion/runtime/pipeline.py for one prompt with footskate off: the same tokenizer, graphs, sampler
-// table, seeded noise and rigid stage, so the same prompt, seed and length give the same joints. It runs in a
+// of stablemofusion/runtime/pipeline.py for one prompt: the same tokenizer, graphs, sampler table, seeded noise,
+// rigid stage and footskate cleanup, so the same prompt, seed and length give the same joints. It runs in a
 // browser and in Node.js; the caller passes ONNX Runtime (onnxruntime-web) and the Tokenizer class
 // (@huggingface/tokenizers) and a function that reads a file of the folder.
 import { normal } from './noise.js';
-import { bvhText, fitRigid, jointsFromFeatures } from './motion.js';
+import { cleanupRigid } from './cleanup.js';
+import { bvhText, fitRigid, jointsFromFeatures, poseOfJoints, recentre } from './motion.js';
 
 export class MotionRuntime {
   // read(name, kind) -> Promise of the file `name` of the model folder: kind 'json' (an object) or 'bytes'
@@ -88,13 +89,15 @@ export class MotionRuntime {
 
   // One motion: {joints (T x J x 3 nested arrays, metres), frames, fps, prompt, seed, similarity, closest,
   // outOfDomain}.
-  async generate({ prompt, seconds, seed = 0, footskate = 'off' }) {
+  async generate({ prompt, seconds, seed = 0, footskate = 'post' }) {
     const i = this.info, T = this.ort.Tensor;
     prompt = String(prompt ?? '').trim();
     if (!prompt) throw new RangeError('the prompt must be a non-empty text');
     if (prompt.length > i.max_prompt_chars) throw new RangeError(`the prompt must be at most ${i.max_prompt_chars} characters`);
     if (!Number.isSafeInteger(seed) || seed < 0) throw new RangeError(`seed must be a whole number from 0 to 2**53 - 1, got ${seed}`);
-    if (footskate !== 'off') throw new RangeError(`footskate '${footskate}' runs in Python (smf generate, smf serve); this page makes 'off'`);
+    if (footskate !== 'off' && footskate !== 'post') {
+      throw new RangeError(`footskate must be 'post' or 'off' here, got '${footskate}' ('loop' runs in the torch sampler)`);
+    }
     // 1. text: tokens, condition, domain, length
     const enc = await this.encode(prompt);
     const domain = await this.domain(enc);
@@ -125,9 +128,14 @@ export class MotionRuntime {
     }
     const features = new Float64Array(n * D);
     for (let e = 0; e < n * D; e++) features[e] = x[e] * i.std[e % D] + i.mean[e % D];
-    // 3. the final stage: decode, then the rigid fit (one skeleton of fixed bone lengths)
-    const J = i.skeleton.parents.length;
-    const flat = fitRigid(jointsFromFeatures(features, n, D, J), n, i.skeleton, i.skeleton.bone_lengths, i.rigid_sweeps);
+    // 3. the final stage: decode, the rigid fit (one skeleton of fixed bone lengths), the cleanup, recentred
+    const J = i.skeleton.parents.length, sk = i.skeleton;
+    let flat = fitRigid(jointsFromFeatures(features, n, D, J), n, sk, sk.bone_lengths, i.rigid_sweeps);
+    if (footskate === 'post') {
+      const { offsets } = poseOfJoints(flat, n, sk, sk.bone_lengths);
+      flat = cleanupRigid(flat, n, sk, sk.bone_lengths, offsets, i.fps, i.cleanup);
+    }
+    recentre(flat, n, J);
     const joints = [];
     for (let f = 0; f < n; f++) {
       const frame = [];

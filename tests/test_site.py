@@ -102,3 +102,28 @@ def test_the_page_generates_the_runtimes_motion_offline(served, tmp_path):
 
     image = np.asarray(Image.open(shot).convert("L"), dtype=float)
     assert (image[60:500] < 100).sum() > 200  # the figure's dark joints and bones are drawn over the light floor
+
+
+def test_the_page_runs_the_graphs_on_webgpu_where_asked(served):
+    """?backend=webgpu: the graphs on WebGPU (here Chromium's software adapter, SwiftShader), the same motion within
+    5 mm; without an adapter, one clear message."""
+    webgpu = FLAGS + ["--enable-unsafe-webgpu", "--use-webgpu-adapter=swiftshader"]
+    with playwright.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=webgpu)
+        page = browser.new_page()
+        page.goto(served + "?backend=webgpu", wait_until="load")
+        if not page.evaluate("(async () => !!(navigator.gpu && await navigator.gpu.requestAdapter()))()"):
+            browser.close()
+            pytest.skip("this Chromium offers no software WebGPU adapter")
+        joints = page.evaluate(f"window.smf.generate({{prompt: '{PROMPT}', seconds: 2, seed: {SEED}, footskate: 'off'}})"
+                               ".then(() => window.smf.lastMotion.joints)")
+        backend = page.evaluate("window.smf.timings.backend")
+        browser.close()
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS)  # no WebGPU at all
+        page = browser.new_page()
+        page.goto(served + "?backend=webgpu", wait_until="load")
+        refused = page.evaluate("window.smf.ready.then(() => '', (e) => e.message)")
+        browser.close()
+    want = PortablePipeline.from_pretrained(threads=1)(PROMPT, seconds=2, seed=SEED, footskate="off")[0].joints
+    assert backend == "webgpu" and np.abs(np.asarray(joints) - want).max() < 5e-3
+    assert "no WebGPU adapter" in refused

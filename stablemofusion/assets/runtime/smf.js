@@ -9,8 +9,9 @@ import { bvhText, fitRigid, jointsFromFeatures, poseOfJoints, recentre } from '.
 
 export class MotionRuntime {
   // read(name, kind) -> Promise of the file `name` of the model folder: kind 'json' (an object) or 'bytes'
-  // (a Uint8Array); onProgress(loaded, total) after each file.
-  static async load({ ort, Tokenizer, read, onProgress = () => {} }) {
+  // (a Uint8Array); onProgress(loaded, total) after each file; providers: ONNX Runtime's execution providers
+  // (['webgpu', 'wasm'] with its WebGPU build: what WebGPU cannot run falls back to WebAssembly).
+  static async load({ ort, Tokenizer, read, onProgress = () => {}, providers = ['wasm'] }) {
     const info = await read('web.json', 'json');
     const files = ['text_encoder', 'condition', 'denoise', 'length', 'ood'];
     const total = files.length + 2;
@@ -23,7 +24,7 @@ export class MotionRuntime {
     const sessions = {};
     for (const name of files) {
       sessions[name] = await ort.InferenceSession.create(await read(info.files[name], 'bytes'),
-        { executionProviders: ['wasm'], graphOptimizationLevel: 'all' });
+        { executionProviders: providers, graphOptimizationLevel: 'all' });
       step();
     }
     return new MotionRuntime(ort, tokenizer, sessions, info, actions);

@@ -2,7 +2,7 @@
 // figure. window.smf is the page's API (for tests and pages that embed it):
 //   await window.smf.generate({prompt, seconds, seed, footskate: 'off'}) -> the motion; window.smf.lastMotion
 //   {joints (frames x 22 x 3 metres), fps, prompt, seed}; window.smf.ready: a promise of the loaded model;
-//   window.smf.timings: {loadMs, firstMotionMs, lastMotionMs}; await window.smf.file('bvh' | 'glb' | 'json') -> the
+//   window.smf.timings: {loadMs, firstMotionMs, lastMotionMs, threads, backend ('webgpu' or 'wasm')}; await window.smf.file('bvh' | 'glb' | 'json') -> the
 //   last motion's download (a string, or bytes for glb).
 import * as THREE from 'three';
 import { OrbitControls } from './vendor/three/OrbitControls.js';
@@ -18,7 +18,14 @@ window.smf = smf;
 
 // the model: files of model/ fetched from this origin, with progress in bytes
 async function load() {
-  const ort = await import('./vendor/onnxruntime-web/ort.wasm.min.mjs');
+  // WebAssembly on the CPU by default; ?backend=webgpu runs the graphs on WebGPU (what it cannot run falls back)
+  const backend = new URLSearchParams(location.search).get('backend') || 'wasm';
+  if (backend !== 'wasm' && backend !== 'webgpu') throw new Error(`backend must be wasm or webgpu, got '${backend}'`);
+  if (backend === 'webgpu' && !(navigator.gpu && await navigator.gpu.requestAdapter().catch(() => null))) {
+    throw new Error('this browser offers no WebGPU adapter: open the page without ?backend=webgpu');
+  }
+  const ort = await import(`./vendor/onnxruntime-web/ort.${backend}.min.mjs`);
+  ort.env.logLevel = 'error';
   ort.env.wasm.wasmPaths = new URL('vendor/onnxruntime-web/', location.href).href;
   // threads need cross-origin isolation (COOP/COEP headers); a plain static server gives one thread
   ort.env.wasm.numThreads = self.crossOriginIsolated ? Math.min(4, navigator.hardwareConcurrency || 1) : 1;
@@ -45,9 +52,10 @@ async function load() {
     for (const p of parts) { out.set(p, o); o += p.length; }
     return out;
   };
-  const runtime = await MotionRuntime.load({ ort, Tokenizer, read });
+  const runtime = await MotionRuntime.load({ ort, Tokenizer, read, providers: backend === 'webgpu' ? ['webgpu', 'wasm'] : ['wasm'] });
   smf.timings.loadMs = performance.now() - started;
   smf.timings.threads = ort.env.wasm.numThreads;
+  smf.timings.backend = backend;
   $('licence-text').textContent = runtime.info.licence;
   return runtime;
 }

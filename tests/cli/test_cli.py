@@ -69,6 +69,8 @@ def test_bvh_round_trip_of_features(ref_motion, tmp_path):
     ("good", ["render", "{d}/in.npy", "--out", "{d}/x.avi"], "unsupported output format"),
     ("good", ["render", "{d}/in.npy", "--frame", "500", "--out", "{d}/x.png"], "out of range"),
     ("garbage", ["render", "{d}/in.npy", "--out", "{d}/x.mp4"], "not a readable .npy"),
+    ("good", ["site", "--out", "{d}"], "not a site"),  # a folder of other files is never replaced
+    (None, ["site", "--out", "{d}/x.site", "--checkpoint", "{d}/nothing"], "holds no portable graphs"),
 ])
 def test_bad_input_is_one_line_exit_2(tmp_path, capsys, setup, argv, message):
     good = np.zeros((10, 22, 3)) + np.linspace(0, 1, 22)[None, :, None]

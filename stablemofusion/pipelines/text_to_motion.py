@@ -6,6 +6,7 @@ import torch
 from tqdm import tqdm
 
 from ..limits import base_seed
+from ..path_plan import bend, read_paths
 from .components import Components
 from .denoise import sample
 from .final import check_batch_request
@@ -32,14 +33,19 @@ class TextToMotionPipeline:
         prompts, secs, frs, per_item = check_batch_request(prompts, seconds, frames, seed)
         settings = c.settings(settings)
         n = len(prompts)
-        # 2. prepare: lengths (the model's estimate where none is given), seeds, domains
+        # 2. prepare: paths from words (the model is given the prompt without them), lengths (a path's, else the
+        # model's estimate where none is given), seeds, domains
+        paths, asked = read_paths(prompts)
         unknown = [i for i in range(n) if secs[i] is None and frs[i] is None]
+        for i in [i for i in unknown if paths[i] is not None and paths[i].seconds is not None]:
+            secs[i] = paths[i].seconds
+        unknown = [i for i in unknown if secs[i] is None]
         if unknown and c.length_estimator is not None:
             for i, s in zip(unknown, c.predict_seconds([prompts[i] for i in unknown])):
                 secs[i] = s
         lengths = [c.frames_for(s, f) for s, f in zip(secs, frs)]
         base = None if per_item else base_seed(seed)
-        domains = c.domains(prompts)
+        domains = c.domains(asked)
         results: list[MotionResult | None] = [None] * n
         # 3. motions longer than one window: one-segment timelines
         for i in (i for i in range(n) if lengths[i] > c.max_frames):
@@ -53,10 +59,10 @@ class TextToMotionPipeline:
         for k, start in enumerate(tqdm(starts, desc="generate", unit="batch", disable=not progress)):
             idx = short[start:start + settings.batch_size]
             batch_seed = [seed[i] for i in idx] if per_item else base + k
-            raw = sample(c, [prompts[i] for i in idx], [lengths[i] for i in idx], settings, batch_seed)
-            # 5. post-process: the final stage of the batch's motions (their rigid fits together)
-            finished = c.finish_many([raw[j, :lengths[i]].numpy() for j, i in enumerate(idx)], settings.footskate,
-                                     settings.footskate_options)
+            raw = sample(c, [asked[i] for i in idx], [lengths[i] for i in idx], settings, batch_seed)
+            # 5. post-process: each path bent, the final stage of the batch's motions (their rigid fits together)
+            finished = c.finish_many([bend(raw[j, :lengths[i]].numpy(), paths[i]) for j, i in enumerate(idx)],
+                                     settings.footskate, settings.footskate_options)
             for (f, motion), i in zip(finished, idx):
                 results[i] = MotionResult.build(prompts[i], f, motion, c.skeleton, c.fps,
                                                 seed[i] if per_item else batch_seed, domains[i])

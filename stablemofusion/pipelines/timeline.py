@@ -9,6 +9,7 @@ from tqdm import tqdm
 from ..edit_plan import edit_hooks, plan_edit
 from ..diffusion.schedulers import sampler_spec
 from ..errors import SMFError
+from ..path_plan import bend_segments, path_segments
 from ..timeline_plan import DEFAULT_OVERLAP, plan_windows, segment_frames
 from .components import Components
 from .result import MotionResult
@@ -31,8 +32,8 @@ class TimelinePipeline:
         """Window j uses ``seed + j``. ``progress``: a tqdm bar over the windows (None: for long timelines)."""
         c = self.c
         # 1. check inputs
-        segs = segment_frames(segments, c.fps)
-        # 2. prepare: the windows, the settings (later windows continue by editing: hooks) and the seed
+        segs, paths = path_segments(segment_frames(segments, c.fps))
+        # 2. prepare: paths from words (taken out of the prompts), the windows, the settings (later windows continue by editing: hooks) and the seed
         windows = plan_windows(segs, c.max_frames, int(round(overlap * c.fps)), c.min_frames)
         settings = c.settings(settings, hooks=len(windows) > 1)
         if len(windows) > 1:
@@ -52,8 +53,9 @@ class TimelinePipeline:
                              xt_hook=xt_hook)[0]
                 raw = plan.project(raw.double()).float()  # exact on the kept part
             out = torch.cat([out, raw[w.keep:w.keep + w.new].double()])
-        # 4. post-process: the final stage of the whole motion
-        f, motion = c.finish(out.numpy(), settings.footskate, settings.footskate_options)
+        # 4. post-process: each segment's path bent, the final stage of the whole motion
+        f, motion = c.finish(bend_segments(out.numpy(), [n for _, n in segs], paths), settings.footskate,
+                             settings.footskate_options)
         return MotionResult.build("; ".join(f"{p}:{s:g}" for p, s in segments), f, motion, c.skeleton, c.fps, base)
 
 

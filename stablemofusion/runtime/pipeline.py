@@ -22,6 +22,7 @@ from ..motion.skeleton import get_skeleton
 from ..pipelines.final import OutOfDomainWarning, check_batch_request, finish_many, frames_for
 from ..pipelines.result import MotionResult
 from ..edit_plan import check_edit_inputs, plan_edit, plan_edit_for, splice_rigid, x0_constraint
+from ..path_plan import bend, bend_segments, path_segments, read_paths
 from ..motion_stream import STREAM_CHUNK, STREAM_KEEP, STREAM_REWIND, MotionStream, check_window
 from ..timeline_plan import DEFAULT_OVERLAP, plan_windows, segment_frames
 from .graphs import PortableGraphs
@@ -124,14 +125,19 @@ class PortablePipeline:
         sampling, footskate = self._settings(guidance_scale, steps, sampler, footskate, engine)
         check_batch_size(batch_size)
         n = len(prompts)
-        # 2. prepare: lengths (the model's estimate where none is given), seeds, domains
+        # 2. prepare: paths from words (the model is given the prompt without them), lengths (a path's, else the
+        # model's estimate where none is given), seeds, domains
+        paths, asked = read_paths(prompts)
         unknown = [i for i in range(n) if secs[i] is None and frs[i] is None]
+        for i in [i for i in unknown if paths[i] is not None and paths[i].seconds is not None]:
+            secs[i] = paths[i].seconds
+        unknown = [i for i in unknown if secs[i] is None]
         if unknown and self.graphs.has_length_model:
             for i, s in zip(unknown, self.predict_seconds([prompts[i] for i in unknown])):
                 secs[i] = s
         lengths = [frames_for(s, f, self.fps, self.min_frames) for s, f in zip(secs, frs)]
         base = None if per_item else base_seed(seed)
-        domains = self.domains(prompts)
+        domains = self.domains(asked)
         results: list[MotionResult | None] = [None] * n
         # 3. motions longer than one window: one-segment timelines
         for i in (i for i in range(n) if lengths[i] > self.max_frames):
@@ -144,11 +150,11 @@ class PortablePipeline:
         for k, start in enumerate(range(0, len(short), batch_size)):
             idx = short[start:start + batch_size]
             batch_seed = [seed[i] for i in idx] if per_item else base + k
-            tokens, mask, _ = self.encode([prompts[i] for i in idx])
+            tokens, mask, _ = self.encode([asked[i] for i in idx])
             raw = sample(m, tokens, mask, [lengths[i] for i in idx], batch_seed, **sampling)
-            # 5. post-process: the final stage of the batch's motions (their rigid fits together)
-            finished = finish_many([raw[j, :lengths[i]] for j, i in enumerate(idx)], self.skeleton, self.fps,
-                                   self.rigid, footskate, footskate_options)
+            # 5. post-process: each path bent, the final stage of the batch's motions (their rigid fits together)
+            finished = finish_many([bend(raw[j, :lengths[i]], paths[i]) for j, i in enumerate(idx)], self.skeleton,
+                                   self.fps, self.rigid, footskate, footskate_options)
             for (f, motion), i in zip(finished, idx):
                 results[i] = MotionResult.build(prompts[i], f, motion, self.skeleton, self.fps,
                                                 seed[i] if per_item else batch_seed, domains[i])
@@ -253,8 +259,8 @@ class PortablePipeline:
     def _timeline(self, segments, overlap: float, base: int, sampling: dict, footskate: str,
                   footskate_options) -> MotionResult:
         m = self.model
-        # 1. check inputs; 2. prepare: the windows
-        segs = segment_frames(segments, self.fps)
+        # 1. check inputs; 2. prepare: paths from words, the windows
+        segs, paths = path_segments(segment_frames(segments, self.fps))
         windows = plan_windows(segs, self.max_frames, int(round(overlap * self.fps)), self.min_frames)
         # 3. denoise window after window, each continuing the motion so far (its last frames imposed on x0)
         out = np.zeros((0, m.dim))
@@ -269,7 +275,8 @@ class PortablePipeline:
                              **sampling)[0]
                 raw = plan.project(raw.astype(np.float64)).astype(np.float32)  # exact on the kept part
             out = np.concatenate([out, raw[w.keep:w.keep + w.new].astype(np.float64)])
-        # 4. post-process: the final stage of the whole motion
+        # 4. post-process: each segment's path bent, the final stage of the whole motion
+        out = bend_segments(out, [n for _, n in segs], paths)
         (f, motion), = finish_many([out], self.skeleton, self.fps, self.rigid, footskate, footskate_options)
         return MotionResult.build("; ".join(f"{p}:{s:g}" for p, s in segments), f, motion, self.skeleton, self.fps,
                                   base)

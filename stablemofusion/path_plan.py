@@ -1,0 +1,208 @@
+"""Paths from words: a prompt's path words ("walks in a circle", "turns around", "zigzags", "there and back") read
+into a :class:`PathSpec` (the lexicon ``assets/lexicons/paths.json``), and the model's motion bent to follow it.
+
+The model makes the motion of the prompt without its path words (a walk, a run, a 90-degree turn: what the corpus
+holds); :func:`bend` then changes only the root's heading in the raw features, before the final stage:
+
+- ``arc`` (circles, half circles, curves): the heading turns by the path's angle in proportion to the distance the
+  root travels, so the walk becomes an arc of even curvature, and frames without travel (a wave after the walk)
+  do not turn;
+- ``turn`` (turn around, by N degrees, left or right): the model's own turn, scaled to the angle; where it made
+  almost none, a smooth turn over the middle of the motion;
+- ``zigzag``: the heading swings between +/- ZIGZAG_DEGREES over the distance, in ZIGZAG_LEGS legs, back to the
+  start's at the end;
+- ``back`` (there and back): a half turn over the middle of the distance;
+- ``strafe`` (sideways, facing forward): the model's turning removed, so the body keeps facing ahead.
+
+Features are body-relative (velocities in the body's frame), so a new heading carries the root's path with it;
+the footskate cleanup of the final stage then pins the feet. Bending costs no sampling step: a path prompt takes
+the time of the same prompt without its path words. Without a length, a path gets its kind's (``seconds``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+
+import numpy as np
+
+from .footskate.cleanup import CLEANUP_CONTACTS
+from .footskate.contacts import HML_FOOT_JOINTS, kinematic_contacts
+from .motion.features import joints_from_features
+from .motion.root import follow_path
+
+ZIGZAG_DEGREES = 45.0  # heading of a zigzag's legs either side of its direction
+ZIGZAG_LEGS = 4  # legs of a zigzag over the motion
+TURN_SPAN = (0.3, 0.7)  # where a turn the model did not make is added: this part of the motion
+BACK_SPAN = (0.42, 0.58)  # where a there-and-back turns: this part of the distance
+MIN_MODEL_TURN = 30.0  # degrees: a smaller turn of the model's own is not scaled (a turn is added instead)
+MIN_TRAVEL = 0.5  # m: a motion that travels less is bent over time, not distance
+FPS = 20.0  # HumanML3D's frame rate (the features bent here are HumanML3D's)
+
+
+@dataclass(frozen=True)
+class PathSpec:
+    """A prompt's path: ``kind`` (arc, turn, zigzag, back, strafe), ``angle`` its heading change in degrees
+    (positive: to the left), ``side`` 'left' or 'right', ``prompt`` what the model is given (the path words
+    replaced), ``words`` the words read, ``seconds`` the length when none is given (None: the model's estimate)."""
+
+    kind: str
+    angle: float
+    side: str
+    prompt: str
+    words: str
+    seconds: float | None
+
+
+@lru_cache(maxsize=1)
+def _lexicon() -> dict:
+    data = json.loads((resources.files("stablemofusion") / "assets" / "lexicons" / "paths.json").read_text("utf-8"))
+    data["compiled"] = [re.compile(f"(?:{p['pattern']}){data['direction_suffix']}") for p in data["paths"]]
+    return data
+
+
+def parse_path(prompt: str) -> PathSpec | None:
+    """The path a prompt's words describe, or None (no path words)."""
+    lex = _lexicon()
+    text = prompt.lower()
+    for entry, pattern in zip(lex["paths"], lex["compiled"]):
+        m = pattern.search(text)
+        if m is None or re.search(lex["body_words"] + r"(?:\W+\w+){0,2}\W*$", text[:m.start()]):
+            continue  # no path words, or the path of a body part ("swings both arms back and forth")
+        if entry.get("needs_move") and not re.search(lex["move_words"], text[:m.start()] + " " + text[m.end():]):
+            continue
+        words = m.group(0)
+        where = words if re.search(lex["right_words"] + "|" + lex["left_words"], words) else text
+        right, left = re.search(lex["right_words"], where), re.search(lex["left_words"], where)
+        side = "right" if right and not (left and left.start() < right.start()) else "left"
+        angle = float(m.group("degrees")) if entry["angle"] == "degrees" else float(entry["angle"])
+        angle = -angle if side == "right" else angle
+        gait = "run" if re.search(lex["run_words"], text) else "walk"
+        outside = text[:m.start()] + " " + text[m.end():]
+        move = "" if re.search(lex["move_words"], outside) else ("runs" if gait == "run" else "walks")
+        model = entry["model"].format(side=side, move=move, words=prompt[m.start():m.end()])
+        rest = prompt[:m.start()] + " " + model + " " + prompt[m.end():]
+        rest = re.sub(lex["direction_words"], " ", rest, flags=re.IGNORECASE)
+        rest = re.sub(r"\s+([,.;])", r"\1", re.sub(r"\s+", " ", rest)).strip(" ,")
+        seconds = entry["seconds"][gait] if entry["seconds"] else None
+        return PathSpec(entry["kind"], angle, side, rest or prompt, words.strip(), seconds)
+    return None
+
+
+def _smoothstep(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def _progress(features: np.ndarray) -> np.ndarray:
+    """(T,) how far along the motion each frame is, 0 .. 1: by the root's travelled distance, or by time for a
+    motion that hardly travels."""
+    speed = np.linalg.norm(features[:, 1:3], axis=-1)
+    travelled = np.concatenate([[0.0], np.cumsum(speed[:-1])])
+    if travelled[-1] < MIN_TRAVEL:
+        return np.linspace(0.0, 1.0, len(features))
+    return travelled / travelled[-1]
+
+
+def heading_offset(spec: PathSpec, features: np.ndarray) -> np.ndarray:
+    """(T,) radians (positive: to the left) added to the root heading of each frame of raw features (T, D), so that
+    the body's facing (:func:`facing`) changes as ``spec`` says."""
+    u = _progress(features)
+    a = math.radians(spec.angle)
+    face = facing(features)
+    face = face - face[0]
+    if spec.kind == "turn":
+        if abs(math.degrees(face[-1])) >= MIN_MODEL_TURN:  # the model's own turn, scaled to the angle
+            return face * (a / face[-1] - 1.0)
+        t = np.linspace(0.0, 1.0, len(features))
+        return a * _smoothstep((t - TURN_SPAN[0]) / (TURN_SPAN[1] - TURN_SPAN[0])) - face
+    if spec.kind == "strafe":  # keep facing ahead
+        return -face
+    if spec.kind == "arc":
+        target = a * u
+    elif spec.kind == "back":
+        target = a * _smoothstep((u - BACK_SPAN[0]) / (BACK_SPAN[1] - BACK_SPAN[0]))
+    elif spec.kind == "zigzag":
+        target = math.radians(ZIGZAG_DEGREES) * np.clip(1.5 * np.sin(math.pi * ZIGZAG_LEGS * u), -1.0, 1.0)
+    else:
+        raise ValueError(f"unknown path kind {spec.kind!r}")
+    return target - face[-1] * u  # the path's turning, less the model's own drift (its sway kept)
+
+
+def facing(features: np.ndarray) -> np.ndarray:
+    """(T,) the body's facing in radians (positive: to the left, unwrapped) of raw HumanML3D features (T, D): the
+    root's heading (the yaw channel integrates half-angles of turns to the right) plus the facing of the hips in the
+    root's frame (their root-relative positions)."""
+    yaw = features[:, 0]
+    heading = -2.0 * np.concatenate([[0.0], np.cumsum(yaw[:-1])])
+    across = features[:, 4:7] - features[:, 7:10]  # left hip - right hip, root-relative, in the root's frame
+    local = np.unwrap(np.arctan2(-across[:, 2], across[:, 0]))  # the facing (across x up) of the hips, about +Y
+    return heading + local
+
+
+def bend(features: np.ndarray, spec: PathSpec | None) -> np.ndarray:
+    """Raw features (T, D) whose facing follows ``spec`` (a copy; ``features`` itself when ``spec`` is None). The
+    body turns about its planted foot where one is planted (the root's path moved so that the foot stays where it
+    stands), else about the root."""
+    if spec is None or len(features) < 2:
+        return features
+    f = np.array(features, dtype=np.float64)
+    extra = heading_offset(spec, f)
+    path = _pivoted_path(f, extra)
+    f[:-1, 0] -= np.diff(extra) / 2.0  # frame t's yaw velocity carries it to frame t + 1 (half-angles)
+    f = follow_path(f, path)
+    return f.astype(np.asarray(features).dtype, copy=False)
+
+
+def _pivoted_path(features: np.ndarray, extra: np.ndarray) -> np.ndarray:
+    """(T, 2) the root's XZ path once the body is turned by ``extra`` (T,) radians more at each frame: each step
+    turned with its frame, and while a foot is planted in the original motion, the root moved about that foot so
+    that the foot stays put (its position: the mean of the planted foot joints)."""
+    joints = joints_from_features(features, "humanml3d")
+    root = joints[:, 0, [0, 2]]
+    feet = joints[:, list(HML_FOOT_JOINTS)][..., [0, 2]]  # (T, 4, 2)
+    planted = kinematic_contacts(joints, FPS, config=CLEANUP_CONTACTS)  # (T, 4)
+    c, s = np.cos(extra), np.sin(extra)
+    turn = lambda t, v: np.array([c[t] * v[0] + s[t] * v[1], -s[t] * v[0] + c[t] * v[1]])  # noqa: E731 - about +Y
+    out = np.zeros_like(root)
+    for t in range(len(root) - 1):
+        both = planted[t] & planted[t + 1]
+        out[t + 1] = out[t] + turn(t + 1, root[t + 1] - root[t])
+        if both.any():  # about the foot planted in both frames: it stays where it stands
+            arm = feet[t][both].mean(0) - root[t]
+            out[t + 1] += turn(t, arm) - turn(t + 1, arm)
+    return out
+
+
+def read_paths(prompts: list[str]) -> tuple[list[PathSpec | None], list[str]]:
+    """Each prompt's path (None without path words) and the prompt its model is given."""
+    specs = [parse_path(p) for p in prompts]
+    return specs, [p if s is None else s.prompt for p, s in zip(prompts, specs)]
+
+
+def path_segments(segments: list[tuple[str, int]]) -> tuple[list[tuple[str, int]], list[PathSpec | None]]:
+    """A timeline's (prompt, frames) segments with the prompts its model is given, and each segment's path."""
+    specs, asked = read_paths([p for p, _ in segments])
+    return [(a, n) for a, (_, n) in zip(asked, segments)], specs
+
+
+def bend_segments(features: np.ndarray, frames: list[int], specs: list[PathSpec | None]) -> np.ndarray:
+    """Raw features (T, D) of consecutive segments of ``frames`` each, each segment bent by its path (a later
+    segment continues from where the bent one leaves the body: features are body-relative)."""
+    if all(s is None for s in specs):
+        return features
+    f = np.array(features, dtype=np.float64)
+    a = 0
+    for n, spec in zip(frames, specs):
+        b = min(a + n, len(f))
+        if spec is not None and b - a >= 2:
+            f[a:b] = bend(f[a:b], spec)
+        a = b
+    return f
+
+
+__all__ = ["PathSpec", "bend", "bend_segments", "heading_offset", "parse_path", "path_segments", "read_paths"]

@@ -1,0 +1,111 @@
+"""Paths from words (stablemofusion/path_plan.py): the words read, and motions bent to follow them on the shipped
+model (its portable graphs): the hips' facing turns as the words say (exactly without cleanup), a planted foot is
+turned about, circles close, timelines bend their own segments, and the torch path does the same."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stablemofusion.footskate.metrics import mean_metrics
+from stablemofusion.motion.features import joints_from_features
+from stablemofusion.path_plan import bend, facing, heading_offset, parse_path
+from stablemofusion.runtime.pipeline import PortablePipeline
+
+
+def hips_turn(joints: np.ndarray) -> float:
+    """Degrees (positive: left) the hips' facing turned from the first frame to the last."""
+    across = joints[:, 1] - joints[:, 2]
+    face = np.cross(across, np.array([0.0, 1.0, 0.0]))
+    yaw = np.unwrap(np.arctan2(face[:, 0], face[:, 2]))
+    return float(np.degrees(yaw[-1] - yaw[0]))
+
+
+@pytest.fixture(scope="module")
+def pipe():
+    return PortablePipeline.from_pretrained(threads=1)
+
+
+@pytest.mark.parametrize("prompt, kind, angle, model", [
+    ("a woman jogs in a loop", "arc", 360, "a woman jogs"),
+    ("walk around in a circle clockwise", "arc", -360, "walk"),
+    ("a teenager strolls in a half circle to the right", "arc", -180, "a teenager strolls"),
+    ("a man does an about-face", "turn", 180, "a man does an turns left"),
+    ("an angry man turns round to the right and stomps", "turn", -180, "an angry man turns right and stomps"),
+    ("a man pivots 60 degrees to the left", "turn", 60, "a man turns left"),
+    ("she turns right", "turn", -90, "she turns right"),
+    ("a soldier marches there and back", "back", 180, "a soldier marches"),
+    ("a person zigzags forward", "zigzag", 0, "a person walks forward"),
+    ("a child runs zigzagging", "zigzag", 0, "a child runs"),
+    ("someone curves to the left while running", "arc", 90, "someone while running"),
+    ("a person sidesteps left", "strafe", 0, "a person sidesteps left"),  # the model knows sidesteps: kept
+])
+def test_path_words_are_read(prompt, kind, angle, model):
+    spec = parse_path(prompt)
+    assert (spec.kind, spec.angle, spec.prompt) == (kind, angle, model)
+
+
+def test_prompts_without_path_words_are_left_alone():
+    for prompt in ("a person waves both hands", "an old man walks forward slowly", "a person bows", "run"):
+        assert parse_path(prompt) is None
+
+
+def test_a_path_has_a_length_by_gait():
+    walk, run = parse_path("a man walks in a circle"), parse_path("a man runs in a circle")
+    assert walk.seconds > run.seconds > 0 and parse_path("she turns right").seconds is None
+
+
+@pytest.mark.parametrize("prompt", ["a man walks in a circle", "a person turns round to the right",
+                                    "a soldier marches there and back", "a person zigzags forward",
+                                    "a person sidesteps left"])
+def test_bent_features_face_where_the_words_say(pipe, prompt):
+    """Without cleanup the hips' facing turns by the words' angle: exactly in the bent features, within 3 degrees
+    once the rigid stage has fitted the body (it moves the hips a little)."""
+    spec = parse_path(prompt)
+    r = pipe(prompt, seed=3, footskate="off")[0]
+    assert abs(hips_turn(r.joints) - spec.angle) < 3.0
+    assert math.isclose(len(r.joints) / r.fps, spec.seconds, abs_tol=0.2)
+
+
+def test_a_circle_closes_and_with_cleanup_the_turn_stays_close(pipe):
+    r = pipe("a man walks in a circle", seed=5)[0]  # footskate post, the default
+    xz = r.joints[:, 0, [0, 2]]
+    assert np.linalg.norm(xz[-1] - xz[0]) < 1.0
+    assert abs(hips_turn(r.joints) - 360) < 30
+
+
+def test_the_body_turns_about_its_planted_foot(pipe):
+    """Bending about the planted foot skates less than turning the body about its root."""
+    spec = parse_path("a person turns round")
+    raws = [pipe(spec.prompt, seconds=4, seed=k, footskate="off")[0].features for k in range(3)]
+
+    def about_root(f):
+        f = f.copy()
+        f[:-1, 0] -= np.diff(heading_offset(spec, f)) / 2.0
+        return f
+
+    pivot = mean_metrics([joints_from_features(bend(f, spec)) for f in raws])["skate_ratio"]
+    root = mean_metrics([joints_from_features(about_root(f)) for f in raws])["skate_ratio"]
+    assert pivot < root
+    for f in raws:  # the facing is the same either way
+        assert np.allclose(facing(bend(f, spec)), facing(about_root(f)), atol=1e-9)
+
+
+def test_a_timeline_bends_its_own_segment(pipe):
+    """Only the circle's segment turns: the wave after it keeps the facing the circle left it with."""
+    r = pipe.timeline([("a person walks in a circle", 6.0), ("a person waves both hands", 3.0)], seed=2,
+                      footskate="off")
+    assert abs(hips_turn(r.joints[:120]) - 360) < 20
+    assert abs(hips_turn(r.joints[125:])) < 30
+
+
+def test_the_torch_path_bends_the_same(pipe):
+    from stablemofusion.pipeline import MotionPipeline
+
+    torch_pipe = MotionPipeline.from_pretrained(device="cpu")
+    for prompt in ("a man walks in a circle", "someone jogs there and back"):
+        a = pipe(prompt, seed=4)[0].joints
+        b = torch_pipe(prompt, seed=4, engine="fast")[0].joints
+        assert a.shape == b.shape and np.abs(a - b).max() < 1e-3

@@ -2,7 +2,8 @@
 words were built): the body's heading change (the hips' facing, last frames against the first) against the words',
 circles' closure, distance travelled by gait, skating with footskate post (against the same prompts without their
 path words, and with --data against the corpus's real walks and runs, weighted like the prompts' gaits),
-bone-length rigidity, the label classifier's content for the walks and runs; and the time of a path prompt against
+bone-length rigidity, the label classifier's content for the walks and runs (a walk with a turn, sideways or backwards
+is still a walk); and the time of a path prompt against
 the same prompt without its path words on each runtime.
 
     python benchmarks/path_check.py [--classifier CL --data CORPUS] [--seed 0] [--torch]
@@ -117,7 +118,10 @@ def main() -> None:
                   for it in items if it["kind"] in ("circle", "half", "curve", "zigzag", "back")]
         acc = prompt_accuracy(pipe, load_classifier(args.classifier), moving, corpus_labels(args.data), samples=1,
                               seconds=None, seed=args.seed)
+        family = lambda c: "run" if c in ("run", "dash") else "walk" if c.startswith("walk") else c  # noqa: E731
+        kept = [family(r["got"][0][0]) == r["want"][0][0] for r in acc["per_prompt"]]
         out["classifier_content_walks_and_runs"] = acc["all"]
+        out["classifier_walks_stay_walks_runs_stay_runs"] = f"{sum(kept)}/{len(kept)}"
     print(json.dumps(out, indent=1, default=float))
 
 

@@ -9,8 +9,8 @@ holds); :func:`bend` then changes only the root's heading in the raw features, b
   do not turn;
 - ``turn`` (turn around, by N degrees, left or right): the model's own turn, scaled to the angle; where it made
   almost none, a smooth turn over the middle of the motion;
-- ``zigzag``: the heading swings between +/- ZIGZAG_DEGREES over the distance, in ZIGZAG_LEGS legs, back to the
-  start's at the end;
+- ``zigzag``: the heading swings between +/- ZIGZAG_DEGREES over the distance, in ZIGZAG_LEGS legs, then goes
+  straight on, facing the way it went;
 - ``back`` (there and back): a half turn over the middle of the distance;
 - ``strafe`` (sideways, facing forward): the model's turning removed, so the body keeps facing ahead.
 
@@ -36,7 +36,8 @@ from .motion.features import joints_from_features
 from .motion.root import follow_path
 
 ZIGZAG_DEGREES = 45.0  # heading of a zigzag's legs either side of its direction
-ZIGZAG_LEGS = 4  # legs of a zigzag over the motion
+ZIGZAG_LEGS = 4  # legs of a zigzag
+ZIGZAG_END = 0.85  # the legs take this part of the distance; the rest goes straight on, facing the way it went
 TURN_SPAN = (0.3, 0.7)  # where a turn the model did not make is added: this part of the motion
 BACK_SPAN = (0.42, 0.58)  # where a there-and-back turns: this part of the distance
 MIN_MODEL_TURN = 30.0  # degrees: a smaller turn of the model's own is not scaled (a turn is added instead)
@@ -127,7 +128,8 @@ def heading_offset(spec: PathSpec, features: np.ndarray) -> np.ndarray:
     elif spec.kind == "back":
         target = a * _smoothstep((u - BACK_SPAN[0]) / (BACK_SPAN[1] - BACK_SPAN[0]))
     elif spec.kind == "zigzag":
-        target = math.radians(ZIGZAG_DEGREES) * np.clip(1.5 * np.sin(math.pi * ZIGZAG_LEGS * u), -1.0, 1.0)
+        legs = np.clip(1.5 * np.sin(math.pi * ZIGZAG_LEGS * np.minimum(u / ZIGZAG_END, 1.0)), -1.0, 1.0)
+        target = math.radians(ZIGZAG_DEGREES) * legs
     else:
         raise ValueError(f"unknown path kind {spec.kind!r}")
     return target - face[-1] * u  # the path's turning, less the model's own drift (its sway kept)
@@ -178,6 +180,99 @@ def _pivoted_path(features: np.ndarray, extra: np.ndarray) -> np.ndarray:
     return out
 
 
+MAX_WAYPOINTS = 256  # an explicit path's most points
+MAX_PATH_METRES = 200.0  # and its longest total length
+TANGENT_SPAN = 0.3  # m either side of a point over which an explicit path's direction there is taken
+
+
+@dataclass(frozen=True)
+class Waypoints:
+    """An explicit root path: ``points`` (K, 2) floor positions X, Z in metres (Y up; the motion starts at the first,
+    facing the second), optional ``times`` (K,) seconds at which the root passes them (from 0, increasing)."""
+
+    points: np.ndarray
+    times: np.ndarray | None = None
+
+    @classmethod
+    def read(cls, data) -> "Waypoints":
+        """From JSON-like ``data``: a list of [x, z] points, or {"points": [[x, z], ...], "times": [...]}; SMFError
+        naming the problem."""
+        from .errors import SMFError
+
+        body = data if isinstance(data, dict) else {"points": data}
+        extra = set(body) - {"points", "times"}
+        if extra:
+            raise SMFError(f"a path has 'points' and optionally 'times', not {', '.join(sorted(extra))}")
+        try:
+            points = np.asarray(body.get("points"), dtype=np.float64)
+        except (TypeError, ValueError):
+            raise SMFError("path points must be [x, z] pairs of numbers (metres)") from None
+        if points.ndim != 2 or points.shape[1] != 2 or not 2 <= len(points) <= MAX_WAYPOINTS:
+            raise SMFError(f"a path is 2 to {MAX_WAYPOINTS} [x, z] points, got shape {points.shape}")
+        if not np.isfinite(points).all():
+            raise SMFError("path points must be finite numbers")
+        steps = np.linalg.norm(np.diff(points, axis=0), axis=-1)
+        if steps.sum() > MAX_PATH_METRES or steps.sum() < MIN_TRAVEL:
+            raise SMFError(f"a path must be {MIN_TRAVEL:g} to {MAX_PATH_METRES:g} m long, got {steps.sum():.2f} m")
+        if np.any(steps < 1e-6):
+            raise SMFError("a path's consecutive points must differ")
+        times = body.get("times")
+        if times is not None:
+            try:
+                times = np.asarray(times, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise SMFError("path times must be numbers (seconds)") from None
+            if times.shape != (len(points),) or not np.isfinite(times).all() or times[0] != 0 \
+                    or np.any(np.diff(times) <= 0):
+                raise SMFError("path times are one per point, from 0, increasing (seconds)")
+        return cls(points, times)
+
+    @property
+    def length(self) -> float:
+        """Metres along the path."""
+        return float(np.linalg.norm(np.diff(self.points, axis=0), axis=-1).sum())
+
+    def seconds(self, prompt: str) -> float:
+        """How long following it takes: its last time, else its length at the prompt's gait's speed."""
+        if self.times is not None:
+            return float(self.times[-1])
+        lex = _lexicon()
+        return self.length / lex["speeds"]["run" if re.search(lex["run_words"], prompt.lower()) else "walk"]
+
+
+def _along(points: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """(N, 2) positions at arc lengths ``s`` (N,) metres along polyline ``points`` (K, 2)."""
+    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=-1))])
+    s = np.clip(s, 0.0, cum[-1])
+    return np.stack([np.interp(s, cum, points[:, 0]), np.interp(s, cum, points[:, 1])], -1)
+
+
+def follow_waypoints(features: np.ndarray, path: Waypoints, fps: float) -> tuple[np.ndarray, float, np.ndarray]:
+    """Raw features (T, D) whose root runs along ``path`` (at the motion's own pace, or at the path's times) facing
+    its direction, in the features' frame (the path turned so that it starts along the body's first facing); and
+    how to place the result in the path's frame: the facing (radians, positive to the left) and the floor position
+    (2,) of its first frame."""
+    f = np.array(features, dtype=np.float64)
+    T = len(f)
+    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path.points, axis=0), axis=-1))])
+    if path.times is not None:  # arc length at each frame from the times (constant speed between points)
+        s = np.interp(np.arange(T) / fps, path.times, cum)
+    else:
+        s = _progress(f) * cum[-1]
+    p = _along(path.points, s)
+    d = _along(path.points, s + TANGENT_SPAN) - _along(path.points, s - TANGENT_SPAN)
+    heading = np.unwrap(np.arctan2(d[:, 0], d[:, 1]))  # facing of +Z is 0, of +X (left) is +pi/2
+    face = facing(f)
+    start = heading[0] - face[0]  # the path turned by -start starts along the body's first facing
+    c, sn = math.cos(-start), math.sin(-start)
+    rel = p - p[0]
+    local = np.stack([c * rel[:, 0] + sn * rel[:, 1], -sn * rel[:, 0] + c * rel[:, 1]], -1)
+    extra = (heading - start) - face
+    extra -= extra[0]
+    f[:-1, 0] -= np.diff(extra) / 2.0
+    return follow_path(f, local), float(start), p[0].copy()
+
+
 def read_paths(prompts: list[str]) -> tuple[list[PathSpec | None], list[str]]:
     """Each prompt's path (None without path words) and the prompt its model is given."""
     specs = [parse_path(p) for p in prompts]
@@ -205,4 +300,4 @@ def bend_segments(features: np.ndarray, frames: list[int], specs: list[PathSpec 
     return f
 
 
-__all__ = ["PathSpec", "bend", "bend_segments", "heading_offset", "parse_path", "path_segments", "read_paths"]
+__all__ = ["PathSpec", "Waypoints", "bend", "follow_waypoints", "bend_segments", "heading_offset", "parse_path", "path_segments", "read_paths"]

@@ -185,13 +185,23 @@ MAX_PATH_METRES = 200.0  # and its longest total length
 TANGENT_SPAN = 0.3  # m either side of a point over which an explicit path's direction there is taken
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Waypoints:
     """An explicit root path: ``points`` (K, 2) floor positions X, Z in metres (Y up; the motion starts at the first,
-    facing the second), optional ``times`` (K,) seconds at which the root passes them (from 0, increasing)."""
+    facing the second), optional ``times`` (K,) seconds at which the root passes them (from 0, increasing). Equal
+    and hashed by value (a request's path is part of what it asks for)."""
 
     points: np.ndarray
     times: np.ndarray | None = None
+
+    def _key(self) -> tuple:
+        return self.points.shape, self.points.tobytes(), None if self.times is None else self.times.tobytes()
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Waypoints) and self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash(self._key())
 
     @classmethod
     def read(cls, data) -> "Waypoints":
@@ -234,10 +244,12 @@ class Waypoints:
 
     def seconds(self, prompt: str) -> float:
         """How long following it takes: its last time, else its length at the prompt's gait's speed."""
-        if self.times is not None:
-            return float(self.times[-1])
+        from .limits import LENGTH_MULTIPLE
+
         lex = _lexicon()
-        return self.length / lex["speeds"]["run" if re.search(lex["run_words"], prompt.lower()) else "walk"]
+        seconds = float(self.times[-1]) if self.times is not None else \
+            self.length / lex["speeds"]["run" if re.search(lex["run_words"], prompt.lower()) else "walk"]
+        return max(1, round(seconds * FPS / LENGTH_MULTIPLE)) * LENGTH_MULTIPLE / FPS  # whole multiples of frames
 
 
 def _along(points: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -273,6 +285,51 @@ def follow_waypoints(features: np.ndarray, path: Waypoints, fps: float) -> tuple
     return follow_path(f, local), float(start), p[0].copy()
 
 
+def waypoints_for(path, n: int) -> list["Waypoints | None"]:
+    """``path`` of a text-to-motion call as one per prompt: None, one path (Waypoints or its JSON form) for all, or
+    a list with one per prompt."""
+    from .errors import SMFError
+
+    if path is None:
+        return [None] * n
+    if isinstance(path, (list, tuple)) and path and (path[0] is None or isinstance(path[0], (Waypoints, dict))
+                                                        or np.ndim(path[0]) == 2):
+        if len(path) != n:
+            raise SMFError(f"give one path for all prompts or one per prompt: {len(path)} paths for {n} prompts")
+        return [None if p is None else p if isinstance(p, Waypoints) else Waypoints.read(p) for p in path]
+    one = path if isinstance(path, Waypoints) else Waypoints.read(path)
+    return [one] * n
+
+
+def place(motion, start: float, origin: np.ndarray):
+    """A rigid motion made along a path's features (its first frame at the floor's origin, facing +Z) turned by
+    ``start`` radians (positive: left) and moved to ``origin`` (2,): into the path's frame."""
+    from .motion.root import place_rigid_like
+
+    return place_rigid_like(motion, 0, 0.0, np.zeros(2), -start / 2.0, origin)
+
+
+def follow(raw: np.ndarray, spec: PathSpec | None, explicit: Waypoints | None, fps: float
+           ) -> tuple[np.ndarray, tuple[float, np.ndarray] | None]:
+    """Raw features (T, D) bent to an explicit path, with how to place the result in its frame (:func:`placed`), or
+    to the words' path (``spec``; nothing to place)."""
+    if explicit is not None:
+        f, start, origin = follow_waypoints(raw, explicit, fps)
+        return f, (start, origin)
+    return bend(raw, spec), None
+
+
+def placed(features: np.ndarray, motion, placing: tuple[float, np.ndarray] | None, rigid) -> tuple[np.ndarray, object]:
+    """A finished motion (features, rigid body) put in its explicit path's frame (:func:`follow`'s ``placing``; as it
+    is without one), its features written for the placed body (``rigid``: the pipeline's rigid fit settings)."""
+    if placing is None:
+        return features, motion
+    from .motion.rigid import rigid_to_features
+
+    motion = place(motion, *placing)
+    return rigid_to_features(motion, features, rigid)[1], motion
+
+
 def read_paths(prompts: list[str]) -> tuple[list[PathSpec | None], list[str]]:
     """Each prompt's path (None without path words) and the prompt its model is given."""
     specs = [parse_path(p) for p in prompts]
@@ -300,4 +357,4 @@ def bend_segments(features: np.ndarray, frames: list[int], specs: list[PathSpec 
     return f
 
 
-__all__ = ["PathSpec", "Waypoints", "bend", "follow_waypoints", "bend_segments", "heading_offset", "parse_path", "path_segments", "read_paths"]
+__all__ = ["PathSpec", "Waypoints", "bend", "follow", "follow_waypoints", "place", "placed", "waypoints_for", "bend_segments", "heading_offset", "parse_path", "path_segments", "read_paths"]

@@ -37,14 +37,15 @@ class MotionPipeline(Components):
                  frames: int | list[int] | None = None, guidance_scale: float | None = None, steps: int | None = None,
                  sampler: str | None = None, seed: int | list[int] | None = None, batch_size: int = BATCH_SIZE,
                  progress: bool = False, footskate: str | None = None, footskate_options=None,
-                 engine: str | None = None) -> list[MotionResult]:
+                 engine: str | None = None, path=None) -> list[MotionResult]:
         """One motion per prompt (:class:`~stablemofusion.pipelines.text_to_motion.TextToMotionPipeline`).
         ``footskate``: 'off', 'post' (clean up each result) or 'loop' (clean up the predicted x0 in the last
-        denoising steps); ``engine``: 'auto', 'eager', 'fast', 'compiled' or 'graph' (default: the pipeline's)."""
+        denoising steps); ``engine``: 'auto', 'eager', 'fast', 'compiled' or 'graph' (default: the pipeline's);
+        ``path``: a root path to follow (waypoints in metres, optional times: docs/paths.md)."""
         settings = Settings(guidance_scale=guidance_scale, steps=steps, sampler=sampler, footskate=footskate,
                             footskate_options=footskate_options, engine=engine, batch_size=batch_size)
         return TextToMotionPipeline(self)(prompts, seconds=seconds, frames=frames, seed=seed, settings=settings,
-                                          progress=progress)
+                                          progress=progress, path=path)
 
     def timeline(self, segments: list[tuple[str, float]], *, overlap: float = DEFAULT_OVERLAP,
                  guidance_scale: float | None = None, steps: int | None = None, sampler: str | None = None,

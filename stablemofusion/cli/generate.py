@@ -20,6 +20,9 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--seconds", type=float, default=None,
                    help="length of each motion (default: predicted from the text by the model's length estimator; "
                         "4 s for a model without one); not with --timeline, whose segments give their own")
+    p.add_argument("--path", type=Path, default=None, metavar="FILE.json",
+                   help="a root path to follow: JSON [[x, z], ...] waypoints in metres (Y up), or {\"points\": [...], "
+                        "\"times\": [seconds, ...]}; the length is the path's unless --seconds is given (docs/paths.md)")
     p.add_argument("--batch-size", type=int, default=BATCH_SIZE, help="prompts generated together")
     add_sampling_arguments(p)
     add_character_arguments(p, reads_motion=False)
@@ -56,6 +59,29 @@ def read_prompts(args) -> list[str]:
     return [args.text]
 
 
+def read_path(path: Path | None):
+    """The waypoints of ``--path FILE.json`` (read bounded, checked), or None."""
+    if path is None:
+        return None
+    import json
+
+    from ..errors import SMFError
+    from ..path_plan import Waypoints
+
+    if not path.is_file():
+        raise SMFError(f"no such file: {path}")
+    if path.stat().st_size > MAX_PATH_FILE_BYTES:
+        raise SMFError(f"{path}: a path file is at most {MAX_PATH_FILE_BYTES // 1024} KiB")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise SMFError(f"{path}: not a JSON path ({e})") from None
+    return Waypoints.read(data)
+
+
+MAX_PATH_FILE_BYTES = 256 * 1024
+
+
 def run(args: argparse.Namespace) -> None:
     from .options import check_sampling
 
@@ -68,6 +94,11 @@ def run(args: argparse.Namespace) -> None:
     formats = parse_formats(args.format)
     rig = load_rig(args)  # checked before the model loads
     prompts = read_prompts(args)
+    path = read_path(args.path)
+    if path is not None and args.timeline is not None:
+        from ..errors import SMFError
+
+        raise SMFError("--path does not apply to --timeline: give the path to a prompt")
     kwargs = sampling_kwargs(args)
     pipe = load_pipeline(args)
     with user_warnings():
@@ -77,5 +108,5 @@ def run(args: argparse.Namespace) -> None:
             results = [pipe.timeline(parse_timeline(args.timeline), progress=None, **kwargs)]
         else:
             results = pipe(prompts, seconds=args.seconds, batch_size=args.batch_size, progress=len(prompts) > 1,
-                           **kwargs)
+                           path=path, **kwargs)
     write_results(results, args.out, formats, output_meta(args, pipe), overwrite=args.overwrite, rig=rig)

@@ -6,7 +6,7 @@ import torch
 from tqdm import tqdm
 
 from ..limits import base_seed
-from ..path_plan import bend, read_paths
+from ..path_plan import follow, placed, read_paths, waypoints_for
 from .components import Components
 from .denoise import sample
 from .final import check_batch_request
@@ -24,9 +24,10 @@ class TextToMotionPipeline:
     @torch.no_grad()
     def __call__(self, prompts: str | list[str], *, seconds: float | list[float] | None = None,
                  frames: int | list[int] | None = None, seed: int | list[int] | None = None,
-                 settings: Settings = Settings(), progress: bool = False) -> list[MotionResult]:
+                 settings: Settings = Settings(), progress: bool = False, path=None) -> list[MotionResult]:
         """``seconds``/``frames``: one value or one per prompt; with neither, the model's length estimate (or
-        the default length). ``seed``: one for all (batch k uses ``seed + k``, a long item i ``seed + i``) or
+        the default length); ``path``: a root path to follow (:class:`~stablemofusion.path_plan.Waypoints` or its
+        JSON form, one for all or one per prompt), its length the motion's unless one is given. ``seed``: one for all (batch k uses ``seed + k``, a long item i ``seed + i``) or
         one per prompt (each motion independent of those it is batched with); None: a fresh one, reported."""
         c = self.c
         # 1. check inputs
@@ -36,9 +37,13 @@ class TextToMotionPipeline:
         # 2. prepare: paths from words (the model is given the prompt without them), lengths (a path's, else the
         # model's estimate where none is given), seeds, domains
         paths, asked = read_paths(prompts)
+        explicit = waypoints_for(path, n)
         unknown = [i for i in range(n) if secs[i] is None and frs[i] is None]
-        for i in [i for i in unknown if paths[i] is not None and paths[i].seconds is not None]:
-            secs[i] = paths[i].seconds
+        for i in unknown:
+            if explicit[i] is not None:
+                secs[i] = explicit[i].seconds(prompts[i])
+            elif paths[i] is not None and paths[i].seconds is not None:
+                secs[i] = paths[i].seconds
         unknown = [i for i in unknown if secs[i] is None]
         if unknown and c.length_estimator is not None:
             for i, s in zip(unknown, c.predict_seconds([prompts[i] for i in unknown])):
@@ -50,7 +55,7 @@ class TextToMotionPipeline:
         # 3. motions longer than one window: one-segment timelines
         for i in (i for i in range(n) if lengths[i] > c.max_frames):
             r = TimelinePipeline(c)([(prompts[i], lengths[i] / c.fps)], seed=seed[i] if per_item else base + i,
-                                    settings=settings)
+                                    settings=settings, path=explicit[i])
             r.prompt, r.domain = prompts[i], domains[i]
             results[i] = r
         # 4. denoise the others in batches
@@ -60,10 +65,11 @@ class TextToMotionPipeline:
             idx = short[start:start + settings.batch_size]
             batch_seed = [seed[i] for i in idx] if per_item else base + k
             raw = sample(c, [asked[i] for i in idx], [lengths[i] for i in idx], settings, batch_seed)
-            # 5. post-process: each path bent, the final stage of the batch's motions (their rigid fits together)
-            finished = c.finish_many([bend(raw[j, :lengths[i]].numpy(), paths[i]) for j, i in enumerate(idx)],
-                                     settings.footskate, settings.footskate_options)
-            for (f, motion), i in zip(finished, idx):
+            # 5. post-process: each path followed, the final stage of the batch's motions (their rigid fits together)
+            bent = [follow(raw[j, :lengths[i]].numpy(), paths[i], explicit[i], c.fps) for j, i in enumerate(idx)]
+            finished = c.finish_many([f for f, _ in bent], settings.footskate, settings.footskate_options)
+            for (f, motion), (_, placing), i in zip(finished, bent, idx):
+                f, motion = placed(f, motion, placing, c.rigid)
                 results[i] = MotionResult.build(prompts[i], f, motion, c.skeleton, c.fps,
                                                 seed[i] if per_item else batch_seed, domains[i])
         return results

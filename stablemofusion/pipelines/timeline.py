@@ -9,7 +9,7 @@ from tqdm import tqdm
 from ..edit_plan import edit_hooks, plan_edit
 from ..diffusion.schedulers import sampler_spec
 from ..errors import SMFError
-from ..path_plan import bend_segments, path_segments
+from ..path_plan import Waypoints, bend_segments, follow, path_segments, placed
 from ..timeline_plan import DEFAULT_OVERLAP, plan_windows, segment_frames
 from .components import Components
 from .result import MotionResult
@@ -28,8 +28,10 @@ class TimelinePipeline:
 
     @torch.no_grad()
     def __call__(self, segments: list[tuple[str, float]], *, overlap: float = DEFAULT_OVERLAP, seed: int | None = None,
-                 settings: Settings = Settings(), impose: str = "x0", progress: bool | None = None) -> MotionResult:
-        """Window j uses ``seed + j``. ``progress``: a tqdm bar over the windows (None: for long timelines)."""
+                 settings: Settings = Settings(), impose: str = "x0", progress: bool | None = None,
+                 path: Waypoints | None = None) -> MotionResult:
+        """Window j uses ``seed + j``. ``progress``: a tqdm bar over the windows (None: for long timelines); ``path``:
+        an explicit root path the whole motion follows (else each segment follows its own path words)."""
         c = self.c
         # 1. check inputs
         segs, paths = path_segments(segment_frames(segments, c.fps))
@@ -53,9 +55,14 @@ class TimelinePipeline:
                              xt_hook=xt_hook)[0]
                 raw = plan.project(raw.double()).float()  # exact on the kept part
             out = torch.cat([out, raw[w.keep:w.keep + w.new].double()])
-        # 4. post-process: each segment's path bent, the final stage of the whole motion
-        f, motion = c.finish(bend_segments(out.numpy(), [n for _, n in segs], paths), settings.footskate,
-                             settings.footskate_options)
+        # 4. post-process: an explicit path followed, else each segment's path bent; the final stage
+        placing = None
+        if path is not None:
+            raw, placing = follow(out.numpy(), None, path, c.fps)
+        else:
+            raw = bend_segments(out.numpy(), [n for _, n in segs], paths)
+        f, motion = c.finish(raw, settings.footskate, settings.footskate_options)
+        f, motion = placed(f, motion, placing, c.rigid)
         return MotionResult.build("; ".join(f"{p}:{s:g}" for p, s in segments), f, motion, c.skeleton, c.fps, base)
 
 

@@ -22,7 +22,7 @@ from ..motion.skeleton import get_skeleton
 from ..pipelines.final import OutOfDomainWarning, check_batch_request, finish_many, frames_for
 from ..pipelines.result import MotionResult
 from ..edit_plan import check_edit_inputs, plan_edit, plan_edit_for, splice_rigid, x0_constraint
-from ..path_plan import bend, bend_segments, path_segments, read_paths
+from ..path_plan import bend_segments, follow, path_segments, placed, read_paths, waypoints_for
 from ..motion_stream import STREAM_CHUNK, STREAM_KEEP, STREAM_REWIND, MotionStream, check_window
 from ..timeline_plan import DEFAULT_OVERLAP, plan_windows, segment_frames
 from .graphs import PortableGraphs
@@ -116,9 +116,11 @@ class PortablePipeline:
                  frames: int | list[int] | None = None, seed: int | list[int] | None = None,
                  guidance_scale: float | None = None, steps: int | None = None, sampler: str | None = None,
                  footskate: str | None = None, footskate_options=None, batch_size: int = BATCH_SIZE,
-                 engine: str | None = None, progress: bool = False) -> list[MotionResult]:
+                 engine: str | None = None, progress: bool = False, path=None) -> list[MotionResult]:
         """One motion per prompt (the torch path's rules: seeds, lengths, batches, final stage); ``engine``: None or
-        'onnx' (the keyword the torch pipeline takes), ``progress`` unused (a call takes milliseconds)."""
+        'onnx' (the keyword the torch pipeline takes), ``progress`` unused (a call takes milliseconds); ``path``: a
+        root path to follow (:class:`~stablemofusion.path_plan.Waypoints` or its JSON form; one for all prompts or
+        one per prompt), its length the motion's unless one is given."""
         m = self.model
         # 1. check inputs, defaults from the model
         prompts, secs, frs, per_item = check_batch_request(prompts, seconds, frames, seed)
@@ -128,9 +130,13 @@ class PortablePipeline:
         # 2. prepare: paths from words (the model is given the prompt without them), lengths (a path's, else the
         # model's estimate where none is given), seeds, domains
         paths, asked = read_paths(prompts)
+        explicit = waypoints_for(path, n)
         unknown = [i for i in range(n) if secs[i] is None and frs[i] is None]
-        for i in [i for i in unknown if paths[i] is not None and paths[i].seconds is not None]:
-            secs[i] = paths[i].seconds
+        for i in unknown:
+            if explicit[i] is not None:
+                secs[i] = explicit[i].seconds(prompts[i])
+            elif paths[i] is not None and paths[i].seconds is not None:
+                secs[i] = paths[i].seconds
         unknown = [i for i in unknown if secs[i] is None]
         if unknown and self.graphs.has_length_model:
             for i, s in zip(unknown, self.predict_seconds([prompts[i] for i in unknown])):
@@ -142,7 +148,7 @@ class PortablePipeline:
         # 3. motions longer than one window: one-segment timelines
         for i in (i for i in range(n) if lengths[i] > self.max_frames):
             r = self._timeline([(prompts[i], lengths[i] / self.fps)], DEFAULT_OVERLAP,
-                               seed[i] if per_item else base + i, sampling, footskate, footskate_options)
+                               seed[i] if per_item else base + i, sampling, footskate, footskate_options, explicit[i])
             r.prompt, r.domain = prompts[i], domains[i]
             results[i] = r
         # 4. denoise the others in batches (batch k uses seed + k, as the torch path)
@@ -152,10 +158,12 @@ class PortablePipeline:
             batch_seed = [seed[i] for i in idx] if per_item else base + k
             tokens, mask, _ = self.encode([asked[i] for i in idx])
             raw = sample(m, tokens, mask, [lengths[i] for i in idx], batch_seed, **sampling)
-            # 5. post-process: each path bent, the final stage of the batch's motions (their rigid fits together)
-            finished = finish_many([bend(raw[j, :lengths[i]], paths[i]) for j, i in enumerate(idx)], self.skeleton,
-                                   self.fps, self.rigid, footskate, footskate_options)
-            for (f, motion), i in zip(finished, idx):
+            # 5. post-process: each path followed, the final stage of the batch's motions (their rigid fits together)
+            bent = [follow(raw[j, :lengths[i]], paths[i], explicit[i], self.fps) for j, i in enumerate(idx)]
+            finished = finish_many([f for f, _ in bent], self.skeleton, self.fps, self.rigid, footskate,
+                                   footskate_options)
+            for (f, motion), (_, placing), i in zip(finished, bent, idx):
+                f, motion = placed(f, motion, placing, self.rigid)
                 results[i] = MotionResult.build(prompts[i], f, motion, self.skeleton, self.fps,
                                                 seed[i] if per_item else batch_seed, domains[i])
         return results
@@ -257,7 +265,7 @@ class PortablePipeline:
         return dict(guidance=guidance, sampler=sampler or m.sampler, steps=steps), footskate
 
     def _timeline(self, segments, overlap: float, base: int, sampling: dict, footskate: str,
-                  footskate_options) -> MotionResult:
+                  footskate_options, explicit=None) -> MotionResult:
         m = self.model
         # 1. check inputs; 2. prepare: paths from words, the windows
         segs, paths = path_segments(segment_frames(segments, self.fps))
@@ -275,9 +283,14 @@ class PortablePipeline:
                              **sampling)[0]
                 raw = plan.project(raw.astype(np.float64)).astype(np.float32)  # exact on the kept part
             out = np.concatenate([out, raw[w.keep:w.keep + w.new].astype(np.float64)])
-        # 4. post-process: each segment's path bent, the final stage of the whole motion
-        out = bend_segments(out, [n for _, n in segs], paths)
+        # 4. post-process: an explicit path followed, else each segment's path bent; the final stage
+        placing = None
+        if explicit is not None:
+            out, placing = follow(out, None, explicit, self.fps)
+        else:
+            out = bend_segments(out, [n for _, n in segs], paths)
         (f, motion), = finish_many([out], self.skeleton, self.fps, self.rigid, footskate, footskate_options)
+        f, motion = placed(f, motion, placing, self.rigid)
         return MotionResult.build("; ".join(f"{p}:{s:g}" for p, s in segments), f, motion, self.skeleton, self.fps,
                                   base)
 

@@ -19,6 +19,15 @@ FORMATS = tuple(MOTION_FORMATS)  # json, bvh, npy, glb
 STRICT = ConfigDict(extra="forbid", strict=True)  # {"seed": true} and {"seconds": "4"} are errors
 
 
+class PathBody(BaseModel):
+    """A root path with times: {"points": [[x, z], ...], "times": [seconds, ...]} (stablemofusion/path_plan.py)."""
+
+    model_config = STRICT
+
+    points: list[list[float]]
+    times: list[float] | None = None
+
+
 class GenerateRequest(BaseModel):
     """The body of POST /v1/generate."""
 
@@ -31,6 +40,7 @@ class GenerateRequest(BaseModel):
     steps: int | None = None  # None: the model's
     footskate: Literal["off", "post", "loop"] = limits.FOOTSKATE
     adapter: str | None = None  # None: the base model; else the name of an adapter the server loaded
+    path: PathBody | list[list[float]] | None = None  # a root path to follow: [[x, z], ...] metres, or with times
 
 
 class Segment(BaseModel):
@@ -142,8 +152,15 @@ class RequestChecks:
         prompt = check_prompt(body.prompt, "prompt")
         checked(limits.check_seconds, body.seconds)
         seed, guidance, steps = self._common(body)
-        self._check_cost(body.seconds, body)
-        return Job(prompt, body.seconds, seed, guidance, steps, body.footskate, adapter=self._adapter(body))
+        path = None
+        if body.path is not None:
+            from ..path_plan import Waypoints
+
+            data = body.path.model_dump() if isinstance(body.path, PathBody) else body.path
+            path = checked(Waypoints.read, data)
+            checked(limits.check_seconds, body.seconds or path.seconds(prompt), "the path's seconds")
+        self._check_cost(body.seconds or (path.seconds(prompt) if path is not None else None), body)
+        return Job(prompt, body.seconds, seed, guidance, steps, body.footskate, adapter=self._adapter(body), path=path)
 
     def timeline(self, body: TimelineRequest) -> Job:
         segments = tuple((check_prompt(s.prompt, f"segments.{i}.prompt"), s.seconds)

@@ -40,6 +40,7 @@ class Job:
     footskate: str = FOOTSKATE
     segments: tuple[tuple[str, float], ...] | None = None
     adapter: str | None = None  # None: the base model; else a loaded adapter's name
+    path: object = None  # a root path to follow (stablemofusion.path_plan.Waypoints), or None
 
     @property
     def sampling(self) -> tuple:
@@ -95,8 +96,10 @@ def generate_jobs(pipe, jobs: list[Job], max_batch: int) -> list:
     if first.segments is not None:
         return [pipe.timeline(list(j.segments), guidance_scale=j.guidance, steps=j.steps, seed=j.seed,
                               footskate=j.footskate) for j in jobs]
+    paths = [j.path for j in jobs] if any(j.path is not None for j in jobs) else None
     return pipe([j.prompt for j in jobs], seconds=[j.seconds for j in jobs], seed=[j.seed for j in jobs],
-                guidance_scale=first.guidance, steps=first.steps, footskate=first.footskate, batch_size=max_batch)
+                guidance_scale=first.guidance, steps=first.steps, footskate=first.footskate, batch_size=max_batch,
+                path=paths)
 
 
 def run_isolated(pipe, jobs: list[Job], max_batch: int) -> list:
@@ -189,10 +192,13 @@ class WorkerSpec:
 
 def call_deadline(jobs: list) -> float:
     """Seconds a worker call for ``jobs`` may take: WORKER_CALL_BASE_S plus WORKER_CALL_PER_WORK_S per second of
-    motion per sampling step asked for (a length or steps left to the model count as a window, 10 steps)."""
+    motion per sampling step asked for (a path's length as its seconds; a length or steps left to the model count as a
+    window, 10 steps)."""
     work = 0.0
     for job in jobs:
-        seconds = getattr(job, "seconds", None) or sum(s for _, s in (getattr(job, "segments", None) or ())) or 10.0
+        path = getattr(job, "path", None)
+        seconds = (getattr(job, "seconds", None) or sum(s for _, s in (getattr(job, "segments", None) or ()))
+                   or (path.seconds(job.prompt) if path is not None else None) or 10.0)
         work += seconds * (getattr(job, "steps", None) or 10)
     return WORKER_CALL_BASE_S + WORKER_CALL_PER_WORK_S * work
 

@@ -109,3 +109,66 @@ def test_the_torch_path_bends_the_same(pipe):
         a = pipe(prompt, seed=4)[0].joints
         b = torch_pipe(prompt, seed=4, engine="fast")[0].joints
         assert a.shape == b.shape and np.abs(a - b).max() < 1e-3
+
+
+SQUARE = [[0.0, 0.0], [0.0, 3.0], [3.0, 3.0], [3.0, 0.0]]
+
+
+def closest(joints: np.ndarray, points) -> list[float]:
+    xz = joints[:, 0, [0, 2]]
+    return [float(np.linalg.norm(xz - np.asarray(p), axis=-1).min()) for p in points]
+
+
+@pytest.mark.parametrize("prompt", ["a person walks", "a person runs"])
+def test_an_explicit_path_is_followed_through_every_waypoint(pipe, prompt):
+    r = pipe(prompt, path=SQUARE, seed=1)[0]  # footskate post
+    assert max(closest(r.joints, SQUARE)) < 0.3
+    assert np.allclose(r.joints[0, 0, [0, 2]], SQUARE[0], atol=1e-6)  # it starts at the first point
+
+
+def test_an_explicit_path_with_times_is_on_time(pipe):
+    points, times = [[2.0, 1.0], [5.0, 1.0], [5.0, 4.0]], [0.0, 3.0, 6.0]
+    r = pipe("a person walks", path={"points": points, "times": times}, seed=2, footskate="off")[0]
+    assert len(r.joints) == 120
+    for p, t in zip(points, times):
+        assert np.linalg.norm(r.joints[min(int(t * 20), 119), 0, [0, 2]] - p) < 0.3
+
+
+def test_a_long_explicit_path_is_a_timeline_and_both_runtimes_agree(pipe):
+    from stablemofusion.pipeline import MotionPipeline
+
+    loop = [[0.0, 0.0], [0.0, 6.0], [6.0, 6.0], [6.0, 0.0], [0.0, 0.0]]  # 24 m: 20 s of walking
+    a = pipe("a person walks", path=loop, seed=3)[0]
+    b = MotionPipeline.from_pretrained(device="cpu")("a person walks", path=loop, seed=3, engine="fast")[0]
+    assert len(a.joints) == 400 and max(closest(a.joints, loop)) < 0.3
+    assert np.abs(a.joints - b.joints).max() < 1e-3
+
+
+@pytest.mark.parametrize("data, message", [([[0, 0]], "2 to 256"), ([[0, 0], [0, 500]], "200 m"),
+                                           ({"points": SQUARE, "times": [0, 2, 1, 3]}, "increasing"),
+                                           ({"points": SQUARE, "speed": 2}, "not speed"), ([[0, 0], [0, "x"]], "numbers")])
+def test_a_bad_path_is_one_clear_error(pipe, data, message):
+    from stablemofusion.errors import SMFError
+
+    with pytest.raises(SMFError, match=message):
+        pipe("a person walks", path=data)
+
+
+def test_the_command_line_and_the_http_api_take_a_path(pipe, tmp_path):
+    import json
+
+    from stablemofusion.cli.main import main
+    from stablemofusion.serve import create_app
+
+    from serve.serve_helpers import call
+
+    (tmp_path / "p.json").write_text(json.dumps(SQUARE))
+    assert main(["generate", "a person walks", "--path", str(tmp_path / "p.json"), "--seed", "1", "--format", "npy",
+                 "--engine", "onnx", "--out", str(tmp_path / "out")]) == 0
+    joints = np.load(next((tmp_path / "out").glob("*_joints.npy")))
+    assert np.abs(joints - pipe("a person walks", path=SQUARE, seed=1)[0].joints).max() < 1e-4
+    ok, bad = call(create_app(pipe, max_streams=0),
+                   ("POST", "/v1/generate", {"prompt": "a person walks", "seed": 1, "path": SQUARE}),
+                   ("POST", "/v1/generate", {"prompt": "a person walks", "path": [[0, 0]]}))
+    assert ok.status_code == 200 and np.abs(np.asarray(ok.json()["joints"]) - joints).max() < 1e-3
+    assert bad.status_code == 422 and "2 to 256" in bad.json()["error"]

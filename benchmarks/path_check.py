@@ -6,6 +6,9 @@ bone-length rigidity, the label classifier's content for the walks and runs (a w
 is still a walk); and the time of a path prompt against
 the same prompt without its path words on each runtime.
 
+And explicit paths (``path=``, `smf generate --path`): for walks and runs along a few waypoint shapes, the root's
+closest approach to every waypoint (goal 0.3 m) and skating with post.
+
     python benchmarks/path_check.py [--classifier CL --data CORPUS] [--seed 0] [--torch]
 """
 
@@ -122,7 +125,29 @@ def main() -> None:
         kept = [family(r["got"][0][0]) == r["want"][0][0] for r in acc["per_prompt"]]
         out["classifier_content_walks_and_runs"] = acc["all"]
         out["classifier_walks_stay_walks_runs_stay_runs"] = f"{sum(kept)}/{len(kept)}"
+    out["explicit_paths"] = explicit_paths(pipe, args.seed)
     print(json.dumps(out, indent=1, default=float))
+
+
+SHAPES = {"square": [[0, 0], [0, 3], [3, 3], [3, 0]], "L": [[0, 0], [0, 4], [-3, 4]],
+          "zigzag": [[0, 0], [1.5, 2], [0, 4], [1.5, 6], [0, 8]], "S": [[0, 0], [1, 1.5], [0, 3], [-1, 4.5], [0, 6]],
+          "long loop": [[0, 0], [0, 6], [6, 6], [6, 0], [0, 0]]}
+
+
+def explicit_paths(pipe, seed: int) -> dict:
+    """The root's closest approach to each waypoint of walks and runs along SHAPES, and their skating (post)."""
+    from stablemofusion.footskate.metrics import mean_metrics
+
+    out, worst, joints = {}, 0.0, []
+    for name, points in SHAPES.items():
+        for prompt in ("a person walks", "a person runs", "an old man walks slowly", "a happy woman jogs"):
+            r = pipe(prompt, path=points, seed=seed)[0]
+            xz = r.joints[:, 0, [0, 2]]
+            gap = max(float(np.linalg.norm(xz - np.asarray(p, float), axis=-1).min()) for p in points)
+            worst = max(worst, gap)
+            joints.append(r.joints)
+            out[f"{name} / {prompt}"] = {"seconds": len(r.joints) / r.fps, "farthest_waypoint_m": round(gap, 3)}
+    return {"runs": out, "farthest_waypoint_m": round(worst, 3), "skate_post": round(mean_metrics(joints)["skate_ratio"], 4)}
 
 
 if __name__ == "__main__":

@@ -169,15 +169,16 @@ def _pivoted_path(features: np.ndarray, extra: np.ndarray) -> np.ndarray:
     feet = joints[:, list(HML_FOOT_JOINTS)][..., [0, 2]]  # (T, 4, 2)
     planted = kinematic_contacts(joints, FPS, config=CLEANUP_CONTACTS)  # (T, 4)
     c, s = np.cos(extra), np.sin(extra)
-    turn = lambda t, v: np.array([c[t] * v[0] + s[t] * v[1], -s[t] * v[0] + c[t] * v[1]])  # noqa: E731 - about +Y
-    out = np.zeros_like(root)
-    for t in range(len(root) - 1):
-        both = planted[t] & planted[t + 1]
-        out[t + 1] = out[t] + turn(t + 1, root[t + 1] - root[t])
-        if both.any():  # about the foot planted in both frames: it stays where it stands
-            arm = feet[t][both].mean(0) - root[t]
-            out[t + 1] += turn(t, arm) - turn(t + 1, arm)
-    return out
+
+    def turn(k: slice, v: np.ndarray) -> np.ndarray:  # v (n, 2) turned about +Y by extra[k] (n,)
+        return np.stack([c[k] * v[:, 0] + s[k] * v[:, 1], -s[k] * v[:, 0] + c[k] * v[:, 1]], -1)
+
+    now, nxt = slice(0, len(root) - 1), slice(1, len(root))
+    both = planted[:-1] & planted[1:]  # (T-1, 4): feet planted in frames t and t + 1
+    count = both.sum(-1, keepdims=True)
+    arm = (feet[:-1] * both[..., None]).sum(1) / np.maximum(count, 1) - root[:-1]  # (T-1, 2): root to that foot
+    step = turn(nxt, root[1:] - root[:-1]) + np.where(count > 0, turn(now, arm) - turn(nxt, arm), 0.0)
+    return np.concatenate([np.zeros((1, 2)), np.cumsum(step, axis=0)])
 
 
 MAX_WAYPOINTS = 256  # an explicit path's most points

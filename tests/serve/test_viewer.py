@@ -274,3 +274,25 @@ def test_live_mode_keeps_moving_and_a_new_prompt_changes_it(page, tmp_path):
     assert "live stream ended" in page.inner_text("#status")
     assert page.inner_text("#generate") == "Generate"
     assert page.logs[logs:] == []  # no error or warning while streaming
+
+
+def test_a_path_drawn_on_the_floor_is_followed(page):
+    """Tick "path", click three points on the floor: the request carries them and the root passes each."""
+    page.select_option("#footskate", "off")
+    page.fill("#prompt", "a person walks forward")
+    page.check("#draw")
+    assert page.input_value("#seconds") == ""  # the path's own length
+    box = page.locator("#view canvas").bounding_box()
+    for fx, fy in ((0.5, 0.8), (0.5, 0.6), (0.35, 0.55)):  # the floor, in front of the default camera
+        page.mouse.click(box["x"] + fx * box["width"], box["y"] + fy * box["height"])
+    points = page.evaluate("window.smf.path.points")
+    assert len(points) == 3 and page.is_visible("#clear-path")
+    page.click("#generate")
+    page.wait_for_function("window.smf.ready", timeout=60_000)
+    joints = np.asarray(page.evaluate("Array.from(window.smf.joints)"), dtype=np.float64).reshape(-1, 22, 3)
+    xz = joints[:, 0, [0, 2]]
+    assert max(np.linalg.norm(xz - np.asarray(p), axis=-1).min() for p in points) < 0.3
+    page.click("#clear-path")
+    page.uncheck("#draw")
+    assert page.evaluate("window.smf.path.points.length") == 0
+    assert [m for m in page.logs if "pageerror" in m] == []

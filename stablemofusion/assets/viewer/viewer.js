@@ -36,6 +36,44 @@ scene.add(sun);
 
 const figure = new Figure(scene);
 
+// a path drawn on the floor: click points with "path" ticked; sent as the request's "path" (docs/paths.md)
+const drawn = { points: [], line: null, marks: [] };
+const pathMaterial = new THREE.LineBasicMaterial({ color: 0x1f77b4 });
+const markGeometry = new THREE.SphereGeometry(0.06, 12, 8);
+function showPath() {
+  if (drawn.line) scene.remove(drawn.line);
+  drawn.marks.forEach((m) => scene.remove(m));
+  drawn.marks = drawn.points.map(([x, z]) => {
+    const m = new THREE.Mesh(markGeometry, pathMaterial);
+    m.position.set(x, 0.01, z);
+    scene.add(m);
+    return m;
+  });
+  drawn.line = new THREE.Line(new THREE.BufferGeometry().setFromPoints(drawn.points.map(([x, z]) => new THREE.Vector3(x, 0.01, z))),
+    pathMaterial);
+  scene.add(drawn.line);
+  $('clear-path').hidden = drawn.points.length === 0;
+}
+const floorPlane = new THREE.Plane(new THREE.Vector3(0, 1, 0), 0);
+renderer.domElement.addEventListener('click', (ev) => {
+  if (!$('draw').checked) return;
+  const r = renderer.domElement.getBoundingClientRect();
+  const ndc = new THREE.Vector2(((ev.clientX - r.left) / r.width) * 2 - 1, -((ev.clientY - r.top) / r.height) * 2 + 1);
+  const ray = new THREE.Raycaster();
+  ray.setFromCamera(ndc, camera);
+  const hit = ray.ray.intersectPlane(floorPlane, new THREE.Vector3());
+  if (!hit) return;
+  drawn.points.push([Math.round(hit.x * 100) / 100, Math.round(hit.z * 100) / 100]);
+  showPath();
+  status(`path: ${drawn.points.length} point${drawn.points.length > 1 ? 's' : ''} (tick off "path" to move the camera)`);
+});
+$('clear-path').addEventListener('click', () => { drawn.points = []; showPath(); });
+$('draw').addEventListener('change', () => {
+  controls.enabled = !$('draw').checked;  // clicks place points, not turn the camera
+  if ($('draw').checked) $('seconds').value = '';  // the path's own length unless one is typed
+});
+window.smf.path = drawn;
+
 function resize() {
   const w = view.clientWidth, h = view.clientHeight;
   renderer.setSize(w, h);
@@ -148,9 +186,10 @@ $('form').addEventListener('submit', async (ev) => {
   try {
     const segments = parseTimeline($('prompt').value);
     let body = { ...common, segments };
-    if (!segments) {  // one prompt; no seconds: the model predicts the length from the text
+    if (!segments) {  // one prompt; no seconds: the model predicts the length from the text (or the path's)
       body = { ...common, prompt: $('prompt').value };
       if ($('seconds').value.trim() !== '') body.seconds = Number($('seconds').value);
+      if (drawn.points.length >= 2) body.path = drawn.points;
     }
     const endpoint = segments ? '/v1/timeline' : '/v1/generate';
     const res = await post(endpoint, JSON.stringify(body), { 'Content-Type': 'application/json' });

@@ -26,6 +26,10 @@ FLAGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader
          "--disable-component-update", "--disable-sync", "--no-first-run"]
 
 
+PATH_PROMPTS = ["a man walks in a circle", "a person turns around", "a woman runs in a zigzag", "someone walks there and back",
+                "a person curves to the left", "a man turns 45 degrees to the right"]
+
+
 class Isolated(SimpleHTTPRequestHandler):
     def end_headers(self):
         self.send_header("Cross-Origin-Opener-Policy", "same-origin")
@@ -48,6 +52,7 @@ def main() -> None:
     args = ap.parse_args()
     from playwright.sync_api import sync_playwright
 
+    from stablemofusion.path_plan import parse_path
     from stablemofusion.runtime.pipeline import PortablePipeline
     from stablemofusion.site import folder_size, write_site
 
@@ -77,6 +82,15 @@ def main() -> None:
                         for i, q in enumerate(prompts[1 + k * args.motions:1 + (k + 1) * args.motions])]
                    for k, fs in enumerate(("post", "off"))}
             threads = page.evaluate("window.smf.timings.threads")
+            # path prompts against the same prompts without their path words (what the model is given), same page
+            pairs = [(q, parse_path(q).prompt) for q in PATH_PROMPTS]
+            path_ms = {k: [] for k in ("path", "without")}
+            for rep in range(3):
+                for q, plain in pairs:
+                    for k, text in (("path", q), ("without", plain)):
+                        path_ms[k].append(page.evaluate(f"window.smf.generate({{prompt: {json.dumps(text)}, "
+                                                        f"seconds: 4, seed: {rep}}}).then(() => window.smf.timings"
+                                                        ".lastMotionMs)"))
             browser.close()
         server.shutdown()
         want = pipe(prompts[0], seconds=4, seed=0)[0].joints  # footskate post, as the page's default
@@ -85,6 +99,8 @@ def main() -> None:
                **{f"per_motion_ms_{fs}": {"median": round(float(np.median(v)), 1), "range": [round(min(v), 1),
                                                                                         round(max(v), 1)]}
                   for fs, v in per.items()}, "motions": len(per["post"]),
+               "path_prompt_ms_median": round(float(np.median(path_ms["path"])), 1),
+               "without_path_words_ms_median": round(float(np.median(path_ms["without"])), 1),
                "downloaded_MB": round(sum(sizes) / 1e6, 1), "folder_MB": round(folder_size(folder) / 1e6, 1),
                "max_joint_difference_mm": round(float(np.abs(np.asarray(first) - want).max()) * 1000, 4)}
     print(json.dumps(out, indent=1))

@@ -55,6 +55,7 @@ def web_description(graphs) -> dict:
                      "bone_lengths": list(sk.bone_lengths)},
         "rigid_sweeps": DEFAULT_FIT.iterations,
         "cleanup": cleanup_settings(m.fps),
+        "paths": path_lexicon(),
         "actions": {"names": list(actions["actions"]), "threshold": actions["threshold"], "top": int(actions["top"]),
                     "owner": [i for i, examples in enumerate(actions["actions"].values()) for _ in examples],
                     "embeddings": "actions.bin"},
@@ -84,6 +85,13 @@ def cleanup_settings(fps: float) -> dict:
                min_gap_frames=max(1, round(k.min_gap * fps)), foot_joints=list(HML_FOOT_JOINTS),
                foot_chains=[list(c) for c in FOOT_CHAINS], leg_joints=list(LEG_JOINTS), branch_scale=BRANCH_SCALE)
     return out
+
+
+def path_lexicon() -> dict:
+    """The path words' lexicon (``assets/lexicons/paths.json``) for the JavaScript runtime (``assets/runtime/paths.js``):
+    its regular expressions in JavaScript's syntax (named groups ``(?<name>``)."""
+    text = (resources.files("stablemofusion") / "assets" / "lexicons" / "paths.json").read_text("utf-8")
+    return json.loads(text.replace("(?P<", "(?<"))
 
 
 def _graph_file(graphs, name: str) -> Path:

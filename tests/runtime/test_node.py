@@ -32,10 +32,13 @@ def node_generate(folder, *args) -> subprocess.CompletedProcess:
                                                               ("a person waves both hands happily", 4, 7, "post"),
                                                               ("an old man walks forward slowly", 6.3, 123456789012, "post"),
                                                               ("a person runs forward", 3, 5, "post"),
-                                                              ("someone bows politely", None, 0, "off")])
+                                                              ("someone bows politely", None, 0, "off"),
+                                                              ("a man walks in a circle", None, 3, "post"),
+                                                              ("a child runs zigzagging forward", None, 3, "post"),
+                                                              ("an old woman turns 45 degrees to the right", 3, 1, "off")])
 def test_node_reproduces_the_python_runtime(site, prompt, seconds, seed, footskate):
-    """Text, sampling, decoding, the rigid stage and the footskate cleanup (its contacts, anchors and L-BFGS):
-    the Python runtime's joints."""
+    """Text, path words, sampling, decoding, the rigid stage and the footskate cleanup (its contacts, anchors and
+    L-BFGS): the Python runtime's joints."""
     folder, pipe = site
     extra = [] if seconds is None else ["--seconds", seconds]
     run = node_generate(folder, prompt, *extra, "--seed", seed, "--footskate", footskate)

@@ -5,6 +5,7 @@
 // (@huggingface/tokenizers) and a function that reads a file of the folder.
 import { normal } from './noise.js';
 import { cleanupRigid } from './cleanup.js';
+import { bend, parsePath } from './paths.js';
 import { bvhText, fitRigid, jointsFromFeatures, poseOfJoints, recentre } from './motion.js';
 
 export class MotionRuntime {
@@ -99,10 +100,13 @@ export class MotionRuntime {
     if (footskate !== 'off' && footskate !== 'post') {
       throw new RangeError(`footskate must be 'post' or 'off' here, got '${footskate}' ('loop' runs in the torch sampler)`);
     }
-    // 1. text: tokens, condition, domain, length
-    const enc = await this.encode(prompt);
+    // 1. text: path words (the model is given the prompt without them), tokens, condition, domain, length (a
+    // path's, else the length model's on the whole prompt)
+    const spec = i.paths ? parsePath(prompt, i.paths) : null;
+    const enc = await this.encode(spec ? spec.prompt : prompt);
     const domain = await this.domain(enc);
-    const n = await this.frames(enc, seconds);
+    const unset = seconds === undefined || seconds === null || seconds === '';
+    const n = await this.frames(spec ? await this.encode(prompt) : enc, unset && spec && spec.seconds ? spec.seconds : seconds);
     const cond = await this.sessions.condition.run({ tokens: enc.tokens, mask: this.mask(enc.L),
       guidance: new T('float32', Float32Array.of(i.guidance), [1]) });
     // 2. denoise: the sampler table on the portable noise (stream 0 of the seed), frames padded to pad_multiple
@@ -127,10 +131,12 @@ export class MotionRuntime {
       prev = Float32Array.from(x0);
       x = next;
     }
-    const features = new Float64Array(n * D);
+    let features = new Float64Array(n * D);
     for (let e = 0; e < n * D; e++) features[e] = x[e] * i.std[e % D] + i.mean[e % D];
-    // 3. the final stage: decode, the rigid fit (one skeleton of fixed bone lengths), the cleanup, recentred
+    // 3. the final stage: the path bent, decoded, the rigid fit (one skeleton of fixed bone lengths), the cleanup,
+    // recentred
     const J = i.skeleton.parents.length, sk = i.skeleton;
+    features = bend(features, n, D, J, spec, i.cleanup, i.fps);
     let flat = fitRigid(jointsFromFeatures(features, n, D, J), n, sk, sk.bone_lengths, i.rigid_sweeps);
     if (footskate === 'post') {
       const { offsets } = poseOfJoints(flat, n, sk, sk.bone_lengths);

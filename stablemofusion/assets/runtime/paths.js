@@ -1,0 +1,137 @@
+// Paths from words in JavaScript: the twin of stablemofusion/path_plan.py (parse_path, bend; its docstring explains
+// them), on the same lexicon (assets/lexicons/paths.json, given in the site's web.json as "paths", its patterns in
+// JavaScript's syntax). Features are flat Float64Arrays (T x D, HumanML3D's 263 per frame).
+import { kinematicContacts } from './cleanup.js';
+import { jointsFromFeatures } from './motion.js';
+
+const ZIGZAG_DEGREES = 45, ZIGZAG_LEGS = 4, ZIGZAG_END = 0.85;
+const TURN_SPAN = [0.3, 0.7], BACK_SPAN = [0.42, 0.58];
+const MIN_MODEL_TURN = 30, MIN_TRAVEL = 0.5;
+const rad = (d) => d * Math.PI / 180;
+
+function compile(lex) {
+  if (!lex.compiled) lex.compiled = lex.paths.map((e) => new RegExp(`(?:${e.pattern})${lex.direction_suffix}`));
+  return lex.compiled;
+}
+
+// {kind, angle (degrees, positive left), side, prompt (what the model is given), words, seconds} or null.
+export function parsePath(prompt, lex) {
+  const text = prompt.toLowerCase();
+  const compiled = compile(lex);
+  for (let k = 0; k < lex.paths.length; k++) {
+    const entry = lex.paths[k];
+    const m = compiled[k].exec(text);
+    if (!m) continue;
+    const start = m.index, end = m.index + m[0].length;
+    if (new RegExp(`${lex.body_words}(?:\\W+\\w+){0,2}\\W*$`).test(text.slice(0, start))) continue;
+    const outside = `${text.slice(0, start)} ${text.slice(end)}`;
+    if (entry.needs_move && !new RegExp(lex.move_words).test(outside)) continue;
+    const words = m[0];
+    const where = new RegExp(`${lex.right_words}|${lex.left_words}`).test(words) ? words : text;
+    const right = new RegExp(lex.right_words).exec(where), left = new RegExp(lex.left_words).exec(where);
+    const side = right && !(left && left.index < right.index) ? 'right' : 'left';
+    let angle = entry.angle === 'degrees' ? Number(m.groups.degrees) : Number(entry.angle);
+    if (side === 'right') angle = -angle;
+    const gait = new RegExp(lex.run_words).test(text) ? 'run' : 'walk';
+    const move = new RegExp(lex.move_words).test(outside) ? '' : (gait === 'run' ? 'runs' : 'walks');
+    const model = entry.model.replace('{side}', side).replace('{move}', move).replace('{words}', prompt.slice(start, end));
+    let rest = `${prompt.slice(0, start)} ${model} ${prompt.slice(end)}`;
+    rest = rest.replace(new RegExp(lex.direction_words, 'gi'), ' ');
+    rest = rest.replace(/\s+/g, ' ').replace(/\s+([,.;])/g, '$1').replace(/^[ ,]+|[ ,]+$/g, '');
+    return { kind: entry.kind, angle, side, prompt: rest || prompt, words: words.trim(),
+      seconds: entry.seconds ? entry.seconds[gait] : null };
+  }
+  return null;
+}
+
+const smoothstep = (x) => { const c = Math.min(Math.max(x, 0), 1); return c * c * (3 - 2 * c); };
+
+// how far along the motion each frame is, 0 .. 1: by the root's travelled distance, or by time
+function progress(f, T, D) {
+  const u = new Float64Array(T);
+  for (let t = 1; t < T; t++) u[t] = u[t - 1] + Math.hypot(f[(t - 1) * D + 1], f[(t - 1) * D + 2]);
+  const total = u[T - 1];
+  for (let t = 0; t < T; t++) u[t] = total < MIN_TRAVEL ? t / (T - 1) : u[t] / total;
+  return u;
+}
+
+// the body's facing (radians, positive left, unwrapped): the root's heading plus the hips' facing in its frame
+export function facing(f, T, D) {
+  const out = new Float64Array(T);
+  let heading = 0, prev = null;
+  for (let t = 0; t < T; t++) {
+    if (t > 0) heading -= 2 * f[(t - 1) * D];
+    const ax = f[t * D + 4] - f[t * D + 7], az = f[t * D + 6] - f[t * D + 9];
+    let local = Math.atan2(-az, ax);
+    if (prev !== null) local += 2 * Math.PI * Math.round((prev - local) / (2 * Math.PI));
+    prev = local;
+    out[t] = heading + local;
+  }
+  return out;
+}
+
+function headingOffset(spec, f, T, D) {
+  const u = progress(f, T, D), a = rad(spec.angle);
+  const face0 = facing(f, T, D), face = face0.map((v) => v - face0[0]);
+  const out = new Float64Array(T);
+  if (spec.kind === 'turn') {
+    if (Math.abs(face[T - 1]) * 180 / Math.PI >= MIN_MODEL_TURN) {
+      for (let t = 0; t < T; t++) out[t] = face[t] * (a / face[T - 1] - 1);
+    } else {
+      for (let t = 0; t < T; t++) out[t] = a * smoothstep((t / (T - 1) - TURN_SPAN[0]) / (TURN_SPAN[1] - TURN_SPAN[0])) - face[t];
+    }
+    return out;
+  }
+  if (spec.kind === 'strafe') return face.map((v) => -v);
+  for (let t = 0; t < T; t++) {
+    let target;
+    if (spec.kind === 'arc') target = a * u[t];
+    else if (spec.kind === 'back') target = a * smoothstep((u[t] - BACK_SPAN[0]) / (BACK_SPAN[1] - BACK_SPAN[0]));
+    else if (spec.kind === 'zigzag') {
+      target = rad(ZIGZAG_DEGREES) * Math.min(Math.max(1.5 * Math.sin(Math.PI * ZIGZAG_LEGS * Math.min(u[t] / ZIGZAG_END, 1)), -1), 1);
+    } else throw new Error(`unknown path kind ${spec.kind}`);
+    out[t] = target - face[T - 1] * u[t];
+  }
+  return out;
+}
+
+// Raw features (T x D) whose facing follows `spec`, turned about the planted foot (a copy).
+export function bend(features, T, D, J, spec, cleanupSettings, fps) {
+  if (!spec || T < 2) return features;
+  const f = Float64Array.from(features);
+  const extra = headingOffset(spec, f, T, D);
+  // the root's path once turned: each step with its frame, about the foot planted in both frames
+  const joints = jointsFromFeatures(f, T, D, J);
+  const planted = kinematicContacts(joints, T, J, fps, cleanupSettings);
+  const feet = cleanupSettings.foot_joints;
+  const at = (t, j) => [joints[(t * J + j) * 3], joints[(t * J + j) * 3 + 2]];
+  const turn = (t, v) => [Math.cos(extra[t]) * v[0] + Math.sin(extra[t]) * v[1], -Math.sin(extra[t]) * v[0] + Math.cos(extra[t]) * v[1]];
+  const path = [[0, 0]];
+  for (let t = 0; t + 1 < T; t++) {
+    const r0 = at(t, 0), r1 = at(t + 1, 0);
+    const step = turn(t + 1, [r1[0] - r0[0], r1[1] - r0[1]]);
+    const both = feet.map((j, k) => planted[k][t] && planted[k][t + 1]);
+    const n = both.filter(Boolean).length;
+    if (n) {
+      const arm = [0, 0];
+      feet.forEach((j, k) => { if (both[k]) { const p = at(t, j); arm[0] += p[0] / n; arm[1] += p[1] / n; } });
+      arm[0] -= r0[0]; arm[1] -= r0[1];
+      const a0 = turn(t, arm), a1 = turn(t + 1, arm);
+      step[0] += a0[0] - a1[0]; step[1] += a0[1] - a1[1];
+    }
+    path.push([path[t][0] + step[0], path[t][1] + step[1]]);
+  }
+  for (let t = 0; t + 1 < T; t++) f[t * D] -= (extra[t + 1] - extra[t]) / 2;
+  // follow the path under the new headings: each step into the body frame of the frame it leads to
+  let half = 0;
+  for (let t = 0; t + 1 < T; t++) {
+    half += f[t * D];
+    const c = Math.cos(2 * half), s = Math.sin(2 * half);
+    const dx = path[t + 1][0] - path[t][0], dz = path[t + 1][1] - path[t][1];
+    f[t * D + 1] = dx * c + dz * s;
+    f[t * D + 2] = -dx * s + dz * c;
+  }
+  f[(T - 1) * D + 1] = f[(T - 2) * D + 1];
+  f[(T - 1) * D + 2] = f[(T - 2) * D + 2];
+  return f;
+}

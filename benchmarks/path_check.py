@@ -16,11 +16,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 import warnings
 from pathlib import Path
 
 import numpy as np
+from runtime_speed import _timed
 
 HERE = Path(__file__).resolve().parent
 TOLERANCE_DEG = 30.0
@@ -32,16 +32,6 @@ def facing_change(joints: np.ndarray) -> float:
     face = np.cross(across, np.array([0.0, 1.0, 0.0]))
     yaw = np.unwrap(np.arctan2(face[:, 0], face[:, 2]))
     return float(np.degrees(yaw[-5:].mean() - yaw[:5].mean()))
-
-
-def timed(fn, repeats: int = 5) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times))
 
 
 def main() -> None:
@@ -99,8 +89,8 @@ def main() -> None:
         runtimes["torch-fast"] = (MotionPipeline.from_pretrained(), {"engine": "fast"})
     out["time_ms"] = {}
     for name, (p, kw) in runtimes.items():
-        with_path = timed(lambda: [p(a, seconds=4, seed=1, **kw) for a, _ in pairs]) / len(pairs)
-        without = timed(lambda: [p(b, seconds=4, seed=1, **kw) for _, b in pairs]) / len(pairs)
+        with_path = _timed(lambda: [p(a, seconds=4, seed=1, **kw) for a, _ in pairs], 5) / len(pairs)
+        without = _timed(lambda: [p(b, seconds=4, seed=1, **kw) for _, b in pairs], 5) / len(pairs)
         out["time_ms"][name] = {"path_prompt": round(with_path * 1000, 2), "without_path_words": round(without * 1000, 2),
                                 "ratio": round(with_path / without, 3)}
     if args.data is not None:  # real motion of the prompts' gaits: dataset-2 walks and runs of the corpus

@@ -331,6 +331,33 @@ def placed(features: np.ndarray, motion, placing: tuple[float, np.ndarray] | Non
     return rigid_to_features(motion, features, rigid)[1], motion
 
 
+@dataclass
+class PromptPaths:
+    """The paths of a text-to-motion call's prompts: each one's path words (``words``, None without), explicit path
+    (``explicit``, None without) and the prompt its model is given (``asked``)."""
+
+    words: list[PathSpec | None]
+    explicit: list[Waypoints | None]
+    asked: list[str]
+
+    @classmethod
+    def read(cls, prompts: list[str], path=None) -> "PromptPaths":
+        words, asked = read_paths(prompts)
+        return cls(words, waypoints_for(path, len(prompts)), asked)
+
+    def seconds(self, prompts: list[str], secs: list, frames: list) -> list:
+        """``secs`` with a path's length where neither seconds nor frames are given (the explicit path's, else the
+        path words'); None where the model's estimate decides."""
+        out = list(secs)
+        for i, p in enumerate(prompts):
+            if out[i] is None and frames[i] is None:
+                if self.explicit[i] is not None:
+                    out[i] = self.explicit[i].seconds(p)
+                elif self.words[i] is not None and self.words[i].seconds is not None:
+                    out[i] = self.words[i].seconds
+        return out
+
+
 def read_paths(prompts: list[str]) -> tuple[list[PathSpec | None], list[str]]:
     """Each prompt's path (None without path words) and the prompt its model is given."""
     specs = [parse_path(p) for p in prompts]
@@ -358,4 +385,4 @@ def bend_segments(features: np.ndarray, frames: list[int], specs: list[PathSpec 
     return f
 
 
-__all__ = ["PathSpec", "Waypoints", "bend", "follow", "follow_waypoints", "place", "placed", "waypoints_for", "bend_segments", "heading_offset", "parse_path", "path_segments", "read_paths"]
+__all__ = ["PathSpec", "PromptPaths", "Waypoints", "bend", "follow", "follow_waypoints", "place", "placed", "waypoints_for", "bend_segments", "heading_offset", "parse_path", "path_segments", "read_paths"]

@@ -6,7 +6,7 @@ import torch
 from tqdm import tqdm
 
 from ..limits import base_seed
-from ..path_plan import follow, placed, read_paths, waypoints_for
+from ..path_plan import PromptPaths, follow, placed
 from .components import Components
 from .denoise import sample
 from .final import check_batch_request
@@ -36,15 +36,9 @@ class TextToMotionPipeline:
         n = len(prompts)
         # 2. prepare: paths from words (the model is given the prompt without them), lengths (a path's, else the
         # model's estimate where none is given), seeds, domains
-        paths, asked = read_paths(prompts)
-        explicit = waypoints_for(path, n)
+        paths = PromptPaths.read(prompts, path)
+        asked, secs = paths.asked, paths.seconds(prompts, secs, frs)
         unknown = [i for i in range(n) if secs[i] is None and frs[i] is None]
-        for i in unknown:
-            if explicit[i] is not None:
-                secs[i] = explicit[i].seconds(prompts[i])
-            elif paths[i] is not None and paths[i].seconds is not None:
-                secs[i] = paths[i].seconds
-        unknown = [i for i in unknown if secs[i] is None]
         if unknown and c.length_estimator is not None:
             for i, s in zip(unknown, c.predict_seconds([prompts[i] for i in unknown])):
                 secs[i] = s
@@ -55,7 +49,7 @@ class TextToMotionPipeline:
         # 3. motions longer than one window: one-segment timelines
         for i in (i for i in range(n) if lengths[i] > c.max_frames):
             r = TimelinePipeline(c)([(prompts[i], lengths[i] / c.fps)], seed=seed[i] if per_item else base + i,
-                                    settings=settings, path=explicit[i])
+                                    settings=settings, path=paths.explicit[i])
             r.prompt, r.domain = prompts[i], domains[i]
             results[i] = r
         # 4. denoise the others in batches
@@ -66,7 +60,8 @@ class TextToMotionPipeline:
             batch_seed = [seed[i] for i in idx] if per_item else base + k
             raw = sample(c, [asked[i] for i in idx], [lengths[i] for i in idx], settings, batch_seed)
             # 5. post-process: each path followed, the final stage of the batch's motions (their rigid fits together)
-            bent = [follow(raw[j, :lengths[i]].numpy(), paths[i], explicit[i], c.fps) for j, i in enumerate(idx)]
+            bent = [follow(raw[j, :lengths[i]].numpy(), paths.words[i], paths.explicit[i], c.fps)
+                    for j, i in enumerate(idx)]
             finished = c.finish_many([f for f, _ in bent], settings.footskate, settings.footskate_options)
             for (f, motion), (_, placing), i in zip(finished, bent, idx):
                 f, motion = placed(f, motion, placing, c.rigid)

@@ -22,7 +22,7 @@ from ..motion.skeleton import get_skeleton
 from ..pipelines.final import OutOfDomainWarning, check_batch_request, finish_many, frames_for
 from ..pipelines.result import MotionResult
 from ..edit_plan import check_edit_inputs, plan_edit, plan_edit_for, splice_rigid, x0_constraint
-from ..path_plan import bend_segments, follow, path_segments, placed, read_paths, waypoints_for
+from ..path_plan import PromptPaths, bend_segments, follow, path_segments, placed
 from ..motion_stream import STREAM_CHUNK, STREAM_KEEP, STREAM_REWIND, MotionStream, check_window
 from ..timeline_plan import DEFAULT_OVERLAP, plan_windows, segment_frames
 from .graphs import PortableGraphs
@@ -129,15 +129,9 @@ class PortablePipeline:
         n = len(prompts)
         # 2. prepare: paths from words (the model is given the prompt without them), lengths (a path's, else the
         # model's estimate where none is given), seeds, domains
-        paths, asked = read_paths(prompts)
-        explicit = waypoints_for(path, n)
+        paths = PromptPaths.read(prompts, path)
+        asked, secs = paths.asked, paths.seconds(prompts, secs, frs)
         unknown = [i for i in range(n) if secs[i] is None and frs[i] is None]
-        for i in unknown:
-            if explicit[i] is not None:
-                secs[i] = explicit[i].seconds(prompts[i])
-            elif paths[i] is not None and paths[i].seconds is not None:
-                secs[i] = paths[i].seconds
-        unknown = [i for i in unknown if secs[i] is None]
         if unknown and self.graphs.has_length_model:
             for i, s in zip(unknown, self.predict_seconds([prompts[i] for i in unknown])):
                 secs[i] = s
@@ -148,7 +142,8 @@ class PortablePipeline:
         # 3. motions longer than one window: one-segment timelines
         for i in (i for i in range(n) if lengths[i] > self.max_frames):
             r = self._timeline([(prompts[i], lengths[i] / self.fps)], DEFAULT_OVERLAP,
-                               seed[i] if per_item else base + i, sampling, footskate, footskate_options, explicit[i])
+                               seed[i] if per_item else base + i, sampling, footskate, footskate_options,
+                               paths.explicit[i])
             r.prompt, r.domain = prompts[i], domains[i]
             results[i] = r
         # 4. denoise the others in batches (batch k uses seed + k, as the torch path)
@@ -159,7 +154,8 @@ class PortablePipeline:
             tokens, mask, _ = self.encode([asked[i] for i in idx])
             raw = sample(m, tokens, mask, [lengths[i] for i in idx], batch_seed, **sampling)
             # 5. post-process: each path followed, the final stage of the batch's motions (their rigid fits together)
-            bent = [follow(raw[j, :lengths[i]], paths[i], explicit[i], self.fps) for j, i in enumerate(idx)]
+            bent = [follow(raw[j, :lengths[i]], paths.words[i], paths.explicit[i], self.fps)
+                    for j, i in enumerate(idx)]
             finished = finish_many([f for f, _ in bent], self.skeleton, self.fps, self.rigid, footskate,
                                    footskate_options)
             for (f, motion), (_, placing), i in zip(finished, bent, idx):
@@ -234,16 +230,15 @@ class PortablePipeline:
                       known: np.ndarray | None) -> np.ndarray:
         """Stream windows (:class:`~stablemofusion.motion_stream.WindowSampler`): raw features (n, frames, D), the
         ``known`` start (n, keep, D) imposed on every x0 prediction."""
-        m, hook = self.model, None
-        if known is not None:
-            target, keep = (known.astype(np.float32) - m.mean) / m.std, known.shape[1]
+        m = self.model
 
-            def hook(x0: np.ndarray) -> np.ndarray:
-                x0 = x0.copy()
-                x0[:, :keep] = target
-                return x0
+        def impose(x0: np.ndarray) -> np.ndarray:
+            x0 = x0.copy()
+            x0[:, :known.shape[1]] = (known.astype(np.float32) - m.mean) / m.std
+            return x0
         tokens, mask, _ = self.encode(prompts)
-        raw = sample(m, tokens, mask, [frames] * len(prompts), list(seeds), x0_hook=hook, **dict(settings))
+        raw = sample(m, tokens, mask, [frames] * len(prompts), list(seeds), x0_hook=None if known is None else impose,
+                     **dict(settings))
         return raw.astype(np.float64)
 
     def _settings(self, guidance_scale: float | None, steps: int | None, sampler: str | None, footskate: str | None,

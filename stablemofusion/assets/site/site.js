@@ -4,9 +4,8 @@
 //   {joints (frames x 22 x 3 metres), fps, prompt, seed}; window.smf.ready: a promise of the loaded model;
 //   window.smf.timings: {loadMs, firstMotionMs, lastMotionMs, threads, backend ('webgpu' or 'wasm')}; await window.smf.file('bvh' | 'glb' | 'json') -> the
 //   last motion's download (a string, or bytes for glb).
-import * as THREE from 'three';
 import { OrbitControls } from './vendor/three/OrbitControls.js';
-import { Figure, contactsOf, floorGrid } from './figure.js';
+import { Figure, contactsOf, makeStage } from './figure.js';
 import { MotionRuntime } from './runtime/smf.js';
 import { glbBytes } from './glb.js';
 
@@ -88,26 +87,8 @@ smf.file = async (format) => {
 
 // scene
 const view = $('view');
-const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
-renderer.setPixelRatio(window.devicePixelRatio);
-view.appendChild(renderer.domElement);
-const scene = new THREE.Scene();
-scene.background = new THREE.Color(0xf4f4f2);
-const camera = new THREE.PerspectiveCamera(45, 1, 0.05, 100);
-camera.position.set(3, 1.7, 4.5);
-const controls = new OrbitControls(camera, renderer.domElement);
-controls.target.set(0, 0.9, 0);
-scene.add(floorGrid(10, 0.5));
-scene.add(new THREE.HemisphereLight(0xffffff, 0x888880, 2.0));
+const { renderer, scene, camera, controls } = makeStage(view, OrbitControls);
 const figure = new Figure(scene);
-function resize() {
-  const w = view.clientWidth, h = view.clientHeight;
-  renderer.setSize(w, h);
-  camera.aspect = w / Math.max(h, 1);
-  camera.updateProjectionMatrix();
-}
-new ResizeObserver(resize).observe(view);
-resize();
 
 const player = { joints: null, frames: 0, fps: 20, frame: 0, playing: true, contacts: null };
 function setFrame(t) {

@@ -45,6 +45,36 @@ export function contactsOf(joints, frames, fps) {
   return out;
 }
 
+// The scene both pages draw in, inside element `view`: renderer, scene (floor grid, lights), camera and orbit
+// controls (the OrbitControls class, imported by each page from its own copy of three.js), resized with the view.
+export function makeStage(view, OrbitControls) {
+  const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+  renderer.setPixelRatio(window.devicePixelRatio);
+  view.appendChild(renderer.domElement);
+  const scene = new THREE.Scene();
+  scene.background = new THREE.Color(0xf4f4f2);
+  const camera = new THREE.PerspectiveCamera(45, 1, 0.05, 100);
+  camera.position.set(3, 1.7, 4.5);
+  const controls = new OrbitControls(camera, renderer.domElement);
+  controls.target.set(0, 0.9, 0);
+  const floor = floorGrid(10, 0.5);
+  scene.add(floor);
+  scene.add(new THREE.HemisphereLight(0xffffff, 0x888880, 2.0));
+  const sun = new THREE.DirectionalLight(0xffffff, 1.5);
+  sun.position.set(2, 5, 3);
+  scene.add(sun);
+  const resize = () => {
+    const w = view.clientWidth, h = view.clientHeight;
+    renderer.setSize(w, h);
+    camera.aspect = w / Math.max(h, 1);
+    camera.updateProjectionMatrix();
+  };
+  window.addEventListener('resize', resize);
+  new ResizeObserver(resize).observe(view); // the header may wrap to two lines
+  resize();
+  return { renderer, scene, camera, controls, floor };
+}
+
 export class Figure {
   constructor(scene) {
     this.positions = new Float32Array(21 * 2 * 3);

@@ -3,7 +3,7 @@
 import * as THREE from 'three';
 import { OrbitControls } from '/viewer/vendor/OrbitControls.js';
 import { loadGlb, glbJoints } from '/viewer/glb.js';
-import { Figure, contactsOf, floorGrid } from '/viewer/figure.js';
+import { Figure, contactsOf, makeStage } from '/viewer/figure.js';
 
 const JOINT_NAMES = ['pelvis', 'left_hip', 'right_hip', 'spine1', 'left_knee', 'right_knee', 'spine2', 'left_ankle',
   'right_ankle', 'spine3', 'left_foot', 'right_foot', 'neck', 'left_collar', 'right_collar', 'head', 'left_shoulder',
@@ -18,22 +18,7 @@ window.smf = state; // for tests and the console
 
 // scene
 const view = $('view');
-const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
-renderer.setPixelRatio(window.devicePixelRatio);
-view.appendChild(renderer.domElement);
-const scene = new THREE.Scene();
-scene.background = new THREE.Color(0xf4f4f2);
-const camera = new THREE.PerspectiveCamera(45, 1, 0.05, 100);
-camera.position.set(3, 1.7, 4.5);
-const controls = new OrbitControls(camera, renderer.domElement);
-controls.target.set(0, 0.9, 0);
-const floor = floorGrid(10, 0.5);
-scene.add(floor);
-scene.add(new THREE.HemisphereLight(0xffffff, 0x888880, 2.0));
-const sun = new THREE.DirectionalLight(0xffffff, 1.5);
-sun.position.set(2, 5, 3);
-scene.add(sun);
-
+const { renderer, scene, camera, controls, floor } = makeStage(view, OrbitControls);
 const figure = new Figure(scene);
 
 // a path drawn on the floor: click points with "path" ticked; sent as the request's "path" (docs/paths.md)
@@ -74,15 +59,6 @@ $('draw').addEventListener('change', () => {
 });
 window.smf.path = drawn;
 
-function resize() {
-  const w = view.clientWidth, h = view.clientHeight;
-  renderer.setSize(w, h);
-  camera.aspect = w / Math.max(h, 1);
-  camera.updateProjectionMatrix();
-}
-window.addEventListener('resize', resize);
-new ResizeObserver(resize).observe(view);  // the header may wrap to two lines (e.g. when the adapter menu appears)
-resize();
 
 // motion
 function setMotion(joints, frames, fps, label) {

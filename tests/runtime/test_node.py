@@ -57,6 +57,19 @@ def test_node_gives_one_clear_error_for_bad_input(site):
     folder, _ = site
     for args, why in [(["", "--seed", "1"], "prompt"), (["a person walks", "--seed", "-3"], "seed"),
                       (["a person walks", "--seconds", "30"], "at most"),
-                      (["a person walks", "--footskate", "loop"], "footskate")]:
+                      (["a person walks", "--footskate", "loop"], "footskate"),
+                      (["a person walks", "--path", "[[0, 0]]"], "2 to 256")]:
         run = node_generate(folder, *args)
         assert run.returncode == 2 and why in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr
+
+
+@pytest.mark.parametrize("prompt, path, footskate", [
+    ("a person walks", [[1, 0], [1, 3], [4, 3], [4, 0]], "post"),
+    ("a person runs", {"points": [[0, 0], [0, 3], [3, 3]], "times": [0, 1.5, 3]}, "off")])
+def test_node_follows_an_explicit_path_as_the_python_runtime(site, prompt, path, footskate):
+    folder, pipe = site
+    run = node_generate(folder, prompt, "--seed", 1, "--footskate", footskate, "--path", json.dumps(path))
+    assert run.returncode == 0, run.stderr
+    want = pipe(prompt, seed=1, footskate=footskate, path=path)[0].joints
+    got = np.asarray(json.loads(run.stdout)["joints"])
+    assert got.shape == want.shape and np.abs(got - want).max() < 1e-3

@@ -1,5 +1,6 @@
 // Text to motion from Node.js on a site folder written by `smf site` (its model and vendored ONNX Runtime Web):
 //   node runtime/generate.mjs "a person waves both hands" [--seconds 4] [--seed 0] [--footskate post|off]
+//                             [--path '[[0, 0], [0, 3], [3, 3]]']
 // prints {"joints": [frames][22][3] metres, "fps", "prompt", "seed", "similarity", "outOfDomain", "closest"} as JSON.
 import { readFile } from 'node:fs/promises';
 import { dirname, join } from 'node:path';
@@ -17,6 +18,7 @@ const option = (name, fallback) => {
 const seconds = option('--seconds', undefined);
 const seed = Number(option('--seed', '0'));
 const footskate = option('--footskate', 'post');
+const pathText = option('--path', null);
 const prompt = args.join(' ');
 
 const ortDir = join(site, 'vendor', 'onnxruntime-web');
@@ -30,7 +32,8 @@ const read = async (name, kind) => {
 };
 try {
   const runtime = await MotionRuntime.load({ ort, Tokenizer, read });
-  const motion = await runtime.generate({ prompt, seconds, seed, footskate });
+  const path = pathText === null ? null : JSON.parse(pathText);
+  const motion = await runtime.generate({ prompt, seconds, seed, footskate, path });
   process.stdout.write(JSON.stringify(motion));
 } catch (e) {
   process.stderr.write(`generate.mjs: ${e.message}\n`);

@@ -122,7 +122,85 @@ export function bend(features, T, D, J, spec, cleanupSettings, fps) {
     path.push([path[t][0] + step[0], path[t][1] + step[1]]);
   }
   for (let t = 0; t + 1 < T; t++) f[t * D] -= (extra[t + 1] - extra[t]) / 2;
-  // follow the path under the new headings: each step into the body frame of the frame it leads to
+  followPath(f, T, D, path); // each step into the body frame of the frame it leads to
+  return f;
+}
+
+// ---- explicit paths: waypoints (stablemofusion/path_plan.py: Waypoints, follow_waypoints, place)
+const MAX_WAYPOINTS = 256, MAX_PATH_METRES = 200, TANGENT_SPAN = 0.3;
+
+// {points: [[x, z], ...], times: [...] | null} from a list of points or {points, times}; RangeError naming the problem.
+export function readWaypoints(data) {
+  const body = Array.isArray(data) ? { points: data } : (data || {});
+  const extra = Object.keys(body).filter((k) => k !== 'points' && k !== 'times');
+  if (extra.length) throw new RangeError(`a path has 'points' and optionally 'times', not ${extra.join(', ')}`);
+  const points = body.points;
+  if (!Array.isArray(points) || points.length < 2 || points.length > MAX_WAYPOINTS
+      || !points.every((p) => Array.isArray(p) && p.length === 2 && p.every(Number.isFinite))) {
+    throw new RangeError(`a path is 2 to ${MAX_WAYPOINTS} [x, z] points of finite numbers (metres)`);
+  }
+  const cum = [0];
+  for (let k = 1; k < points.length; k++) {
+    const step = Math.hypot(points[k][0] - points[k - 1][0], points[k][1] - points[k - 1][1]);
+    if (step < 1e-6) throw new RangeError("a path's consecutive points must differ");
+    cum.push(cum[k - 1] + step);
+  }
+  const length = cum[cum.length - 1];
+  if (length > MAX_PATH_METRES || length < MIN_TRAVEL) {
+    throw new RangeError(`a path must be ${MIN_TRAVEL} to ${MAX_PATH_METRES} m long, got ${length.toFixed(2)} m`);
+  }
+  const times = body.times ?? null;
+  if (times !== null && (!Array.isArray(times) || times.length !== points.length || !times.every(Number.isFinite)
+      || times[0] !== 0 || times.some((t, k) => k > 0 && t <= times[k - 1]))) {
+    throw new RangeError('path times are one per point, from 0, increasing (seconds)');
+  }
+  return { points, times, cum, length };
+}
+
+// How long following it takes (seconds, whole multiples of `multiple` frames at `fps`): its last time, else its length
+// at the prompt's gait's speed.
+export function waypointSeconds(wp, prompt, lex, fps, multiple) {
+  const seconds = wp.times ? wp.times[wp.times.length - 1]
+    : wp.length / lex.speeds[new RegExp(lex.run_words).test(prompt.toLowerCase()) ? 'run' : 'walk'];
+  return Math.max(1, Math.round(seconds * fps / multiple)) * multiple / fps;
+}
+
+const interp = (x, xs, ys) => {
+  if (x <= xs[0]) return ys[0];
+  for (let k = 1; k < xs.length; k++) if (x <= xs[k]) return ys[k - 1] + (ys[k] - ys[k - 1]) * (x - xs[k - 1]) / (xs[k] - xs[k - 1]);
+  return ys[ys.length - 1];
+};
+const along = (wp, s) => [interp(s, wp.cum, wp.points.map((p) => p[0])), interp(s, wp.cum, wp.points.map((p) => p[1]))];
+
+// Raw features whose root runs along the path, facing its way, in the features' frame; and {start, origin}: how to
+// place the finished joints in the path's frame (placeJoints).
+export function followWaypoints(features, T, D, wp, fps) {
+  const f = Float64Array.from(features);
+  const u = progress(f, T, D);
+  const s = Array.from({ length: T }, (_, t) => (wp.times ? interp(t / fps, wp.times, wp.cum) : u[t] * wp.length));
+  const p = s.map((v) => along(wp, v));
+  const heading = new Float64Array(T);
+  s.forEach((v, t) => {
+    const a = along(wp, v + TANGENT_SPAN), b = along(wp, v - TANGENT_SPAN);
+    let h = Math.atan2(a[0] - b[0], a[1] - b[1]);
+    if (t > 0) h += 2 * Math.PI * Math.round((heading[t - 1] - h) / (2 * Math.PI));
+    heading[t] = h;
+  });
+  const face = facing(f, T, D);
+  const start = heading[0] - face[0];
+  const c = Math.cos(-start), sn = Math.sin(-start);
+  const local = p.map(([x, z]) => {
+    const rx = x - p[0][0], rz = z - p[0][1];
+    return [c * rx + sn * rz, -sn * rx + c * rz];
+  });
+  const extra = Array.from({ length: T }, (_, t) => heading[t] - start - face[t]);
+  for (let t = 0; t + 1 < T; t++) f[t * D] -= (extra[t + 1] - extra[t]) / 2;
+  followPath(f, T, D, local);
+  return { features: f, start, origin: p[0] };
+}
+
+// Root velocities set so that the root follows `path` (T x [x, z], from the origin) under the features' headings.
+function followPath(f, T, D, path) {
   let half = 0;
   for (let t = 0; t + 1 < T; t++) {
     half += f[t * D];
@@ -133,5 +211,15 @@ export function bend(features, T, D, J, spec, cleanupSettings, fps) {
   }
   f[(T - 1) * D + 1] = f[(T - 2) * D + 1];
   f[(T - 1) * D + 2] = f[(T - 2) * D + 2];
-  return f;
+}
+
+// Finished joints (T x J x 3, the first root at the origin) turned by `start` about +Y and moved to `origin` (in place).
+export function placeJoints(x, T, J, start, origin) {
+  const c = Math.cos(start), s = Math.sin(start);
+  for (let i = 0; i < T * J; i++) {
+    const px = x[i * 3], pz = x[i * 3 + 2];
+    x[i * 3] = c * px + s * pz + origin[0];
+    x[i * 3 + 2] = -s * px + c * pz + origin[1];
+  }
+  return x;
 }

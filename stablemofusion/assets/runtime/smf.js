@@ -5,7 +5,7 @@
 // (@huggingface/tokenizers) and a function that reads a file of the folder.
 import { normal } from './noise.js';
 import { cleanupRigid } from './cleanup.js';
-import { bend, parsePath } from './paths.js';
+import { bend, followWaypoints, parsePath, placeJoints, readWaypoints, waypointSeconds } from './paths.js';
 import { bvhText, fitRigid, jointsFromFeatures, poseOfJoints, recentre } from './motion.js';
 
 export class MotionRuntime {
@@ -91,7 +91,9 @@ export class MotionRuntime {
 
   // One motion: {joints (T x J x 3 nested arrays, metres), frames, fps, prompt, seed, similarity, closest,
   // outOfDomain}.
-  async generate({ prompt, seconds, seed = 0, footskate = 'post' }) {
+  // `path`: a root path to follow ([[x, z], ...] metres, or {points, times}), its length the motion's unless seconds
+  // are given.
+  async generate({ prompt, seconds, seed = 0, footskate = 'post', path = null }) {
     const i = this.info, T = this.ort.Tensor;
     prompt = String(prompt ?? '').trim();
     if (!prompt) throw new RangeError('the prompt must be a non-empty text');
@@ -106,7 +108,9 @@ export class MotionRuntime {
     const enc = await this.encode(spec ? spec.prompt : prompt);
     const domain = await this.domain(enc);
     const unset = seconds === undefined || seconds === null || seconds === '';
-    const n = await this.frames(spec ? await this.encode(prompt) : enc, unset && spec && spec.seconds ? spec.seconds : seconds);
+    const wp = path === null || path === undefined ? null : readWaypoints(path);
+    const own = wp ? waypointSeconds(wp, prompt, i.paths, i.fps, i.length_multiple) : spec && spec.seconds;
+    const n = await this.frames(spec ? await this.encode(prompt) : enc, unset && own ? own : seconds);
     const cond = await this.sessions.condition.run({ tokens: enc.tokens, mask: this.mask(enc.L),
       guidance: new T('float32', Float32Array.of(i.guidance), [1]) });
     // 2. denoise: the sampler table on the portable noise (stream 0 of the seed), frames padded to pad_multiple
@@ -136,13 +140,16 @@ export class MotionRuntime {
     // 3. the final stage: the path bent, decoded, the rigid fit (one skeleton of fixed bone lengths), the cleanup,
     // recentred
     const J = i.skeleton.parents.length, sk = i.skeleton;
-    features = bend(features, n, D, J, spec, i.cleanup, i.fps);
+    let placing = null;
+    if (wp) ({ features, ...placing } = followWaypoints(features, n, D, wp, i.fps));
+    else features = bend(features, n, D, J, spec, i.cleanup, i.fps);
     let flat = fitRigid(jointsFromFeatures(features, n, D, J), n, sk, sk.bone_lengths, i.rigid_sweeps);
     if (footskate === 'post') {
       const { offsets } = poseOfJoints(flat, n, sk, sk.bone_lengths);
       flat = cleanupRigid(flat, n, sk, sk.bone_lengths, offsets, i.fps, i.cleanup);
     }
     recentre(flat, n, J);
+    if (placing) placeJoints(flat, n, J, placing.start, placing.origin);
     const joints = [];
     for (let f = 0; f < n; f++) {
       const frame = [];

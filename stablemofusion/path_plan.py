@@ -34,6 +34,7 @@ from .footskate.cleanup import CLEANUP_CONTACTS
 from .footskate.contacts import HML_FOOT_JOINTS, kinematic_contacts
 from .motion.features import joints_from_features
 from .motion.root import follow_path
+from .motion.skeleton import get_skeleton
 
 ZIGZAG_DEGREES = 45.0  # heading of a zigzag's legs either side of its direction
 ZIGZAG_LEGS = 4  # legs of a zigzag
@@ -42,7 +43,7 @@ TURN_SPAN = (0.3, 0.7)  # where a turn the model did not make is added: this par
 BACK_SPAN = (0.42, 0.58)  # where a there-and-back turns: this part of the distance
 MIN_MODEL_TURN = 30.0  # degrees: a smaller turn of the model's own is not scaled (a turn is added instead)
 MIN_TRAVEL = 0.5  # m: a motion that travels less is bent over time, not distance
-FPS = 20.0  # HumanML3D's frame rate (the features bent here are HumanML3D's)
+SKELETON = "humanml3d"  # the features bent here are HumanML3D's
 
 
 @dataclass(frozen=True)
@@ -164,10 +165,10 @@ def _pivoted_path(features: np.ndarray, extra: np.ndarray) -> np.ndarray:
     """(T, 2) the root's XZ path once the body is turned by ``extra`` (T,) radians more at each frame: each step
     turned with its frame, and while a foot is planted in the original motion, the root moved about that foot so
     that the foot stays put (its position: the mean of the planted foot joints)."""
-    joints = joints_from_features(features, "humanml3d")
+    joints = joints_from_features(features, SKELETON)
     root = joints[:, 0, [0, 2]]
     feet = joints[:, list(HML_FOOT_JOINTS)][..., [0, 2]]  # (T, 4, 2)
-    planted = kinematic_contacts(joints, FPS, config=CLEANUP_CONTACTS)  # (T, 4)
+    planted = kinematic_contacts(joints, get_skeleton(SKELETON).fps, config=CLEANUP_CONTACTS)  # (T, 4)
     c, s = np.cos(extra), np.sin(extra)
 
     def turn(k: slice, v: np.ndarray) -> np.ndarray:  # v (n, 2) turned about +Y by extra[k] (n,)
@@ -250,7 +251,8 @@ class Waypoints:
         lex = _lexicon()
         seconds = float(self.times[-1]) if self.times is not None else \
             self.length / lex["speeds"]["run" if re.search(lex["run_words"], prompt.lower()) else "walk"]
-        return max(1, round(seconds * FPS / LENGTH_MULTIPLE)) * LENGTH_MULTIPLE / FPS  # whole multiples of frames
+        fps = get_skeleton(SKELETON).fps
+        return max(1, round(seconds * fps / LENGTH_MULTIPLE)) * LENGTH_MULTIPLE / fps  # whole multiples of frames
 
 
 def _along(points: np.ndarray, s: np.ndarray) -> np.ndarray:

@@ -123,8 +123,7 @@ def write_site(out: Path, graphs) -> Path:
         raise SMFError(f"{out} exists and is not a site written by `smf site`: choose an empty or new folder")
     tmp = out.with_name(out.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
-    shutil.copytree(assets / "site", tmp, ignore=shutil.ignore_patterns("README.md", "__pycache__"))
-    (tmp / "vendor" / "README.md").write_bytes((assets / "site" / "vendor" / "README.md").read_bytes())
+    shutil.copytree(assets / "site", tmp, ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copytree(assets / "runtime", tmp / "runtime")
     shutil.copytree(assets / "viewer" / "vendor", tmp / "vendor" / "three")
     for name in ("figure.js", "viewer.css"):  # the viewer's stick figure and style

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+MAX_PATH_FILE_BYTES = 256 * 1024  # the most a --path file may hold
+
 
 def add_parser(sub, name: str) -> None:
     from ..limits import BATCH_SIZE
@@ -78,8 +80,6 @@ def read_path(path: Path | None):
         raise SMFError(f"{path}: not a JSON path ({e})") from None
     return Waypoints.read(data)
 
-
-MAX_PATH_FILE_BYTES = 256 * 1024
 
 
 def run(args: argparse.Namespace) -> None:

@@ -4,9 +4,9 @@
 // (T x J x 3, metres, Y up); the optimisation works in centimetres, as the Python does. Its settings come from the
 // model's web.json ("cleanup"), written from the Python defaults.
 
-const CM = 100;
+import { branchFrame, cross, dot, sub } from './motion.js';
 
-const sub3 = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+const CM = 100;
 const norm3 = (v) => Math.hypot(v[0], v[1], v[2]);
 
 // numpy's percentile with linear interpolation
@@ -85,7 +85,7 @@ function anchorTargets(x, T, J, contacts, lengths, c) {
     const reach = chain.slice(1).reduce((s, i) => s + lengths[i], 0) + c.reach_margin;
     for (let t = 0; t < T; t++) {
       const hip = pts[t].map((_, e) => x[(t * J + chain[0]) * 3 + e]);
-      const d = norm3(sub3([target[(t * 4 + k) * 3], target[(t * 4 + k) * 3 + 1], target[(t * 4 + k) * 3 + 2]], hip));
+      const d = norm3(sub([target[(t * 4 + k) * 3], target[(t * 4 + k) * 3 + 1], target[(t * 4 + k) * 3 + 2]], hip));
       if (d > reach) mask[t * 4 + k] = 0;
     }
   });
@@ -154,8 +154,6 @@ function cleanupLoss(X0, tgt, mask, T, J, c) {
   };
 }
 
-const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
-const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
 
 // The pose parameters of motion/rigid.py's _PoseParams for rigid joints x (metres): free bones' vectors (cm),
 // branching joints' scaled 6D orientations, the root's shift (cm), as one flat vector; positions and the chain rule.
@@ -175,15 +173,9 @@ function poseParams(x, T, tree, lengths, offsets, branchScale) {
   const theta0 = new Float64Array(nU + nG + T * 3);
   const at = (t, j) => [x[(t * J + j) * 3], x[(t * J + j) * 3 + 1], x[(t * J + j) * 3 + 2]];
   for (let t = 0; t < T; t++) {
-    free.forEach((c, f) => theta0.set(sub3(at(t, c), at(t, parents[c])).map((v) => v * CM), (t * F + f) * 3));
-    branch.forEach((b, i) => { // the branch's frame: X from its -X child to its +X child, Y towards the third
-      const ch = tree.branch_children[tree.branches.indexOf(b)];
-      const xa = sub3(at(t, ch[1]), at(t, ch[0]));
-      const xn = xa.map((v) => v / (norm3(xa) + 1e-12));
-      let y = sub3(at(t, ch[2]), at(t, b)).map((v) => v * Math.sign(tree.rest[ch[2]][1]));
-      const d = dot(y, xn);
-      y = y.map((v, e) => v - d * xn[e]);
-      const yn = y.map((v) => v / (norm3(y) + 1e-12));
+    free.forEach((c, f) => theta0.set(sub(at(t, c), at(t, parents[c])).map((v) => v * CM), (t * F + f) * 3));
+    branch.forEach((b, i) => { // the branch's frame (motion.js), its X and Y columns scaled
+      const [xn, yn] = branchFrame((j) => at(t, j), tree, tree.branches.indexOf(b));
       theta0.set([...xn, ...yn].map((v) => v * branchScale), nU + (t * B + i) * 6);
     });
   }

@@ -46,15 +46,15 @@ const EPS = 1e-12;
 const GIMBAL_COS = 1e-9; // motion/rotation.py's: below it the first and third Euler axes coincide
 const POLAR_STEPS = 8;
 
-function cross(a, b) {
+export function cross(a, b) {
   return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
 }
-const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+export const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
 function unit(v) {
   const n = Math.hypot(v[0], v[1], v[2]) + EPS;
   return [v[0] / n, v[1] / n, v[2] / n];
 }
-const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+export const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
 // a rotation as its three columns [x, y, z]: R v = x v0 + y v1 + z v2; R^T v = (x.v, y.v, z.v)
 const rotate = (R, v) => [0, 1, 2].map((i) => R[0][i] * v[0] + R[1][i] * v[1] + R[2][i] * v[2]);
 const rotateT = (R, v) => [dot(R[0], v), dot(R[1], v), dot(R[2], v)];
@@ -78,7 +78,7 @@ export function polarRotation(K, fallback) {
 
 // The frame (columns x, y, z) of branching joint number i of joints `at(j)`: X from its -X child to its +X child,
 // Y towards its remaining child (up or down by that child's rest direction), Z = X x Y.
-function branchFrame(at, t, i) {
+export function branchFrame(at, t, i) {
   const [c0, c1, c2] = t.branch_children[i];
   const x = unit(sub(at(c1), at(c0)));
   let y = sub(at(c2), at(t.branches[i])).map((v) => v * Math.sign(t.rest[c2][1]));

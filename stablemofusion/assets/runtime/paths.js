@@ -9,34 +9,41 @@ const TURN_SPAN = [0.3, 0.7], BACK_SPAN = [0.42, 0.58];
 const MIN_MODEL_TURN = 30, MIN_TRAVEL = 0.5;
 const rad = (d) => d * Math.PI / 180;
 
+// the lexicon's regular expressions, compiled once per lexicon
+const COMPILED = new WeakMap();
 function compile(lex) {
-  if (!lex.compiled) lex.compiled = lex.paths.map((e) => new RegExp(`(?:${e.pattern})${lex.direction_suffix}`));
-  return lex.compiled;
+  if (!COMPILED.has(lex)) {
+    COMPILED.set(lex, { paths: lex.paths.map((e) => new RegExp(`(?:${e.pattern})${lex.direction_suffix}`)),
+      body: new RegExp(`${lex.body_words}(?:\\W+\\w+){0,2}\\W*$`), move: new RegExp(lex.move_words),
+      side: new RegExp(`${lex.right_words}|${lex.left_words}`), right: new RegExp(lex.right_words),
+      left: new RegExp(lex.left_words), run: new RegExp(lex.run_words), direction: new RegExp(lex.direction_words, 'gi') });
+  }
+  return COMPILED.get(lex);
 }
 
 // {kind, angle (degrees, positive left), side, prompt (what the model is given), words, seconds} or null.
 export function parsePath(prompt, lex) {
   const text = prompt.toLowerCase();
-  const compiled = compile(lex);
+  const re = compile(lex);
   for (let k = 0; k < lex.paths.length; k++) {
     const entry = lex.paths[k];
-    const m = compiled[k].exec(text);
+    const m = re.paths[k].exec(text);
     if (!m) continue;
     const start = m.index, end = m.index + m[0].length;
-    if (new RegExp(`${lex.body_words}(?:\\W+\\w+){0,2}\\W*$`).test(text.slice(0, start))) continue;
+    if (re.body.test(text.slice(0, start))) continue; // the path of a body part ("swings both arms back and forth")
     const outside = `${text.slice(0, start)} ${text.slice(end)}`;
-    if (entry.needs_move && !new RegExp(lex.move_words).test(outside)) continue;
+    if (entry.needs_move && !re.move.test(outside)) continue;
     const words = m[0];
-    const where = new RegExp(`${lex.right_words}|${lex.left_words}`).test(words) ? words : text;
-    const right = new RegExp(lex.right_words).exec(where), left = new RegExp(lex.left_words).exec(where);
+    const where = re.side.test(words) ? words : text;
+    const right = re.right.exec(where), left = re.left.exec(where);
     const side = right && !(left && left.index < right.index) ? 'right' : 'left';
     let angle = entry.angle === 'degrees' ? Number(m.groups.degrees) : Number(entry.angle);
     if (side === 'right') angle = -angle;
-    const gait = new RegExp(lex.run_words).test(text) ? 'run' : 'walk';
-    const move = new RegExp(lex.move_words).test(outside) ? '' : (gait === 'run' ? 'runs' : 'walks');
+    const gait = re.run.test(text) ? 'run' : 'walk';
+    const move = re.move.test(outside) ? '' : (gait === 'run' ? 'runs' : 'walks');
     const model = entry.model.replace('{side}', side).replace('{move}', move).replace('{words}', prompt.slice(start, end));
     let rest = `${prompt.slice(0, start)} ${model} ${prompt.slice(end)}`;
-    rest = rest.replace(new RegExp(lex.direction_words, 'gi'), ' ');
+    rest = rest.replace(re.direction, ' ');
     rest = rest.replace(/\s+/g, ' ').replace(/\s+([,.;])/g, '$1').replace(/^[ ,]+|[ ,]+$/g, '');
     return { kind: entry.kind, angle, side, prompt: rest || prompt, words: words.trim(),
       seconds: entry.seconds ? entry.seconds[gait] : null };
@@ -161,7 +168,7 @@ export function readWaypoints(data) {
 // at the prompt's gait's speed.
 export function waypointSeconds(wp, prompt, lex, fps, multiple) {
   const seconds = wp.times ? wp.times[wp.times.length - 1]
-    : wp.length / lex.speeds[new RegExp(lex.run_words).test(prompt.toLowerCase()) ? 'run' : 'walk'];
+    : wp.length / lex.speeds[compile(lex).run.test(prompt.toLowerCase()) ? 'run' : 'walk'];
   return Math.max(1, Math.round(seconds * fps / multiple)) * multiple / fps;
 }
 

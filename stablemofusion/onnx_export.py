@@ -225,20 +225,24 @@ def export_text_encoder(out: Path) -> dict:
             "tokenizer": "tokenizer.json", "licence": "Apache-2.0 (sentence-transformers/all-MiniLM-L6-v2)"}
 
 
-def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder_from: str | Path | None = None) -> Path:
+def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder_from: str | Path | None = None,
+                adapters=None) -> Path:
     """Every graph of a model folder (``None``: the shipped model) and its teacher into ``out`` (written
     atomically); returns ``out``. ``text_encoder_from``: a graphs folder whose text encoder and tokenizer are
-    copied instead of exported again (the same MiniLM)."""
+    copied instead of exported again (the same MiniLM). ``adapters`` (``smf adapt`` files): merged into the
+    weights first, their actions known: the graphs of the adapted model, as fast as the base's."""
     from .io import atomic_dir
     from .pipelines.components import Components, model_folder
 
     path = model_folder(model_path)
-    student = Components.from_pretrained(path, device="cpu", dtype=torch.float32)
+    student = Components.from_pretrained(path, device="cpu", dtype=torch.float32, adapter=adapters or None)
     if student.config.text_encoder != "minilm":
         raise SMFError(f"only models on the MiniLM text encoder export to ONNX, this one uses "
                        f"{student.config.text_encoder}")
     with atomic_dir(Path(out)) as tmp:
         manifest = {"format": FORMAT, "version": VERSION, "noise_version": _noise_version()}
+        if student.adapters:
+            manifest["adapters"] = list(student.adapters)
         if text_encoder_from is None:
             manifest["text_encoder"] = export_text_encoder(tmp)
         else:
@@ -249,7 +253,8 @@ def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder_
             manifest["text_encoder"] = entry
         manifest["model"] = export_model_graphs(student, tmp)
         if student.student:
-            teacher = Components.from_pretrained(path, teacher=True, device="cpu", dtype=torch.float32)
+            teacher = Components.from_pretrained(path, teacher=True, device="cpu", dtype=torch.float32,
+                                                 adapter=adapters or None)
             manifest["teacher"] = export_model_graphs(teacher, tmp / "teacher")
             manifest["teacher"]["folder"] = "teacher"
         if student.length_estimator is not None:
@@ -264,6 +269,12 @@ def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder_
             np.save(tmp / "actions.npy", known.examples_embedding().astype(np.float32))
             manifest["actions"] = {"threshold": known.threshold, "actions": known.actions, "top": known.top,
                                    "embeddings": "actions.npy"}
+            if known.taught:  # adapters' actions: in domain close to one of their captions (text.known)
+                from .text.known import TAUGHT_SIMILARITY
+
+                np.save(tmp / "taught.npy", known.embed([c for caps in known.taught.values() for c in caps]))
+                manifest["actions"].update(taught=known.taught, taught_embeddings="taught.npy",
+                                           taught_similarity=TAUGHT_SIMILARITY)
             if known.detector is not None:
                 _export(_OODGraph(known.detector), (torch.randn(3, 384),), tmp / "ood.onnx", ["sentence"], ["score"],
                         {"sentence": {0: "B"}, "score": {0: "B"}})
@@ -279,7 +290,9 @@ def _readme(model: Path, manifest: dict) -> str:
     licence = ("the model's own: CC BY-NC 4.0 (non-commercial), trained on the Bandai-Namco Research Motion Dataset; "
                "see its MODEL_CARD.md" if card.is_file() and "CC BY-NC 4.0" in card.read_text(encoding="utf-8")
                else "the model's own (see its folder)")
-    return (f"# Portable graphs of {model.name}\n\n"
+    adapted = (f" with the adapters {', '.join(manifest['adapters'])} merged into its weights (their clips' licences: "
+               "`smf info --adapter FILE`)") if manifest.get("adapters") else ""
+    return (f"# Portable graphs of {model.name}{adapted}\n\n"
             "ONNX graphs of every network the model's default path runs, for the torch-free runtime "
             "(`smf generate --engine onnx`; inputs and outputs: docs/runtime.md). `graphs.json` lists them.\n\n"
             f"- `{manifest['text_encoder']['file']}`, `{manifest['text_encoder']['tokenizer']}`: all-MiniLM-L6-v2 "

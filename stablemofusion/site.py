@@ -41,6 +41,9 @@ def web_description(graphs) -> dict:
     if sk.bone_lengths is None or DEFAULT_FIT.bone_lengths != "dataset" or DEFAULT_FIT.method != "sweeps":
         raise SMFError("the site's rigid stage fits the skeleton's dataset bone lengths by block sweeps")
     actions = manifest["actions"]
+    taught = actions.get("taught") or {}  # an adapted model's actions: after the base's, in the same arrays
+    names = list(actions["actions"]) + list(taught)
+    owner = [i for i, examples in enumerate(list(actions["actions"].values()) + list(taught.values())) for _ in examples]
     return {
         "fps": m.fps, "min_frames": m.min_frames, "max_frames": m.max_frames, "length_multiple": LENGTH_MULTIPLE,
         "pad_multiple": m.pad_multiple, "motion_dim": m.dim, "guidance": m.guidance, "sampler": m.sampler,
@@ -56,9 +59,9 @@ def web_description(graphs) -> dict:
         "rigid_sweeps": DEFAULT_FIT.iterations,
         "cleanup": cleanup_settings(m.fps),
         "paths": path_lexicon(),
-        "actions": {"names": list(actions["actions"]), "threshold": actions["threshold"], "top": int(actions["top"]),
-                    "owner": [i for i, examples in enumerate(actions["actions"].values()) for _ in examples],
-                    "embeddings": "actions.bin"},
+        "actions": {"names": names, "threshold": actions["threshold"], "top": int(actions["top"]), "owner": owner,
+                    "embeddings": "actions.bin", "taught_from": len(actions["actions"]),
+                    "taught_similarity": actions.get("taught_similarity", 1.0)},
         "tokenizer": "tokenizer.json",
         "files": {name: f"{name}.onnx" for name in SITE_GRAPHS},
         "licence": MODEL_LICENCE,
@@ -109,7 +112,10 @@ def write_model(graphs, out: Path) -> Path:
     for name in SITE_GRAPHS:
         shutil.copyfile(_graph_file(graphs, name), out / info["files"][name])
     shutil.copyfile(graphs.folder / graphs.manifest["text_encoder"]["tokenizer"], out / info["tokenizer"])
-    emb = np.load(graphs.folder / graphs.manifest["actions"]["embeddings"]).astype("<f4")
+    actions = graphs.manifest["actions"]
+    emb = np.load(graphs.folder / actions["embeddings"]).astype("<f4")
+    if actions.get("taught"):
+        emb = np.concatenate([emb, np.load(graphs.folder / actions["taught_embeddings"]).astype("<f4")])
     (out / info["actions"]["embeddings"]).write_bytes(emb.tobytes())
     (out / "web.json").write_text(json.dumps(info), encoding="utf-8")
     (out / "LICENCE.txt").write_text(MODEL_LICENCE + "\n", encoding="utf-8")

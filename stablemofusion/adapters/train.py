@@ -5,8 +5,8 @@ The default path runs a 1-step student distilled from a teacher; a student canno
 
 1. **Teacher.** LoRA layers (:mod:`.lora`) on the frozen teacher, trained with its own diffusion loss (x0
    prediction, masked MSE, condition drop) on random crops of the user's clips. Most of each batch (``replay``) is
-   *replay*: the base teacher's own samples for captions of the actions the base knows (from the caption
-   lexicon of its corpus, or its ``actions.json`` examples), except an action most taught captions name, so
+   *replay*: the base teacher's own samples for captions of the actions the base knows (its ``actions.json``;
+   captions from the lexicon of its corpus, or the examples), except an action most taught captions name, so
    that what it knew stays (prior preservation, as in DreamBooth).
 2. **Student.** LoRA layers on the frozen student, regressed (as ``smf distil --method regression``) onto a
    fixed pool of targets: for the taught captions, the adapted teacher's deterministic samples from drawn
@@ -24,6 +24,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
@@ -41,6 +42,10 @@ from .lora import LoraConfig, add_lora, load_lora_state, lora_state, no_fast_pat
 
 STATE_FILE = "state.pt"
 LOG_HEADER = "stage,step,loss,lr,seconds"
+CONTRAST_PER_PAIR = 8  # lexicon captions per (content, style) pair: the known words of contrast_captions
+CONTRAST_NEAREST = 32  # known words tried in place of an unknown one (the closest alone, of the same ending)
+WORD = re.compile(r"[a-z]+(?:['-][a-z]+)*")  # a word of a caption (lower case)
+WORD_ENDINGS = ("ing", "ly", "ed", "er", "s")  # a replacing word ends as the replaced one
 REPLAY_MATCH = 0.75  # a taught caption this similar (cosine of sentence embeddings) to a known example names its action
 
 
@@ -50,9 +55,9 @@ class AdaptConfig:
 
     rank: int = 16
     alpha: float = 16.0
-    # adapt the text transformer's layers too: off, measured (docs/adapters.md): with them the taught captions
-    # pull the base's other actions towards the taught one (walks became runs)
-    text_layers: bool = False
+    # adapt the text transformer's layers too: with the contrast replay, measured (docs/adapters.md), they carry the
+    # taught words to prompts of other subjects and styles; without it they pulled walks towards runs
+    text_layers: bool = True
     teacher_steps: int = 500
     student_steps: int = 300
     batch_size: int = 32
@@ -60,6 +65,7 @@ class AdaptConfig:
     student_lr: float = 5e-4
     replay: float = 0.75  # measured: 0.5 kept fewer of the base's walks (docs/adapters.md)
     replay_prompts: int = 512  # captions of the base's actions replayed (spread over its actions)
+    contrast: int = 8  # replayed samples of each taught caption said in the base's words (contrast_captions); 0: none
     lexicon: str = "bandai"  # the base corpus's caption lexicon (replayed captions); "": its known-action examples
     pool: int = 512  # student targets per side (taught captions, replay)
     cond_drop: float = 0.1
@@ -77,6 +83,8 @@ class AdaptConfig:
             raise SMFError("--teacher-steps and --student-steps must not be negative, --batch-size at least 2")
         if not 0 <= self.replay < 1:
             raise SMFError(f"--replay is a share of each batch in [0, 1), got {self.replay}")
+        if self.contrast < 0:
+            raise SMFError(f"--contrast must not be negative, got {self.contrast}")
         if self.teacher_lr <= 0 or self.student_lr <= 0 or self.pool < 1 or self.checkpoint_every < 1:
             raise SMFError("learning rates, --pool and --checkpoint-every must be positive")
         return self
@@ -145,6 +153,40 @@ def replay_prompts(candidates: list[tuple[str, str]], skip: set[str], limit: int
         out += [v[i] for v in by_action.values() if i < len(v)]
         i += 1
     return out[:limit]
+
+
+def _ending(word: str) -> str:
+    """The inflection ``word`` ends with ("is" and "was" end with none)."""
+    return next((e for e in WORD_ENDINGS if word.endswith(e) and len(word) > len(e) + 2), "")
+
+
+def contrast_captions(taught: list[str], known_captions: list[str], embed: Callable,
+                      nearest: int = CONTRAST_NEAREST) -> list[str]:
+    """Each taught caption said in the base's own words: every word that no caption of ``known_captions`` uses is
+    replaced, one after the other, by the known word that keeps the caption closest to the taught one (cosine of
+    sentence embeddings), among the ``nearest`` known words closest to it alone with the same ending ("runs" ->
+    "walks", "running" -> "walking"). Captions of known words only give none. The base's answers to them are
+    what the adapter must tell apart from the taught captions: the words that differ name the new move."""
+    vocab = sorted({w for t in known_captions for w in WORD.findall(t.lower())})
+    known = set(vocab)
+    unknown = sorted({w for t in taught for w in WORD.findall(t.lower()) if w not in known})
+    if not unknown or not vocab:
+        return []
+    sims = embed(unknown) @ embed(vocab).T  # (U, V) cosine: unit embeddings
+    choices = {}
+    for i, word in enumerate(unknown):
+        order = sims[i].argsort(descending=True).tolist()
+        choices[word] = [vocab[j] for j in order if _ending(vocab[j]) == _ending(word)][:nearest] or [vocab[order[0]]]
+    out = []
+    for caption in taught:
+        current, target = caption, embed([caption])
+        for word in dict.fromkeys(w for w in WORD.findall(caption.lower()) if w in choices):
+            options = [re.sub(rf"(?<![\w'-]){re.escape(word)}(?![\w'-])", c, current, flags=re.IGNORECASE)
+                       for c in choices[word]]
+            current = options[int((embed(options) @ target.T).argmax())]
+        if current.lower() != caption.lower():
+            out.append(current)
+    return list(dict.fromkeys(out))
 
 
 class _Run:
@@ -261,8 +303,16 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
 
     known = student_pipe.known_actions.actions if student_pipe.known_actions is not None else {}
     candidates = lexicon_replay(cfg.lexicon) if cfg.lexicon else [(a, e) for a, ex in known.items() for e in ex]
+    if known:  # the lexicon's actions the base never learned would replay its failures at them
+        candidates = [(a, text) for a, text in candidates if a in known]
     retaught = retaught_actions(known, taught, embed)
     replay = replay_prompts(candidates, retaught, cfg.replay_prompts) if cfg.replay > 0 else []
+    contrast = []  # the taught captions in the base's words (contrast_captions), several samples of each
+    if replay and cfg.contrast:
+        wider = lexicon_replay(cfg.lexicon, per_pair=CONTRAST_PER_PAIR) if cfg.lexicon else []
+        wider = [text for a, text in wider if not known or a in known] + [e for ex in known.values() for e in ex]
+        contrast = contrast_captions(taught, wider, embed) * cfg.contrast
+    replay = contrast + replay
     encode(taught + replay)
     replay_frames = [_frames(round(s * student_pipe.fps), lo, hi) for s in student_pipe.predict_seconds(replay)] \
         if replay and student_pipe.length_estimator is not None else [_frames(80, lo, hi)] * len(replay)
@@ -397,8 +447,8 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
         caps = [clips[i].captions[k // len(clips) % len(clips[i].captions)] for k, (i, _) in enumerate(new_items)]
         pool["taught"] = targets(caps, [n for _, n in new_items], teacher_target)
         if n_replay:
-            reps = [replay[k % len(replay)] for k in range(cfg.pool)]
-            reps_frames = [replay_frames[k % len(replay)] for k in range(cfg.pool)]
+            picks = [k * len(replay) // cfg.pool if len(replay) > cfg.pool else k % len(replay) for k in range(cfg.pool)]
+            reps, reps_frames = [replay[k] for k in picks], [replay_frames[k] for k in picks]
             # the base student's own outputs: its LoRA updates off (a resumed run has trained some already)
             saved = lora_state(student)
             load_lora_state(student, {k: torch.zeros_like(v) for k, v in saved.items()})
@@ -425,7 +475,8 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
                        licence=licence, base=hashes, lora=lora, guidance=guidance,
                        training={"config": cfg.to_dict(), "clips": len(clips),
                                  "motion_seconds": round(sum(c.frames for c in clips) / student_pipe.fps, 1),
-                                 "captions_from": source, "replay_prompts": len(replay),
+                                 "captions_from": source, "replay_prompts": len(replay) - len(contrast),
+                                 "contrast_prompts": len(set(contrast)),
                                  "not_replayed": sorted(retaught),
                                  "teacher_loss": _ends(losses[1]), "student_loss": _ends(losses[2]),
                                  "seconds": round(seconds, 1), "teacher_guidance": teacher_guidance})
@@ -445,4 +496,4 @@ def _ends(values: list[float], n: int = 20) -> list[float]:
     return [round(float(np.mean(values[:n])), 5), round(float(np.mean(values[-n:])), 5)]
 
 
-__all__ = ["AdaptConfig", "adapt", "lexicon_replay", "replay_prompts", "retaught_actions"]
+__all__ = ["AdaptConfig", "adapt", "contrast_captions", "lexicon_replay", "replay_prompts", "retaught_actions"]

@@ -10,13 +10,16 @@ from .flags import add_config_flags, apply_threads, config_from_args
 
 _FLAGS = {  # AdaptConfig field -> help
     "rank": "rank of the low-rank updates", "alpha": "their scale is alpha / rank",
-    "text_layers": "adapt the text transformer's layers too (default: the denoiser's only)",
+    "text_layers": "adapt the text transformer's layers as well as the denoiser's (--no-text-layers: the "
+                   "denoiser's only)",
     "teacher_steps": "steps of the teacher's adaptation (diffusion loss on the clips)",
     "student_steps": "steps of the student's adaptation (regression on the adapted teacher)",
     "batch_size": "motions per step", "teacher_lr": "AdamW learning rate of the teacher's updates",
     "student_lr": "AdamW learning rate of the student's updates",
     "replay": "share of each batch replaying what the base model already does (keeps its other actions)",
     "replay_prompts": "captions of the base's known actions replayed", "pool": "student targets per side",
+    "contrast": "per taught caption, replay the base's answer to the known actions' captions closest to it "
+                "(hard negatives: the adapter learns which words name your action)",
     "lexicon": "caption lexicon of the base's corpus, whose captions are replayed ('' for the model's known-action "
                "examples)",
     "cond_drop": "share of the teacher's items trained without text", "grad_clip": "gradient norm clip",

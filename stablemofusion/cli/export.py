@@ -39,6 +39,9 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--onnx", action="store_true",
                    help="instead: write the portable graphs (ONNX, docs/runtime.md) of the model folder --checkpoint "
                         "(and its teacher) into --out, for the torch-free runtime (`--engine onnx`)")
+    p.add_argument("--adapter", type=Path, action="append", default=None,
+                   help="with --onnx: an adapter file from `smf adapt`, merged into the graphs' weights (repeat it to "
+                        "merge several): the adapted model for the runtime, the browser page and Blender")
     p.set_defaults(func=run)
 
 
@@ -46,7 +49,8 @@ def run(args: argparse.Namespace) -> None:
     if args.onnx:
         from ..onnx_export import export_onnx
 
-        out = export_onnx(args.checkpoint, args.out)
+        out = export_onnx(args.checkpoint, args.out, adapters=args.adapter,
+                          text_encoder_from=_text_encoder_graphs(args.checkpoint) if args.adapter else None)
         size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
         print(f"exported the graphs of {args.checkpoint} -> {out} ({size / 1e6:.1f} MB)")
         return
@@ -54,6 +58,10 @@ def run(args: argparse.Namespace) -> None:
 
     from ..diffusion.checkpoint import export_checkpoint
     from ..errors import SMFError
+
+    if args.adapter:
+        raise SMFError("--adapter goes with --onnx (the graphs of the adapted model); elsewhere load adapters with "
+                       "--adapter at generate, edit and serve")
 
     extra = {}
     if args.card is not None:
@@ -100,7 +108,8 @@ ABOUT = ("closest actions: example sentences per action from the lexicon's train
 def build_known_actions(lexicon: str, encoder: str, *, corpus: Path | None = None, text_cache: Path | None = None,
                         flag_rate: float | None = None, progress: bool = True):
     """The :class:`~stablemofusion.text.known.KnownActions` of a model trained on ``lexicon``'s corpus with the
-    text encoder ``encoder``: its actions' example sentences and a trained, calibrated out-of-domain detector."""
+    text encoder ``encoder``: its actions' example sentences and a trained, calibrated out-of-domain detector.
+    With a labelled ``corpus`` (``clips.csv``), only the lexicon's actions that the corpus holds are known."""
     from ..data.lexicon import known_actions, load_lexicon
     from ..errors import SMFError
     from ..text.cache import LRUTextCache, TextEmbeddingCache
@@ -119,5 +128,20 @@ def build_known_actions(lexicon: str, encoder: str, *, corpus: Path | None = Non
     detector: DomainDetector = build_detector(captions, cache, lexicon=lexicon,
                                               flag_rate=FLAG_RATE if flag_rate is None else flag_rate,
                                               encoder=encoder, progress=progress)
-    return KnownActions(known_actions(load_lexicon(lexicon), DomainDetector.THRESHOLD)["actions"],
-                        DomainDetector.THRESHOLD, cache, detector=detector)
+    actions = known_actions(load_lexicon(lexicon), DomainDetector.THRESHOLD)["actions"]
+    if corpus is not None and (corpus / "clips.csv").is_file():  # a corpus without some actions does not know them
+        from ..data.labels import corpus_labels
+
+        present = {info.content for info in corpus_labels(corpus).values()}
+        actions = {a: examples for a, examples in actions.items() if a in present}
+    return KnownActions(actions, DomainDetector.THRESHOLD, cache, detector=detector)
+
+
+def _text_encoder_graphs(checkpoint) -> Path | None:
+    """A graphs folder whose MiniLM graph an adapted export copies (adapters leave MiniLM as it is): the model
+    folder's own, else the shipped model's; None: export it again."""
+    from ..pipelines.components import model_folder
+    from ..runtime.pipeline import GRAPHS_DIR, default_graphs_path
+
+    folder = model_folder(checkpoint) / GRAPHS_DIR
+    return folder if (folder / "graphs.json").is_file() else default_graphs_path()

@@ -46,6 +46,10 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
     add_contact_arguments(p)
 
 
+PORTABLE_ADAPTERS = ("--adapter needs PyTorch; the portable runtime runs adapters merged into graphs: "
+                     "`smf export --onnx --adapter FILE --out DIR`, then --checkpoint DIR")
+
+
 def add_adapter_flag(p: argparse.ArgumentParser) -> None:
     """--adapter FILE (repeatable): adapters made by `smf adapt`, merged into the model at load."""
     p.add_argument("--adapter", type=Path, action="append", default=None,
@@ -159,7 +163,7 @@ def load_pipeline(args):
         from ..runtime.pipeline import PortablePipeline
 
         if getattr(args, "adapter", None):
-            raise SMFError(f"--adapter runs on the torch engines for now, not --engine {PORTABLE_ENGINE}")
+            raise SMFError(PORTABLE_ADAPTERS)
         # one thread unless asked: ONNX Runtime's threads cost more than they give on small machines (docs/runtime.md)
         threads = args.threads or (int(os.environ["OMP_NUM_THREADS"]) if os.environ.get("OMP_NUM_THREADS", "").isdigit()
                                    else 1)

@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> None:
     import uvicorn
 
     from ..errors import SMFError
-    from ..serve import ProcessWorker, WorkerSpec, create_app
+    from ..serve import ProcessWorker, create_app
     from ..serve.server_limits import MAX_STREAMS
     from ..serve.server import uvicorn_config
     from ..serve.live import StreamProcessWorker
@@ -90,8 +90,9 @@ def worker_spec(args):
         from ..runtime.pipeline import PortablePipeline
 
         if args.adapter:
-            raise SMFError(f"--adapter runs on the torch engines for now, not --engine {PORTABLE_ENGINE} (pip install "
-                           "'stablemofusion[train]')")
+            from .options import PORTABLE_ADAPTERS
+
+            raise SMFError(PORTABLE_ADAPTERS)
         model = ServedModel.of(PortablePipeline.from_pretrained(args.checkpoint, teacher=args.teacher))
         folder = None if args.checkpoint is None else str(args.checkpoint)
         return WorkerSpec(folder, None, args.threads, args.engine, teacher=args.teacher), model, ()

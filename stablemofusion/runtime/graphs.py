@@ -208,9 +208,10 @@ class PortableGraphs:
         a = self.manifest.get("actions")
         if a is None:
             return None
-        return KnownActions(a["actions"], a["threshold"], text_cache, top=int(a["top"]),
-                            detector=self if self._ood is not None else None,
-                            embeddings=np.load(self.folder / a["embeddings"]))
+        known = KnownActions(a["actions"], a["threshold"], text_cache, top=int(a["top"]),
+                             detector=self if self._ood is not None else None,
+                             embeddings=np.load(self.folder / a["embeddings"]))
+        return known.with_taught([a["taught"]]) if a.get("taught") else known  # graphs of an adapted model
 
     def scores(self, sentence: np.ndarray) -> np.ndarray:
         """(B,) the out-of-domain detector's in-domain scores of unit sentence embeddings (B, C)."""

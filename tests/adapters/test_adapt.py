@@ -91,7 +91,7 @@ def test_bad_clip_folders_are_one_line_errors(clip_folder, bandai_mini_source, t
 
 
 def test_replay_leaves_out_an_action_that_is_taught_anew(base):
-    from stablemofusion.adapters.train import lexicon_replay, replay_prompts, retaught_actions
+    from stablemofusion.adapters.train import contrast_captions, lexicon_replay, replay_prompts, retaught_actions
     from stablemofusion.pipeline import MotionPipeline
     from stablemofusion.text.frozen import sentence_embedding
 
@@ -109,6 +109,12 @@ def test_replay_leaves_out_an_action_that_is_taught_anew(base):
     candidates = [(a, e) for a, ex in known.items() for e in ex]
     assert replay_prompts(candidates, {"run"}, 10) == ["a person walks", "a person bows", "a man walks ahead"]
     assert replay_prompts(candidates, set(), 2) == ["a person walks", "a person runs"]  # in turn from each action
+    # taught captions in the base's words: the words no known caption uses replaced by known ones of the same ending
+    known_captions = ["a person walks forward", "an old man walks ahead slowly", "someone is walking", "a person bows"]
+    got = contrast_captions(["a person runs forward", "an old man jogs ahead slowly", "someone is running",
+                             "a person walks forward"], known_captions, embed)
+    assert got == ["a person walks forward", "an old man walks ahead slowly", "someone is walking"]
+    assert contrast_captions(["a person bows"], known_captions, embed) == []  # known words only: nothing to contrast
     lexicon = lexicon_replay("bandai")
     assert {a for a, _ in lexicon} >= {"walk", "run", "bow", "wave-both-hands", "kick"}
     assert len(lexicon) > 600 and lexicon == lexicon_replay("bandai")  # two captions per (content, style) pair
@@ -129,6 +135,7 @@ def test_adapt_writes_an_adapter_that_loads_and_resumes_exactly(base, clip_folde
     assert loaded.info.base == {"student": weights_hash(base), "teacher": weights_hash(base / "teacher")}
     assert set(loaded.info.actions["run"]) == {c for clip in clips for c in clip.captions}
     assert loaded.info.training["replay_prompts"] == 4 and loaded.info.training["not_replayed"] == []
+    assert loaded.info.training["contrast_prompts"] > 0
     assert set(loaded.weights) == {"student", "teacher"} and all(loaded.weights.values())
     assert (tmp_path / "run.safetensors").stat().st_size < 1 << 20
 
@@ -154,6 +161,25 @@ def test_adapt_writes_an_adapter_that_loads_and_resumes_exactly(base, clip_folde
     teacher = MotionPipeline.from_pretrained(base, teacher=True, device="cpu", adapter=tmp_path / "run.safetensors")
     assert teacher.adapters == ("run",)
     assert "run" in adapted.known_actions.taught and not pipe.known_actions.taught
+
+    # the portable runtime: the graphs of the adapted model make its motions and know its captions
+    from stablemofusion.cli.main import main
+    from stablemofusion.runtime.pipeline import PortablePipeline
+    from stablemofusion.runtime.sampling import sample
+
+    graphs = tmp_path / "adapted-graphs"
+    assert main(["export", "--onnx", "--checkpoint", str(base), "--adapter", str(tmp_path / "run.safetensors"),
+                 "--out", str(graphs)]) == 0
+    rt = PortablePipeline.from_pretrained(graphs, threads=1)
+    tokens, mask, _ = rt.encode(["a person runs"])
+    m = rt.graphs.model
+    got = sample(m, tokens, mask, [40], 0, guidance=m.guidance, sampler=m.sampler, steps=m.steps)
+    want = adapted.denoise(["a person runs"], [40], seed=0, engine="eager").numpy()
+    np.testing.assert_allclose(got[0], want[0], atol=2e-4, rtol=0)
+    assert rt.graphs.manifest["adapters"] == ["run"]
+    caption = loaded.info.actions["run"][0]
+    assert rt.known_actions.check(caption).out_of_domain == adapted.known_actions.check(caption).out_of_domain
+    assert "run" in rt.known_actions.taught
     from safetensors.torch import load_file, save_file
 
     other = tmp_path / "other"  # the base with one weight changed: another model

@@ -107,6 +107,13 @@ def test_export_writes_actions_and_detector(checkpoint_with_actions, tmp_path, m
                  "--lexicon", "bandai", "--corpus", str(corpus)]) == 0
     d = json.loads((tmp_path / "rel" / ACTIONS_FILE).read_text())
     assert d["threshold"] == DomainDetector.THRESHOLD and len(d["actions"]["walk"]) >= 25
+    assert {"run", "bow"} <= set(d["actions"])  # an unlabelled corpus: every action of the lexicon
+    # a labelled corpus (clips.csv): the model knows the lexicon's actions that its clips hold, no others
+    (corpus / "clips.csv").write_text("id,clip,dataset,content,style\n000000,a,1,walk,normal\n"
+                                      "000001,b,2,wave-both-hands,happy\n")
+    assert main(["export", "--checkpoint", str(checkpoint_with_actions), "--out", str(tmp_path / "labelled"),
+                 "--lexicon", "bandai", "--corpus", str(corpus)]) == 0
+    assert set(json.loads((tmp_path / "labelled" / ACTIONS_FILE).read_text())["actions"]) == {"walk", "wave-both-hands"}
     assert d["detector"]["file"] == DETECTOR_FILE and (tmp_path / "rel" / DETECTOR_FILE).is_file()
     known = KnownActions.load(tmp_path / "rel" / ACTIONS_FILE, cache)
     assert known.detector is not None and 0 < known.check("a person walks forward").similarity < 1

@@ -69,7 +69,9 @@ export class MotionRuntime {
     const order = best.map((s, k) => [a.names[k], s]).sort((x, y) => y[1] - x[1]).slice(0, a.top);
     const out = await this.sessions.ood.run({ sentence: new this.ort.Tensor('float32', Float32Array.from(enc.sentence), [1, C]) });
     const score = out.score.data[0];
-    return { similarity: score, closest: order, outOfDomain: score < a.threshold };
+    // an adapter's actions (after taught_from): a prompt close to one of their captions is in domain
+    const taught = best.slice(a.taught_from ?? best.length).some((s) => s >= a.taught_similarity);
+    return { similarity: score, closest: order, outOfDomain: score < a.threshold && !taught };
   }
 
   // The length of a motion in frames: `seconds` rounded as every runtime rounds it, or the length model's.

@@ -1,0 +1,71 @@
+"""Adapters on the portable runtime: the shipped model adapted (a short run on real clips) and exported as graphs
+(`smf export --onnx --adapter`) makes the adapted torch model's motions without torch, and its page's JavaScript
+runtime (Node.js) knows the taught captions as the Python one does."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from stablemofusion.adapters.clips import read_clips
+from stablemofusion.adapters.train import AdaptConfig, adapt
+from stablemofusion.cli.main import main
+
+CLIPS = ("dataset-2_walk-turn-left_normal_001", "dataset-1_walk_normal_001")
+CAPTION = "a person hops on one leg"
+FOREIGN = "a person plays the violin"
+
+
+@pytest.fixture(scope="module")
+def adapted_graphs(bandai_mini_source, tmp_path_factory):
+    """(graphs folder, adapter file): the shipped model taught a caption from two real clips in a few steps."""
+    import torch
+
+    torch.set_num_threads(1)
+    tmp = tmp_path_factory.mktemp("portable-adapter")
+    (tmp / "clips").mkdir()
+    for name in CLIPS:
+        shutil.copy(next(bandai_mini_source.rglob(f"{name}.bvh")), tmp / "clips" / f"{name}.bvh")
+    clips, _ = read_clips(tmp / "clips", "bandai-namco", caption=CAPTION)
+    cfg = AdaptConfig(rank=2, teacher_steps=3, student_steps=2, batch_size=4, pool=4, replay_prompts=4, contrast=1)
+    adapt(None, clips, tmp / "hop.safetensors", cfg, name="hop", licence="CC BY-NC 4.0", progress=False)
+    from stablemofusion.pipelines.components import model_folder
+
+    assert main(["export", "--onnx", "--checkpoint", str(model_folder(None)), "--adapter", str(tmp / "hop.safetensors"),
+                 "--out", str(tmp / "graphs")]) == 0
+    return tmp / "graphs", tmp / "hop.safetensors"
+
+
+def test_adapted_graphs_make_the_adapted_models_motions(adapted_graphs):
+    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.runtime.pipeline import PortablePipeline
+
+    graphs, adapter = adapted_graphs
+    rt = PortablePipeline.from_pretrained(graphs, threads=1)
+    torch_pipe = MotionPipeline.from_pretrained(device="cpu", adapter=adapter)
+    base = MotionPipeline.from_pretrained(device="cpu")
+    got = rt([CAPTION], seconds=4, seed=3, footskate="off")[0].joints
+    want = torch_pipe([CAPTION], seconds=4, seed=3, footskate="off")[0].joints
+    assert np.abs(got - want).max() < 1e-3  # metres
+    assert np.abs(base([CAPTION], seconds=4, seed=3, footskate="off")[0].joints - want).max() > 1e-3
+    assert rt.graphs.manifest["adapters"] == ["hop"]
+    for prompt, outside in ((CAPTION, False), (FOREIGN, True)):
+        assert rt.known_actions.check(prompt).out_of_domain is outside
+        assert torch_pipe.known_actions.check(prompt).out_of_domain is outside
+
+
+@pytest.mark.skipif(shutil.which("node") is None, reason="needs Node.js for the JavaScript runtime")
+def test_the_adapted_page_knows_the_taught_captions(adapted_graphs, tmp_path):
+    graphs, _ = adapted_graphs
+    site = tmp_path / "site"
+    assert main(["site", "--checkpoint", str(graphs), "--out", str(site)]) == 0
+    info = json.loads((site / "model" / "web.json").read_text())
+    assert info["actions"]["names"][info["actions"]["taught_from"]:] == ["hop"]
+    for prompt, outside in ((CAPTION, False), (FOREIGN, True)):
+        out = subprocess.run(["node", str(site / "runtime" / "generate.mjs"), prompt, "--seconds", "2", "--footskate",
+                              "off"], capture_output=True, text=True, timeout=300, check=True)
+        assert json.loads(out.stdout)["outOfDomain"] is outside, prompt

@@ -2,7 +2,10 @@
 torch path (its default engine on the CPU, and eager), in the same process: batch 1 (ms per motion) and batch 32
 (motions per second), footskate off and post; and joint agreement of the two on the same prompts and seeds.
 
-    python benchmarks/runtime_speed.py [--threads 1] [--repeats 20]
+    python benchmarks/runtime_speed.py [--threads 1] [--repeats 20] [--adapter FILE]
+
+With ``--adapter``: the shipped model adapted, on both runtimes (the torch path merges it at load; the portable
+runtime runs its graphs, exported first into a temporary folder).
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--adapter", type=Path, default=None, help="an adapter of the shipped model (smf adapt)")
     args = ap.parse_args()
     import torch
 
@@ -41,10 +45,21 @@ def main() -> None:
     warnings.simplefilter("ignore")
     torch.set_num_threads(args.threads)
     prompts = [json.loads(line)["prompt"] for line in (HERE / "prompts_freeform.jsonl").read_text().splitlines()][:32]
-    portable, torch_pipe = PortablePipeline.from_pretrained(threads=args.threads), MotionPipeline.from_pretrained()
+    graphs = None
+    if args.adapter is not None:
+        import tempfile
+
+        from stablemofusion.onnx_export import export_onnx
+        from stablemofusion.runtime.pipeline import default_graphs_path
+
+        graphs = export_onnx(None, Path(tempfile.mkdtemp()) / "graphs", adapters=[args.adapter],
+                             text_encoder_from=default_graphs_path())
+    portable = PortablePipeline.from_pretrained(graphs, threads=args.threads)
+    torch_pipe = MotionPipeline.from_pretrained(adapter=args.adapter)
     runtimes = {"onnx": portable, "torch-fast": torch_pipe, "torch-eager": torch_pipe}
     engines = {"onnx": None, "torch-fast": "fast", "torch-eager": "eager"}
-    out = {"threads": args.threads, "repeats": args.repeats, "seconds": 4.0}
+    out = {"threads": args.threads, "repeats": args.repeats, "seconds": 4.0,
+           "adapter": None if args.adapter is None else args.adapter.name}
     for name, pipe in runtimes.items():
         kw = {} if engines[name] is None else {"engine": engines[name]}
         row = {}

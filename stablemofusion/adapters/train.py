@@ -7,7 +7,9 @@ The default path runs a 1-step student distilled from a teacher; a student canno
    prediction, masked MSE, condition drop) on random crops of the user's clips. Most of each batch (``replay``) is
    *replay*: the base teacher's own samples for captions of the actions the base knows (its ``actions.json``;
    captions from the lexicon of its corpus, or the examples), except an action most taught captions name, so
-   that what it knew stays (prior preservation, as in DreamBooth).
+   that what it knew stays (prior preservation, as in DreamBooth); and for the taught captions said in the base's
+   own words (:func:`contrast_captions`), so that the words that differ, not the subjects and styles the taught
+   captions share with known ones, carry the new move.
 2. **Student.** LoRA layers on the frozen student, regressed (as ``smf distil --method regression``) onto a
    fixed pool of targets: for the taught captions, the adapted teacher's deterministic samples from drawn
    noise; for the replay captions, the base student's own outputs from drawn noise (so it keeps them exactly).
@@ -46,6 +48,7 @@ CONTRAST_PER_PAIR = 8  # lexicon captions per (content, style) pair: the known w
 CONTRAST_NEAREST = 32  # known words tried in place of an unknown one (the closest alone, of the same ending)
 WORD = re.compile(r"[a-z]+(?:['-][a-z]+)*")  # a word of a caption (lower case)
 WORD_ENDINGS = ("ing", "ly", "ed", "er", "s")  # a replacing word ends as the replaced one
+CONTRAST_IN_DOMAIN = 0.9  # share of taught captions the base's out-of-domain check passes, from which contrast is on
 REPLAY_MATCH = 0.75  # a taught caption this similar (cosine of sentence embeddings) to a known example names its action
 
 
@@ -66,8 +69,12 @@ class AdaptConfig:
     replay: float = 0.75  # measured: 0.5 kept fewer of the base's walks (docs/adapters.md)
     replay_prompts: int = 512  # captions of the base's actions replayed (spread over its actions)
     contrast: int = 8  # replayed samples of each taught caption said in the base's words (contrast_captions); 0: none
+    # contrast only when the base takes (nearly) all taught captions for ones it knows (CONTRAST_IN_DOMAIN), else none:
+    # measured (docs/adapters.md), it taught running to a base that walked for it, and hopping less well
+    contrast_auto: bool = True
     lexicon: str = "bandai"  # the base corpus's caption lexicon (replayed captions); "": its known-action examples
     pool: int = 512  # student targets per side (taught captions, replay)
+    target_guidance: float | None = None  # guidance of the adapted teacher for the student's targets (None: its own)
     cond_drop: float = 0.1
     grad_clip: float = 1.0
     seed: int = 0
@@ -308,10 +315,13 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
     retaught = retaught_actions(known, taught, embed)
     replay = replay_prompts(candidates, retaught, cfg.replay_prompts) if cfg.replay > 0 else []
     contrast = []  # the taught captions in the base's words (contrast_captions), several samples of each
-    if replay and cfg.contrast:
+    checks = student_pipe.known_actions.check_many(taught) if student_pipe.known_actions is not None else []
+    in_domain = float(np.mean([not c.out_of_domain for c in checks])) if checks else 1.0
+    if replay and cfg.contrast and (in_domain >= CONTRAST_IN_DOMAIN or not cfg.contrast_auto):
         wider = lexicon_replay(cfg.lexicon, per_pair=CONTRAST_PER_PAIR) if cfg.lexicon else []
         wider = [text for a, text in wider if not known or a in known] + [e for ex in known.values() for e in ex]
-        contrast = contrast_captions(taught, wider, embed) * cfg.contrast
+        contrast = [c for c in contrast_captions(taught, wider, embed)  # none of an action taught anew
+                    if not retaught or not retaught_actions(known, [c], embed) & retaught] * cfg.contrast
     replay = contrast + replay
     encode(taught + replay)
     replay_frames = [_frames(round(s * student_pipe.fps), lo, hi) for s in student_pipe.predict_seconds(replay)] \
@@ -435,7 +445,7 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
 
         def teacher_target(eps, tokens, tmask, mask):
             drop = torch.zeros(len(eps), dtype=torch.bool, device=device)
-            w = torch.full((len(eps),), guidance, device=device)
+            w = torch.full((len(eps),), guidance if cfg.target_guidance is None else cfg.target_guidance, device=device)
             return teacher_sample(teacher, eps, tokens, tmask, drop, mask, w, teacher_table)
 
         def student_out(model, eps, tokens, tmask, mask):
@@ -476,7 +486,7 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
                        training={"config": cfg.to_dict(), "clips": len(clips),
                                  "motion_seconds": round(sum(c.frames for c in clips) / student_pipe.fps, 1),
                                  "captions_from": source, "replay_prompts": len(replay) - len(contrast),
-                                 "contrast_prompts": len(set(contrast)),
+                                 "contrast_prompts": len(set(contrast)), "taught_in_domain": round(in_domain, 3),
                                  "not_replayed": sorted(retaught),
                                  "teacher_loss": _ends(losses[1]), "student_loss": _ends(losses[2]),
                                  "seconds": round(seconds, 1), "teacher_guidance": teacher_guidance})

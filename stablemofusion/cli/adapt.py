@@ -18,10 +18,13 @@ _FLAGS = {  # AdaptConfig field -> help
     "student_lr": "AdamW learning rate of the student's updates",
     "replay": "share of each batch replaying what the base model already does (keeps its other actions)",
     "replay_prompts": "captions of the base's known actions replayed", "pool": "student targets per side",
-    "contrast": "per taught caption, replay the base's answer to the known actions' captions closest to it "
-                "(hard negatives: the adapter learns which words name your action)",
+    "contrast": "samples replayed of each of your captions said in the base model's words (its answer to them: the "
+                "adapter learns which of your words name your move); 0: none",
     "lexicon": "caption lexicon of the base's corpus, whose captions are replayed ('' for the model's known-action "
                "examples)",
+    "contrast_auto": "replay contrast captions only when the base model takes 90%% of your captions for moves it knows "
+                     "(--no-contrast-auto: always)",
+    "target_guidance": "guidance of the adapted teacher's samples the student learns (default: the student's own)",
     "cond_drop": "share of the teacher's items trained without text", "grad_clip": "gradient norm clip",
     "seed": "random seed", "checkpoint_every": "steps between resumable checkpoints",
 }
@@ -54,7 +57,7 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace an existing adapter file")
     p.add_argument("--threads", type=int, default=None, help="CPU threads for torch (default: torch's choice)")
     p.add_argument("--no-progress", action="store_true")
-    add_config_flags(p, AdaptConfig, _FLAGS)
+    add_config_flags(p, AdaptConfig, _FLAGS, types={"target_guidance": float})
     p.add_argument("--stop-after", type=int, nargs=2, default=None, help=argparse.SUPPRESS)  # simulate a kill (tests)
     p.set_defaults(func=run)
 

@@ -69,3 +69,47 @@ def test_the_adapted_page_knows_the_taught_captions(adapted_graphs, tmp_path):
         out = subprocess.run(["node", str(site / "runtime" / "generate.mjs"), prompt, "--seconds", "2", "--footskate",
                               "off"], capture_output=True, text=True, timeout=300, check=True)
         assert json.loads(out.stdout)["outOfDomain"] is outside, prompt
+
+
+BLENDER_SCRIPT = r"""
+import bpy, json, sys
+zip_path, packages, model, out, prompt = sys.argv[sys.argv.index('--') + 1:]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.preferences.addon_install(filepath=zip_path)
+bpy.ops.preferences.addon_enable(module='stablemofusion_addon')
+prefs = bpy.context.preferences.addons['stablemofusion_addon'].preferences
+prefs.packages, prefs.model = packages, model
+scene = bpy.context.scene
+scene.smf.prompt, scene.smf.seconds, scene.smf.seed, scene.smf.backend = prompt, 2, 3, 'LOCAL'
+status = list(bpy.ops.smf.generate_motion())
+json.dump({'status': status, 'joints': sys.modules['stablemofusion_addon'].motion.LAST_JOINTS.tolist()}, open(out, 'w'))
+"""
+
+
+def test_blender_generates_with_the_adapted_graphs(adapted_graphs, tmp_path):
+    """The add-on's Model preference: the adapted graphs in Blender's own Python, the runtime's joints."""
+    import site
+    import sys
+
+    from stablemofusion.runtime.pipeline import PortablePipeline
+
+    if shutil.which("blender") is None:
+        pytest.skip("blender is not installed (Debian: apt-get install blender python3-numpy; .ci/run does)")
+    version = subprocess.run(["blender", "-b", "--factory-startup", "--python-expr",
+                              "import sys; print('PYTHON', sys.version_info[:2])"], capture_output=True, text=True,
+                             timeout=300).stdout
+    if f"PYTHON {tuple(sys.version_info[:2])}" not in version:
+        pytest.skip(f"Blender's Python is not this Python {sys.version_info[:2]}: its packages cannot be shared")
+    graphs, _ = adapted_graphs
+    zip_path, script, out = tmp_path / "stablemofusion_addon.zip", tmp_path / "run.py", tmp_path / "out.json"
+    assert main(["addon", "--out", str(zip_path)]) == 0
+    script.write_text(BLENDER_SCRIPT)
+    env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path), "BLENDER_USER_SCRIPTS": str(tmp_path / "scripts")}
+    run = subprocess.run(["blender", "-b", "--factory-startup", "--python", str(script), "--", str(zip_path),
+                          site.getsitepackages()[0], str(graphs), str(out), CAPTION], capture_output=True, text=True,
+                         timeout=600, env=env)
+    assert out.is_file(), run.stdout[-3000:] + run.stderr[-3000:]
+    got = json.loads(out.read_text())
+    assert got["status"] == ["FINISHED"]
+    want = PortablePipeline.from_pretrained(graphs, threads=1)([CAPTION], seconds=2, seed=3)[0].joints
+    assert np.abs(np.asarray(got["joints"]) - want).max() < 1e-3

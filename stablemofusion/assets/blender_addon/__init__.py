@@ -42,8 +42,14 @@ class SMF_AP_preferences(bpy.types.AddonPreferences):
         description="a site-packages folder holding the stablemofusion runtime (pip install stablemofusion, made "
                     "with Blender's Python version), for generating in Blender; empty: Blender's own")
 
+    model: StringProperty(
+        name="Model", subtype="DIR_PATH", default="",
+        description="portable graphs of a model for generating in Blender (`smf export --onnx`, an adapted model "
+                    "with --adapter); empty: the shipped model")
+
     def draw(self, context):
         self.layout.prop(self, "packages")
+        self.layout.prop(self, "model")
 
 
 class SMF_OT_generate(bpy.types.Operator):
@@ -61,7 +67,8 @@ class SMF_OT_generate(bpy.types.Operator):
         try:
             prefs = context.preferences.addons[__name__].preferences
             joints, fps, source = motion.generate_joints(s.prompt.strip(), s.seconds, s.seed, s.server, s.backend,
-                                                         bpy.path.abspath(prefs.packages) if prefs.packages else "")
+                                                         bpy.path.abspath(prefs.packages) if prefs.packages else "",
+                                                         bpy.path.abspath(prefs.model) if prefs.model else "")
             motion.LAST_JOINTS = joints
             arm = context.active_object
             if arm is None or arm.type != "ARMATURE" or not arm.select_get():

@@ -31,20 +31,21 @@ class MotionError(Exception):
     """A motion could not be made or applied (shown in Blender's status bar)."""
 
 
-_PIPELINES: dict = {}  # the portable pipeline, loaded once per Blender session
+_PIPELINES: dict = {}  # the portable pipelines, each model loaded once per Blender session
 
 
-def local_pipeline(packages: str = "", required: bool = False):
+def local_pipeline(packages: str = "", required: bool = False, model: str = ""):
     """The portable runtime's pipeline (stablemofusion.runtime, ONNX Runtime: no torch) in Blender's Python, its
     packages found where Blender finds its own or in the ``packages`` folder (a site-packages folder of a runtime
-    install made with Blender's Python version; its .pth files are read). None when it is not importable, or with
-    ``required`` a MotionError saying what to install."""
+    install made with Blender's Python version; its .pth files are read), of the graphs folder ``model`` (empty:
+    the shipped model). None when it is not importable, or with ``required`` a MotionError saying what to
+    install."""
     import site
     import sys
 
     if packages and packages not in sys.path:
         site.addsitedir(packages)  # after Blender's own folders: Blender's numpy stays the one imported
-    if "pipe" not in _PIPELINES:
+    if model not in _PIPELINES:
         try:
             from stablemofusion.runtime.pipeline import PortablePipeline
         except ImportError as e:
@@ -54,17 +55,20 @@ def local_pipeline(packages: str = "", required: bool = False):
             raise MotionError(f"the stablemofusion runtime is not importable in Blender's Python ({e.name or e} is "
                               f"missing): install it for Python {v.major}.{v.minor} and set the add-on's Python "
                               "packages folder (docs/character.md)") from None
-        _PIPELINES["pipe"] = PortablePipeline.from_pretrained(threads=1)
-    return _PIPELINES["pipe"]
+        try:
+            _PIPELINES[model] = PortablePipeline.from_pretrained(model or None, threads=1)
+        except Exception as e:  # noqa: BLE001 - the package's one-line errors (a folder without graphs)
+            raise MotionError(str(e)) from None
+    return _PIPELINES[model]
 
 
-def generate_joints(prompt: str, seconds: float, seed: int, server: str, backend: str = "AUTO", packages: str = ""
-                    ) -> tuple[np.ndarray, float, str]:
+def generate_joints(prompt: str, seconds: float, seed: int, server: str, backend: str = "AUTO", packages: str = "",
+                    model: str = "") -> tuple[np.ndarray, float, str]:
     """(joints (T, 22, 3) metres Y up, fps, where it came from): in Blender's Python on the portable runtime when it
-    is importable (``backend`` AUTO or LOCAL; ``packages`` a folder to find it in), else from a running `smf serve`
-    at ``server``."""
+    is importable (``backend`` AUTO or LOCAL; ``packages`` a folder to find it in; ``model`` a graphs folder, empty:
+    the shipped model), else from a running `smf serve` at ``server``."""
     if backend in ("AUTO", "LOCAL"):
-        pipe = local_pipeline(packages, required=backend == "LOCAL")
+        pipe = local_pipeline(packages, required=backend == "LOCAL", model=model)
         if pipe is not None:
             try:
                 r = pipe([prompt], seconds=seconds, seed=seed)[0]

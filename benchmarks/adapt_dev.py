@@ -40,6 +40,8 @@ def main() -> None:
     ap.add_argument("--base", type=Path, default=None)
     ap.add_argument("--classifier", type=Path, default=None)
     ap.add_argument("--data", type=Path, default=None, help="the labelled corpus (its label table)")
+    ap.add_argument("--teacher", action="store_true", help="the adapted teacher instead of the student")
+    ap.add_argument("--guidance", type=float, default=None, help="guidance scale (default: the model's)")
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
     import torch
@@ -66,13 +68,13 @@ def main() -> None:
         sections = {"plain": read_prompts(path, "plain"), "styled": read_prompts(path, "styled")}
     else:
         sections = {"hop": read_prompts(HERE / "adapt" / "hop-dev-prompts.txt")}
-    base = MotionPipeline.from_pretrained(args.base, device="cpu")
+    base = MotionPipeline.from_pretrained(args.base, device="cpu", teacher=args.teacher)
     for name in args.adapters:
         pipe = base if name == "-" else base.with_adapters([Path(name)])
         row = {}
         for section, prompts in sections.items():
             items = [p for p in prompts for _ in range(3)]
-            res = pipe(items, seconds=4, seed=[k % 3 for k in range(len(items))],
+            res = pipe(items, seconds=4, seed=[k % 3 for k in range(len(items))], guidance_scale=args.guidance,
                        footskate="off" if args.task == "run" else "post")
             if args.task == "run":
                 pred = classifier.predict([r.features for r in res], [allowed] * len(res))
@@ -81,7 +83,8 @@ def main() -> None:
             else:
                 row[section] = round(float(np.mean([hops_on_one_leg(r.joints) for r in res])), 3)
         if args.task == "run":
-            res = pipe([t for _, t in others], seconds=4, seed=list(range(len(others))), footskate="off")
+            res = pipe([t for _, t in others], seconds=4, seed=list(range(len(others))), footskate="off",
+                       guidance_scale=args.guidance)
             pred = [p[0] for p in classifier.predict([r.features for r in res], [allowed] * len(res))]
             row["others"] = round(float(np.mean([p == c for p, (c, _) in zip(pred, others)])), 3)
             row["walk"] = round(float(np.mean([p == c for p, (c, _) in zip(pred, others) if c == "walk"])), 3)

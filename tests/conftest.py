@@ -167,3 +167,20 @@ def _save_random_adapter(path: Path, checkpoint: Path, name: str = "kick", seed:
                        licence="CC BY 4.0", base={"student": "0" * 64, "teacher": weights_hash(checkpoint)},
                        lora=LoraConfig(rank=2), guidance=2.5, training={"seconds": 1.0})
     return Adapter(info, {"student": {}, "teacher": lora_state(model)}).save(path)
+
+
+@pytest.fixture(scope="session")
+def blender_shares_python():
+    """Skip unless Debian's `blender` is installed and runs this Python's minor version (the add-on then imports
+    the packages of this test environment in Blender's own Python)."""
+    import shutil
+    import subprocess
+    import sys
+
+    if shutil.which("blender") is None:
+        pytest.skip("blender is not installed (Debian: apt-get install blender python3-numpy; .ci/run does)")
+    version = subprocess.run(["blender", "-b", "--factory-startup", "--python-expr",
+                              "import sys; print('PYTHON', sys.version_info[:2])"], capture_output=True, text=True,
+                             timeout=300).stdout
+    if f"PYTHON {tuple(sys.version_info[:2])}" not in version:
+        pytest.skip(f"Blender's Python is not this Python {sys.version_info[:2]}: its packages cannot be shared")

@@ -209,19 +209,11 @@ json.dump(result, open(out, 'w'))
 """
 
 
-def test_addon_generates_in_blender_without_a_server(tmp_path):
+def test_addon_generates_in_blender_without_a_server(tmp_path, blender_shares_python):
     """Backend 'In Blender': the portable runtime in Blender's own Python (its packages from this test's
     site-packages, Blender's numpy kept), the CLI's joints; without the runtime, one clear error."""
     import site
-    import sys
 
-    if shutil.which("blender") is None:
-        pytest.skip("blender is not installed (Debian: apt-get install blender python3-numpy; .ci/run does)")
-    version = subprocess.run(["blender", "-b", "--factory-startup", "--python-expr",
-                              "import sys; print('PYTHON', sys.version_info[:2])"], capture_output=True, text=True,
-                             timeout=300).stdout
-    if f"PYTHON {tuple(sys.version_info[:2])}" not in version:
-        pytest.skip(f"Blender's Python is not this Python {sys.version_info[:2]}: its packages cannot be shared")
     zip_path, script, out = tmp_path / "stablemofusion_addon.zip", tmp_path / "run.py", tmp_path / "out.json"
     assert main(["addon", "--out", str(zip_path)]) == 0
     script.write_text(LOCAL_SCRIPT)

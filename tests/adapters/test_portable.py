@@ -51,7 +51,9 @@ def test_adapted_graphs_make_the_adapted_models_motions(adapted_graphs):
     got = rt([CAPTION], seconds=4, seed=3, footskate="off")[0].joints
     want = torch_pipe([CAPTION], seconds=4, seed=3, footskate="off")[0].joints
     assert np.abs(got - want).max() < 1e-3  # metres
-    assert np.abs(base([CAPTION], seconds=4, seed=3, footskate="off")[0].joints - want).max() > 1e-3
+    with pytest.warns(UserWarning, match="not like anything"):  # the shipped model does not know the caption
+        other = base([CAPTION], seconds=4, seed=3, footskate="off")[0].joints
+    assert np.abs(other - want).max() > 1e-3
     assert rt.graphs.manifest["adapters"] == ["hop"]
     for prompt, outside in ((CAPTION, False), (FOREIGN, True)):
         assert rt.known_actions.check(prompt).out_of_domain is outside
@@ -86,20 +88,12 @@ json.dump({'status': status, 'joints': sys.modules['stablemofusion_addon'].motio
 """
 
 
-def test_blender_generates_with_the_adapted_graphs(adapted_graphs, tmp_path):
+def test_blender_generates_with_the_adapted_graphs(adapted_graphs, tmp_path, blender_shares_python):
     """The add-on's Model preference: the adapted graphs in Blender's own Python, the runtime's joints."""
     import site
-    import sys
 
     from stablemofusion.runtime.pipeline import PortablePipeline
 
-    if shutil.which("blender") is None:
-        pytest.skip("blender is not installed (Debian: apt-get install blender python3-numpy; .ci/run does)")
-    version = subprocess.run(["blender", "-b", "--factory-startup", "--python-expr",
-                              "import sys; print('PYTHON', sys.version_info[:2])"], capture_output=True, text=True,
-                             timeout=300).stdout
-    if f"PYTHON {tuple(sys.version_info[:2])}" not in version:
-        pytest.skip(f"Blender's Python is not this Python {sys.version_info[:2]}: its packages cannot be shared")
     graphs, _ = adapted_graphs
     zip_path, script, out = tmp_path / "stablemofusion_addon.zip", tmp_path / "run.py", tmp_path / "out.json"
     assert main(["addon", "--out", str(zip_path)]) == 0

@@ -119,20 +119,21 @@ def _frames(n: int, lo: int, hi: int) -> int:
     return max(lo, min(hi, n)) // LENGTH_MULTIPLE * LENGTH_MULTIPLE
 
 
-def retaught_actions(known: dict[str, list[str]], taught: list[str], embed: Callable) -> set[str]:
-    """The known actions that most taught captions name (the adapter teaches them anew, so the base's answer to
-    them is not replayed): a caption names the action of its closest example sentence when their similarity
-    (cosine of sentence embeddings) is at least REPLAY_MATCH."""
+def named_actions(known: dict[str, list[str]], captions: list[str], embed: Callable) -> list[str | None]:
+    """The known action each caption names: that of its closest example sentence when their similarity (cosine of
+    sentence embeddings) is at least REPLAY_MATCH, else None."""
     examples = [(a, e) for a, ex in known.items() for e in ex]
-    if not examples or not taught:
-        return set()
-    sims = embed([e for _, e in examples]) @ embed(taught).T  # (E, C) cosine: unit embeddings
-    best, which = sims.max(dim=0)
-    votes: dict[str, int] = {}
-    for s, i in zip(best.tolist(), which.tolist()):
-        if s >= REPLAY_MATCH:
-            votes[examples[i][0]] = votes.get(examples[i][0], 0) + 1
-    return {a for a, n in votes.items() if 2 * n >= len(taught)}
+    if not examples or not captions:
+        return [None] * len(captions)
+    best, which = (embed([e for _, e in examples]) @ embed(captions).T).max(dim=0)  # (C,): unit embeddings
+    return [examples[i][0] if s >= REPLAY_MATCH else None for s, i in zip(best.tolist(), which.tolist())]
+
+
+def retaught_actions(known: dict[str, list[str]], taught: list[str], embed: Callable) -> set[str]:
+    """The known actions that most taught captions name (:func:`named_actions`): the adapter teaches them anew, so
+    the base's answer to them is not replayed."""
+    named = [a for a in named_actions(known, taught, embed) if a is not None]
+    return {a for a in set(named) if 2 * named.count(a) >= len(taught)}
 
 
 def lexicon_replay(lexicon: str, per_pair: int = 2, seed: str = "replay") -> list[tuple[str, str]]:
@@ -320,8 +321,10 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
     if replay and cfg.contrast and (in_domain >= CONTRAST_IN_DOMAIN or not cfg.contrast_auto):
         wider = lexicon_replay(cfg.lexicon, per_pair=CONTRAST_PER_PAIR) if cfg.lexicon else []
         wider = [text for a, text in wider if not known or a in known] + [e for ex in known.values() for e in ex]
-        contrast = [c for c in contrast_captions(taught, wider, embed)  # none of an action taught anew
-                    if not retaught or not retaught_actions(known, [c], embed) & retaught] * cfg.contrast
+        contrast = contrast_captions(taught, wider, embed)
+        if retaught:  # none that names an action taught anew
+            contrast = [c for c, a in zip(contrast, named_actions(known, contrast, embed)) if a not in retaught]
+        contrast *= cfg.contrast
     replay = contrast + replay
     encode(taught + replay)
     replay_frames = [_frames(round(s * student_pipe.fps), lo, hi) for s in student_pipe.predict_seconds(replay)] \

@@ -141,7 +141,8 @@ def _text_encoder_graphs(checkpoint) -> Path | None:
     """A graphs folder whose MiniLM graph an adapted export copies (adapters leave MiniLM as it is): the model
     folder's own, else the shipped model's; None: export it again."""
     from ..pipelines.components import model_folder
+    from ..runtime.graphs import MANIFEST
     from ..runtime.pipeline import GRAPHS_DIR, default_graphs_path
 
     folder = model_folder(checkpoint) / GRAPHS_DIR
-    return folder if (folder / "graphs.json").is_file() else default_graphs_path()
+    return folder if (folder / MANIFEST).is_file() else default_graphs_path()

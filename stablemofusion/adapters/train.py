@@ -75,6 +75,9 @@ class AdaptConfig:
     lexicon: str = "bandai"  # the base corpus's caption lexicon (replayed captions); "": its known-action examples
     pool: int = 512  # student targets per side (taught captions, replay)
     target_guidance: float | None = None  # guidance of the adapted teacher for the student's targets (None: its own)
+    # guidance rescale of those targets (rescale_guidance; 0: none): measured (docs/adapters.md), plain guidance made
+    # the taught running far faster than the clips
+    target_rescale: float = 1.0
     cond_drop: float = 0.1
     grad_clip: float = 1.0
     seed: int = 0
@@ -88,6 +91,8 @@ class AdaptConfig:
             raise SMFError(f"--rank must be at least 1 and alpha positive, got {self.rank}, {self.alpha}")
         if self.teacher_steps < 0 or self.student_steps < 0 or self.batch_size < 2:
             raise SMFError("--teacher-steps and --student-steps must not be negative, --batch-size at least 2")
+        if not 0 <= self.target_rescale <= 1:
+            raise SMFError(f"--target-rescale is a share in [0, 1], got {self.target_rescale}")
         if not 0 <= self.replay < 1:
             raise SMFError(f"--replay is a share of each batch in [0, 1), got {self.replay}")
         if self.contrast < 0:
@@ -449,7 +454,7 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
         def teacher_target(eps, tokens, tmask, mask):
             drop = torch.zeros(len(eps), dtype=torch.bool, device=device)
             w = torch.full((len(eps),), guidance if cfg.target_guidance is None else cfg.target_guidance, device=device)
-            return teacher_sample(teacher, eps, tokens, tmask, drop, mask, w, teacher_table)
+            return teacher_sample(teacher, eps, tokens, tmask, drop, mask, w, teacher_table, cfg.target_rescale)
 
         def student_out(model, eps, tokens, tmask, mask):
             drop = torch.zeros(len(eps), dtype=torch.bool, device=device)

@@ -25,6 +25,7 @@ _FLAGS = {  # AdaptConfig field -> help
     "contrast_auto": "replay contrast captions only when the base model takes 90%% of your captions for moves it knows "
                      "(--no-contrast-auto: always)",
     "target_guidance": "guidance of the adapted teacher's samples the student learns (default: the student's own)",
+    "target_rescale": "guidance rescale of those samples, a share in [0, 1] (0: plain guidance)",
     "cond_drop": "share of the teacher's items trained without text", "grad_clip": "gradient norm clip",
     "seed": "random seed", "checkpoint_every": "steps between resumable checkpoints",
 }

@@ -346,12 +346,12 @@ def _teacher_ddim(teacher, x, t_hi, t_lo, ab, tokens, tmask, drop, mask, w) -> t
     return a_lo.sqrt() * x0 + (1 - a_lo).sqrt() * eps
 
 
-def teacher_sample(teacher, eps, tokens, tmask, drop, mask, w, table) -> torch.Tensor:
+def teacher_sample(teacher, eps, tokens, tmask, drop, mask, w, table, rescale: float = 0.0) -> torch.Tensor:
     """The teacher's sample (B, T, D) from noise ``eps`` by the sampler of ``table``, under classifier-free
-    guidance at scale ``w`` (B,): one pass where every w is 1."""
+    guidance at scale ``w`` (B,) (``rescale``: the guidance rescale's share): one pass where every w is 1."""
     cond = teacher.condition(tokens, tmask, drop)
     uncond = None if bool((w == 1).all()) else teacher.condition(tokens, tmask, torch.ones_like(drop))
-    denoiser = guided(teacher, cond, uncond, mask, w[:, None, None].to(eps.dtype))
+    denoiser = guided(teacher, cond, uncond, mask, w[:, None, None].to(eps.dtype), rescale=rescale)
     return run_solver(denoiser, table, eps * table.init_sigma, None)
 
 

@@ -47,10 +47,10 @@ def model_denoiser(model, cond: TextCondition, motion_mask: torch.Tensor | None)
 
 
 def cfg_batched(model, cond: TextCondition, uncond: TextCondition, motion_mask: torch.Tensor | None,
-                scale: float | torch.Tensor) -> DenoiserFn:
+                scale: float | torch.Tensor, rescale: float = 0.0) -> DenoiserFn:
     """Classifier-free guidance ``u + scale * (c - u)`` with both passes in one forward of batch 2B; the
     pair's condition and mask are built once here, not at every step. ``scale`` may be a 0-d tensor (a
-    CUDA graph's input)."""
+    CUDA graph's input); ``rescale``: :func:`rescale_guidance`'s share (0: plain guidance)."""
     pair = TextCondition(torch.cat([cond.features, uncond.features]), torch.cat([cond.mask, uncond.mask]),
                          _cat_opt(cond.keep, uncond.keep, cond.features), _cat_opt(cond.sentence, uncond.sentence))
     mask2 = None if motion_mask is None else torch.cat([motion_mask, motion_mask])
@@ -58,28 +58,52 @@ def cfg_batched(model, cond: TextCondition, uncond: TextCondition, motion_mask: 
     def denoise(x: torch.Tensor, step: Step) -> torch.Tensor:
         t = step.t.to(x.dtype)
         c, u = model.denoise(torch.cat([x, x]), torch.cat([t, t]), pair, mask2).chunk(2)
-        return u + scale * (c - u)
+        out = u + scale * (c - u)
+        return rescale_guidance(out, c, motion_mask, rescale) if rescale else out
 
     return denoise
 
 
+def rescale_guidance(guided_x0: torch.Tensor, cond_x0: torch.Tensor, motion_mask: torch.Tensor | None,
+                     share: float) -> torch.Tensor:
+    """Guidance rescale (Lin et al., 2024): the guided prediction (B, T, D) scaled per item to the standard
+    deviation of the conditional one ``cond_x0`` (over its valid frames, ``motion_mask`` (B, T), and features),
+    mixed with the unscaled one by ``share`` in [0, 1]. A high scale keeps what it picks out of the condition but
+    not the exaggeration (an adapter's guided running was far too fast: docs/adapters.md)."""
+    w = torch.ones(guided_x0.shape[:2], dtype=guided_x0.dtype, device=guided_x0.device) if motion_mask is None \
+        else motion_mask.to(guided_x0.dtype)
+    w = w[..., None].expand_as(guided_x0)
+    n = w.sum(dim=(1, 2), keepdim=True).clamp_min(1.0)
+
+    def sd(v: torch.Tensor) -> torch.Tensor:
+        mean = (v * w).sum(dim=(1, 2), keepdim=True) / n
+        return (((v - mean) ** 2 * w).sum(dim=(1, 2), keepdim=True) / n).sqrt()
+
+    scaled = guided_x0 * (sd(cond_x0) / sd(guided_x0).clamp_min(1e-8))
+    return share * scaled + (1.0 - share) * guided_x0
+
+
 def guided(model, cond: TextCondition, uncond: TextCondition | None, motion_mask: torch.Tensor | None,
-           scale: float | torch.Tensor, batched: bool = True) -> DenoiserFn:
+           scale: float | torch.Tensor, batched: bool = True, rescale: float = 0.0) -> DenoiserFn:
     """The denoiser of a call: the model under the text condition, with classifier-free guidance in x0 space
-    (``u + scale * (c - u)``, both passes in one batch, or two) unless ``uncond`` is None (no guidance)."""
+    (``u + scale * (c - u)``, both passes in one batch, or two; ``rescale``: :func:`rescale_guidance`'s share)
+    unless ``uncond`` is None (no guidance)."""
     if uncond is None:
         return model_denoiser(model, cond, motion_mask)
     if batched:
-        return cfg_batched(model, cond, uncond, motion_mask, scale)
-    return cfg_two_pass(model_denoiser(model, cond, motion_mask), model_denoiser(model, uncond, motion_mask), scale)
+        return cfg_batched(model, cond, uncond, motion_mask, scale, rescale)
+    return cfg_two_pass(model_denoiser(model, cond, motion_mask), model_denoiser(model, uncond, motion_mask), scale,
+                        motion_mask, rescale)
 
 
-def cfg_two_pass(cond: DenoiserFn, uncond: DenoiserFn, scale: float) -> DenoiserFn:
+def cfg_two_pass(cond: DenoiserFn, uncond: DenoiserFn, scale: float, motion_mask: torch.Tensor | None = None,
+                 rescale: float = 0.0) -> DenoiserFn:
     """Classifier-free guidance as two separate passes (less memory, twice the launches)."""
 
     def denoise(x: torch.Tensor, step: Step) -> torch.Tensor:
-        u = uncond(x, step)
-        return u + scale * (cond(x, step) - u)
+        u, c = uncond(x, step), cond(x, step)
+        out = u + scale * (c - u)
+        return rescale_guidance(out, c, motion_mask, rescale) if rescale else out
 
     return denoise
 

@@ -5,8 +5,8 @@ import pytest
 import torch
 
 from stablemofusion.diffusion.engine import FRAME_BUCKET, SolverEngine, batch_bucket
-from stablemofusion.diffusion.sampling import Noise, Step, cfg_batched, cfg_two_pass, model_denoiser, run_solver, \
-    with_x0_hook
+from stablemofusion.diffusion.sampling import Noise, Step, cfg_batched, cfg_two_pass, model_denoiser, \
+    rescale_guidance, run_solver, with_x0_hook
 from stablemofusion.diffusion.solvers import solver_table
 from stablemofusion.models.base import build_denoiser
 from stablemofusion.models.presets import get_preset
@@ -56,6 +56,30 @@ def test_batched_guidance_equals_two_passes_and_the_model_forward():
     tmask = cond.mask
     full = model(x, step.t, tokens, tmask, torch.zeros(2, dtype=torch.bool), mask)
     assert torch.allclose(full, model_denoiser(model, cond, mask)(x, step), rtol=0, atol=1e-8)
+
+
+@torch.no_grad()
+def test_guidance_rescale_matches_the_conditional_spread_over_valid_frames():
+    """Share 1: each item's guided prediction takes the conditional one's standard deviation over its valid frames
+    (padding ignored); share 0 and plain guidance are unchanged; both guidance paths rescale alike."""
+    model = _model().double()
+    cond, uncond = _conditions(model, dtype=torch.float64)
+    g = torch.Generator().manual_seed(1)
+    x, mask = torch.randn(2, 32, 263, generator=g, dtype=torch.float64), torch.ones(2, 32, dtype=torch.bool)
+    mask[1, 20:] = False
+    step = Step(0, 1, torch.tensor([700.0, 700.0], dtype=torch.float64))
+    c = model_denoiser(model, cond, mask)(x, step)
+    plain = cfg_batched(model, cond, uncond, mask, 2.5)(x, step)
+    full = cfg_batched(model, cond, uncond, mask, 2.5, rescale=1.0)(x, step)
+    half = cfg_two_pass(model_denoiser(model, cond, mask), model_denoiser(model, uncond, mask), 2.5, mask, 0.5)(x, step)
+    for i, n in enumerate((32, 20)):
+        assert torch.allclose(full[i, :n].std(unbiased=False), c[i, :n].std(unbiased=False), rtol=1e-10, atol=0)
+        assert not torch.allclose(plain[i, :n].std(unbiased=False), c[i, :n].std(unbiased=False), rtol=1e-3, atol=0)
+    assert torch.allclose(half, 0.5 * (plain + full), rtol=0, atol=1e-8)
+    assert torch.equal(rescale_guidance(plain, c, mask, 0.0), plain)
+    x[1, 20:] = 1e3  # what padded frames hold does not move the valid ones
+    again = cfg_batched(model, cond, uncond, mask, 2.5, rescale=1.0)(x, step)
+    assert torch.allclose(again[1, :20], full[1, :20], rtol=0, atol=1e-8)
 
 
 def test_x0_hooks_see_every_step_once_in_order():

@@ -36,16 +36,21 @@ def _conditions(model, B: int = 2, L: int = 5, dtype: torch.dtype = torch.float3
     return cond, uncond
 
 
-@torch.no_grad()
-def test_batched_guidance_equals_two_passes_and_the_model_forward():
-    """Compared in float64: the batched and two-pass paths sum in different orders, and float32 kernels differ
-    between CPUs by up to ~3e-4 here; in float64 they agree to ~1e-10 on any CPU."""
+def _guidance_case():
+    """A float64 model, its conditions, a batch of 2 (the second padded after 20 of 32 frames) and one step."""
     model = _model().double()
     cond, uncond = _conditions(model, dtype=torch.float64)
     g = torch.Generator().manual_seed(1)
     x, mask = torch.randn(2, 32, 263, generator=g, dtype=torch.float64), torch.ones(2, 32, dtype=torch.bool)
     mask[1, 20:] = False
-    step = Step(0, 1, torch.tensor([700.0, 700.0], dtype=torch.float64))
+    return model, cond, uncond, x, mask, Step(0, 1, torch.tensor([700.0, 700.0], dtype=torch.float64))
+
+
+@torch.no_grad()
+def test_batched_guidance_equals_two_passes_and_the_model_forward():
+    """Compared in float64: the batched and two-pass paths sum in different orders, and float32 kernels differ
+    between CPUs by up to ~3e-4 here; in float64 they agree to ~1e-10 on any CPU."""
+    model, cond, uncond, x, mask, step = _guidance_case()
     a = cfg_batched(model, cond, uncond, mask, 2.5)(x, step)
     b = cfg_two_pass(model_denoiser(model, cond, mask), model_denoiser(model, uncond, mask), 2.5)(x, step)
     assert a.dtype == torch.float64
@@ -62,12 +67,7 @@ def test_batched_guidance_equals_two_passes_and_the_model_forward():
 def test_guidance_rescale_matches_the_conditional_spread_over_valid_frames():
     """Share 1: each item's guided prediction takes the conditional one's standard deviation over its valid frames
     (padding ignored); share 0 and plain guidance are unchanged; both guidance paths rescale alike."""
-    model = _model().double()
-    cond, uncond = _conditions(model, dtype=torch.float64)
-    g = torch.Generator().manual_seed(1)
-    x, mask = torch.randn(2, 32, 263, generator=g, dtype=torch.float64), torch.ones(2, 32, dtype=torch.bool)
-    mask[1, 20:] = False
-    step = Step(0, 1, torch.tensor([700.0, 700.0], dtype=torch.float64))
+    model, cond, uncond, x, mask, step = _guidance_case()
     c = model_denoiser(model, cond, mask)(x, step)
     plain = cfg_batched(model, cond, uncond, mask, 2.5)(x, step)
     full = cfg_batched(model, cond, uncond, mask, 2.5, rescale=1.0)(x, step)

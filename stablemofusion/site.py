@@ -41,9 +41,8 @@ def web_description(graphs) -> dict:
     if sk.bone_lengths is None or DEFAULT_FIT.bone_lengths != "dataset" or DEFAULT_FIT.method != "sweeps":
         raise SMFError("the site's rigid stage fits the skeleton's dataset bone lengths by block sweeps")
     actions = manifest["actions"]
-    taught = actions.get("taught") or {}  # an adapted model's actions: after the base's, in the same arrays
-    names = list(actions["actions"]) + list(taught)
-    owner = [i for i, examples in enumerate(list(actions["actions"].values()) + list(taught.values())) for _ in examples]
+    # an adapted model's actions ("taught") come after the base's, in the same arrays
+    groups = list(actions["actions"].items()) + list((actions.get("taught") or {}).items())
     return {
         "fps": m.fps, "min_frames": m.min_frames, "max_frames": m.max_frames, "length_multiple": LENGTH_MULTIPLE,
         "pad_multiple": m.pad_multiple, "motion_dim": m.dim, "guidance": m.guidance, "sampler": m.sampler,
@@ -59,7 +58,8 @@ def web_description(graphs) -> dict:
         "rigid_sweeps": DEFAULT_FIT.iterations,
         "cleanup": cleanup_settings(m.fps),
         "paths": path_lexicon(),
-        "actions": {"names": names, "threshold": actions["threshold"], "top": int(actions["top"]), "owner": owner,
+        "actions": {"names": [name for name, _ in groups], "threshold": actions["threshold"], "top": int(actions["top"]),
+                    "owner": [i for i, (_, examples) in enumerate(groups) for _ in examples],
                     "embeddings": "actions.bin", "taught_from": len(actions["actions"]),
                     "taught_similarity": actions.get("taught_similarity", 1.0)},
         "tokenizer": "tokenizer.json",

@@ -141,16 +141,17 @@ def retaught_actions(known: dict[str, list[str]], taught: list[str], embed: Call
     return {a for a in set(named) if 2 * named.count(a) >= len(taught)}
 
 
-def lexicon_replay(lexicon: str, per_pair: int = 2, seed: str = "replay") -> list[tuple[str, str]]:
+def lexicon_replay(lexicon: str, per_pair: int = 2, seed: str = "replay", actions=None) -> list[tuple[str, str]]:
     """(content, caption) for every (content, style) pair of the base's corpus lexicon: ``per_pair`` captions
     each, from the caption grammar its training captions came from (subjects, styles and details as users write
-    them), the pairs' first captions first."""
+    them), the pairs' first captions first. ``actions``: only these contents (None: all)."""
     from ..data.captions import captions_for
     from ..data.lexicon import load_lexicon
 
     lex = load_lexicon(lexicon)
     pairs = [[(c, text) for text, _ in captions_for(c, s, per_pair, seed=f"{seed}-{d}", lexicon=lexicon)]
-             for d, (contents, styles) in lex.datasets.items() for c in contents for s in styles]
+             for d, (contents, styles) in lex.datasets.items() for c in contents for s in styles
+             if actions is None or c in actions]
     return [p[k] for k in range(per_pair) for p in pairs if k < len(p)]
 
 
@@ -315,17 +316,19 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
         return sentence_embedding(tokens.float().cpu(), tmask.cpu())
 
     known = student_pipe.known_actions.actions if student_pipe.known_actions is not None else {}
-    candidates = lexicon_replay(cfg.lexicon) if cfg.lexicon else [(a, e) for a, ex in known.items() for e in ex]
-    if known:  # the lexicon's actions the base never learned would replay its failures at them
-        candidates = [(a, text) for a, text in candidates if a in known]
+    # only the lexicon's actions the base knows: those it never learned would replay its failures at them
+    learned = known or None
+    candidates = lexicon_replay(cfg.lexicon, actions=learned) if cfg.lexicon \
+        else [(a, e) for a, ex in known.items() for e in ex]
     retaught = retaught_actions(known, taught, embed)
     replay = replay_prompts(candidates, retaught, cfg.replay_prompts) if cfg.replay > 0 else []
     contrast = []  # the taught captions in the base's words (contrast_captions), several samples of each
     checks = student_pipe.known_actions.check_many(taught) if student_pipe.known_actions is not None else []
     in_domain = float(np.mean([not c.out_of_domain for c in checks])) if checks else 1.0
     if replay and cfg.contrast and (in_domain >= CONTRAST_IN_DOMAIN or not cfg.contrast_auto):
-        wider = lexicon_replay(cfg.lexicon, per_pair=CONTRAST_PER_PAIR) if cfg.lexicon else []
-        wider = [text for a, text in wider if not known or a in known] + [e for ex in known.values() for e in ex]
+        wider = [text for _, text in lexicon_replay(cfg.lexicon, CONTRAST_PER_PAIR, actions=learned)] \
+            if cfg.lexicon else []
+        wider += [e for ex in known.values() for e in ex]
         contrast = contrast_captions(taught, wider, embed)
         if retaught:  # none that names an action taught anew
             contrast = [c for c, a in zip(contrast, named_actions(known, contrast, embed)) if a not in retaught]

@@ -9,13 +9,14 @@ from dataclasses import MISSING, fields
 def add_config_flags(p: argparse.ArgumentParser, cls: type, helps: dict[str, str],
                      types: dict[str, type] | None = None) -> None:
     """A flag for each field of dataclass ``cls`` named in ``helps`` (its help text), defaulting to the field's
-    default: booleans are switches (--no-NAME for one on by default); a field whose default is None takes ``types[name]`` or an int."""
+    default: booleans are switches (--no-NAME turns off one that is on by default); a field whose default is None
+    takes ``types[name]`` or an int."""
     for f in fields(cls):
         if f.name not in helps:
             continue
         default = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc]
         flag = "--" + f.name.replace("_", "-")
-        if isinstance(default, bool):  # a switch; one that is on by default is turned off with --no-NAME
+        if isinstance(default, bool):
             p.add_argument(flag, action=argparse.BooleanOptionalAction if default else "store_true", default=default,
                            help=helps[f.name])
         else:

@@ -58,10 +58,15 @@ def cfg_batched(model, cond: TextCondition, uncond: TextCondition, motion_mask: 
     def denoise(x: torch.Tensor, step: Step) -> torch.Tensor:
         t = step.t.to(x.dtype)
         c, u = model.denoise(torch.cat([x, x]), torch.cat([t, t]), pair, mask2).chunk(2)
-        out = u + scale * (c - u)
-        return rescale_guidance(out, c, motion_mask, rescale) if rescale else out
+        return _combine(c, u, scale, motion_mask, rescale)
 
     return denoise
+
+
+def _combine(c: torch.Tensor, u: torch.Tensor, scale, motion_mask: torch.Tensor | None, rescale: float) -> torch.Tensor:
+    """``u + scale * (c - u)`` of the conditional and unconditional predictions, rescaled by a share ``rescale``."""
+    out = u + scale * (c - u)
+    return rescale_guidance(out, c, motion_mask, rescale) if rescale else out
 
 
 def rescale_guidance(guided_x0: torch.Tensor, cond_x0: torch.Tensor, motion_mask: torch.Tensor | None,
@@ -101,9 +106,7 @@ def cfg_two_pass(cond: DenoiserFn, uncond: DenoiserFn, scale: float, motion_mask
     """Classifier-free guidance as two separate passes (less memory, twice the launches)."""
 
     def denoise(x: torch.Tensor, step: Step) -> torch.Tensor:
-        u, c = uncond(x, step), cond(x, step)
-        out = u + scale * (c - u)
-        return rescale_guidance(out, c, motion_mask, rescale) if rescale else out
+        return _combine(cond(x, step), uncond(x, step), scale, motion_mask, rescale)
 
     return denoise
 

@@ -204,6 +204,10 @@ def test_the_command_line_checks_before_it_trains_and_describes_adapters(clip_fo
     assert r.returncode == 2 and "--overwrite" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     r = smf("--data", str(tmp_path), "--out", str(tmp_path / "b.safetensors"), "--licence", "mine")
     assert r.returncode == 2 and "no .bvh files" in r.stderr and "Traceback" not in r.stderr
+    r = smf("--data", str(clip_folder), "--out", str(tmp_path / "c.safetensors"), "--licence", "mine",
+            "--target-rescale", "2")
+    assert r.returncode == 2 and "--target-rescale is a share in [0, 1], got 2.0" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "c.safetensors").exists()
     r = smf("--adapter", str(save_random_adapter(tmp_path / "kick.safetensors", tiny_checkpoint)), command="info")
     assert r.returncode == 0 and "adapter 'kick'" in r.stdout and "licence of the clips: CC BY 4.0" in r.stdout
     assert "action 'kick': a person kicks" in r.stdout

@@ -70,23 +70,25 @@ def web_description(graphs) -> dict:
 
 def cleanup_settings(fps: float) -> dict:
     """The footskate cleanup's settings for the JavaScript runtime (``assets/runtime/cleanup.js``): the Python
-    defaults (:class:`~stablemofusion.footskate.cleanup.CleanupConfig`, its contact thresholds) and the joints they
-    name; contact durations in frames at ``fps``, rounded as the Python rounds them."""
+    defaults (:class:`~stablemofusion.footskate.cleanup.CleanupConfig`, its contact thresholds, the lean's and the
+    legs' IK constants) and the joints they name; contact durations in frames at ``fps``, rounded as the Python
+    rounds them."""
     from dataclasses import asdict
 
-    from .footskate.cleanup import FOOT_CHAINS, LEG_JOINTS, CleanupConfig
+    from .footskate.cleanup import CleanupConfig
     from .footskate.contacts import HML_FOOT_JOINTS
-    from .motion.rigid import BRANCH_SCALE
+    from .motion import ik, lean
 
     config = CleanupConfig()
     if config.contacts != "kinematic":
         raise SMFError("the site's cleanup finds contacts kinematically")
-    out = {k: v for k, v in asdict(config).items() if k not in ("kinematic", "contacts", "w_vgrf")}
+    out = {k: v for k, v in asdict(config).items() if k not in ("kinematic", "contacts")}
     k = config.kinematic
     out.update(height_on=k.height_on, height_off=k.height_off, speed_on=k.speed_on, speed_off=k.speed_off,
                floor_percentile=k.floor_percentile, min_contact_frames=max(1, round(k.min_contact * fps)),
                min_gap_frames=max(1, round(k.min_gap * fps)), foot_joints=list(HML_FOOT_JOINTS),
-               foot_chains=[list(c) for c in FOOT_CHAINS], leg_joints=list(LEG_JOINTS), branch_scale=BRANCH_SCALE)
+               legs=[list(leg) for leg in ik.LEGS], leg_chain_joints=list(ik.LEG_CHAIN_JOINTS), straight=ik.STRAIGHT,
+               lean_smooth=lean.SMOOTH_S, gravity=lean.G, max_lean_deg=lean.MAX_LEAN_DEG, neck=lean.NECK)
     return out
 
 

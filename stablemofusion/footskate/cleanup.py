@@ -1,19 +1,17 @@
-"""Footskate cleanup on a rigid body: a short L-BFGS optimisation of joint rotations and the root path.
+"""Footskate cleanup on a rigid body: planted feet locked in place, legs placed by closed-form IK.
 
-The body is a :class:`~stablemofusion.motion.rigid.RigidMotion`, so the cleanup moves rotations and the
-root, never bone lengths. Losses (positions in centimetres so the terms are O(1)):
-  pose    - joints stay close to the input (root-relative displacement; legs are freer than the body);
-  anchor  - every contact joint stays, for its contact interval, at its mean position over the interval
-            (planted toes on the floor, y = 0; ankles at their mean height);
-  root    - the root velocity is kept, and (``w_root_offset``) so is the root's path itself: the legs
-            absorb a drift of the body over planted feet, and a foot hovering over the floor is lowered
-            by bending its leg, instead of the whole body being moved;
-  vgrf    - the predicted vertical ground reaction forces are kept (only with a vGRF model);
-plus the pose change kept smooth (no popping at contact boundaries) and a floor term against penetration.
+The body is a :class:`~stablemofusion.motion.rigid.RigidMotion`, so the cleanup moves joints, never bone lengths.
+For each foot joint (ankle, toe) the planted intervals are found (:func:`detect_contacts`); each is held at one
+place (the mean of where the motion put it, weighted by the lock, :func:`lock_targets`), with the lock blended in
+and out over ``blend`` seconds (smoothstep), so a foot eases into and out of its hold and never jumps. A foot
+moves as one piece: the shift that holds its planted joints is applied to both its ankle and its toe (toes on
+the floor by turning the foot). The legs then reach for the held feet by two-bone IK (:mod:`~stablemofusion.motion.ik`),
+the pelvis moving towards a foot it cannot otherwise reach, smoothly. Before that, the body leans into the
+turns its path makes (:mod:`~stablemofusion.motion.lean`).
 
-A contact never holds a foot the body has left (:func:`anchor_targets`): an interval in which the foot
-travels further than ``max_anchor_shift`` from its anchor is split into shorter contacts, each with its
-own anchor, and a frame whose anchor lies beyond the leg's reach from the hip is not anchored.
+An interval in which the foot travels further than ``max_slide`` from where it would be held is cut into
+pieces, each held at its own place, with the lock eased out and in between them: a long glide becomes steps,
+not a teleport.
 
 Back to features (:func:`cleanup_features`): the cleaned body is written in the body frames of the input
 features (:func:`~stablemofusion.motion.rigid.rigid_to_features`), so the features decode to its joints.
@@ -28,39 +26,33 @@ import numpy as np
 
 from ..errors import SMFError
 from ..motion.features import feature_slices, features_from_joints
-from ..motion.rigid import (CM, DEFAULT_FIT, RigidFitConfig, RigidMotion, fit_rigid, optimise_pose,
+from ..motion.ik import place_legs, reach_shift
+from ..motion.lean import LEAN_SHARE, lean_into_turns
+from ..motion import rigid_batch
+from ..motion.rigid import (DEFAULT_FIT, RigidFitConfig, RigidMotion, fit_rigid,
                             rigid_from_features_many, rigid_to_features)
 from .contacts import HML_FOOT_JOINTS, KinematicContactConfig, contacts_from_vgrf, kinematic_contacts, runs
 
 VgrfModel = Callable  # torch: (B, T, 22, 3) metres, Y up, 20 fps -> (B, T, 2, 16); the vGRF route needs torch
-LEG_JOINTS = (1, 2, 4, 5, 7, 8, 10, 11)
-# the chain from each contact joint (left ankle, left toe, right ankle, right toe) up to its hip
-FOOT_CHAINS = ((1, 4, 7), (1, 4, 7, 10), (2, 5, 8), (2, 5, 8, 11))
 CONTACT_ROUTES = ("kinematic", "vgrf")
-# looser than the detector's defaults (0.5/0.8 m/s, 5/8 cm): a sliding foot is still a planted foot that must
-# be pinned, and a generated motion's floor level is noisy (chosen on the validation split, docs/footskate.md)
-CLEANUP_CONTACTS = KinematicContactConfig(speed_on=2.0, speed_off=2.5, height_on=0.06, height_off=0.08)
+# calibrated on the corpus (benchmarks/final_stage_check.py contacts): a real planted foot joint stays within
+# a few centimetres of the floor and moves slowly; looser than the detector's defaults because a generated
+# motion's planted feet slide and its floor level is noisy
+CLEANUP_CONTACTS = KinematicContactConfig(speed_on=1.5, speed_off=1.875, height_on=0.06, height_off=0.08)
 # a joints file keeps its own skeleton: bone lengths are the motion's median
 JOINTS_FIT = RigidFitConfig(bone_lengths="median", start="positions")
 
 
 @dataclass(frozen=True)
 class CleanupConfig:
-    """Weights and solver settings of :func:`cleanup_rigid`."""
+    """Settings of :func:`cleanup_rigid`."""
 
     contacts: str = "kinematic"  # or "vgrf" (needs a vGRF model)
-    iterations: int = 20  # L-BFGS iterations
-    w_pose: float = 1.0
-    leg_pose_scale: float = 0.1  # pose weight of hips, knees, ankles and toes relative to the body
-    w_anchor: float = 100.0
-    w_root: float = 1.0
-    w_root_offset: float = 10.0  # keeps the root's path (0: the body may be moved back over its feet)
-    w_vgrf: float = 1.0
-    w_smooth: float = 1.0
-    w_floor: float = 10.0
-    anchor_floor: bool = True  # planted toes at y = 0; False: at their mean height over the contact
-    max_anchor_shift: float = 0.25  # m: a contact whose foot travels further from its anchor is split
-    reach_margin: float = 0.05  # m: an anchor further than the leg's length plus this from the hip is not held
+    blend: float = 0.15  # s: frames left free either side of a cut contact; heel-toe hand-over
+    max_slide: float = 0.15  # m: a contact whose joint strays further from its hold is cut into pieces
+    toes_on_floor: bool = True  # planted toes are put on the floor (y = 0) by turning the foot
+    lean: float = LEAN_SHARE  # share of atan(a_lat / g) the body leans into turns (0: no lean)
+    reach_smooth: float = 0.15  # s: a pelvis move that lets a leg reach its foot is spread over this either side
     kinematic: KinematicContactConfig = CLEANUP_CONTACTS  # frozen, so one shared default is safe
 
 
@@ -77,7 +69,7 @@ class CleanupResult:
 def split_contact(points: np.ndarray, max_shift: float) -> list[tuple[int, int]]:
     """Split one contact interval of a joint's positions (n, 3) into [(start, stop)) pieces in which no
     position lies further than ``max_shift`` (m, horizontally) from the piece's mean: a piece grows frame by
-    frame until one of its positions strays, and the next piece starts at its last frame."""
+    frame until one of its positions strays, and the next piece starts there."""
     pieces, a, n = [], 0, len(points)
     while True:
         xz = points[a:, [0, 2]]
@@ -88,39 +80,73 @@ def split_contact(points: np.ndarray, max_shift: float) -> list[tuple[int, int]]
         if not len(over):
             pieces.append((a, n))
             return pieces
-        b = a + int(over[0])  # the piece a .. b strays: it ends before b, the next starts at b - 1
+        b = a + max(int(over[0]), 1)
         pieces.append((a, b))
         a = b
 
 
-def anchor_targets(joints: np.ndarray, contacts: np.ndarray, *, floor: bool = True, max_shift: float = np.inf,
-                   bone_lengths: np.ndarray | None = None, reach_margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Targets (T, 4, 3) and a mask (T, 4) for the foot joints (left ankle, left toe, right ankle, right toe).
+def smoothstep(x: np.ndarray) -> np.ndarray:
+    """3x^2 - 2x^3 of ``x`` clipped to [0, 1]: 0 and 1 with zero slope at both ends."""
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
 
-    Each contact interval is pinned to the joint's mean position over the interval (the point that moves
-    it least), not below the floor; with ``floor`` planted toes are put on the floor (y = 0). Ankles keep
-    their mean height: how high a planted ankle sits depends on heel and toe, and lowering it with its toe
-    bent the legs of generated motions and cost FID in our validation runs. An interval in which the joint
-    travels further than ``max_shift`` (m) from the mean is split (see :func:`split_contact`); with
-    ``bone_lengths`` (22,) a frame whose anchor lies further from the hip than the leg can reach (the sum of
-    the bones from hip to the joint, plus ``reach_margin`` m that a small move of the pelvis makes up) is left
-    free: the body has left that foot.
-    """
-    feet = joints[:, list(HML_FOOT_JOINTS)]
-    target = np.zeros_like(feet)
-    mask = np.zeros(contacts.shape, dtype=bool)
-    for k in range(4):
+
+def holds(points: np.ndarray, contacts: np.ndarray, max_slide: float, cut_gap: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where each foot joint is held: ``points`` (T, K, 3) metres, ``contacts`` (T, K) bool -> the place (T, K, 3)
+    and a mask (T, K) of the held frames. A contact is cut into pieces that stray at most ``max_slide`` m
+    (:func:`split_contact`), each held at the mean of its positions; ``cut_gap`` frames either side of a cut are
+    left free, so that the foot has time to move from one hold to the next."""
+    T, K = contacts.shape
+    place = np.array(points, dtype=np.float64, copy=True)
+    held = np.zeros((T, K), dtype=bool)
+    for k in range(K):
         for a, b in runs(contacts[:, k]):
-            for a2, b2 in split_contact(feet[a:b, k], max_shift):
-                p = feet[a + a2:a + b2, k].mean(0)
-                p[1] = 0.0 if floor and k in (1, 3) else max(0.0, p[1])
-                target[a + a2:a + b2, k] = p
-                mask[a + a2:a + b2, k] = True
-        if bone_lengths is not None:
-            chain = FOOT_CHAINS[k]
-            reach = float(np.sum(np.asarray(bone_lengths)[list(chain[1:])])) + reach_margin
-            mask[:, k] &= np.linalg.norm(target[:, k] - joints[:, chain[0]], axis=-1) <= reach
-    return target, mask
+            pieces = split_contact(points[a:b, k], max_slide)
+            for i, (a2, b2) in enumerate(pieces):
+                lo = a + a2 + (cut_gap if i > 0 else 0)
+                hi = a + b2 - (cut_gap if i < len(pieces) - 1 else 0)
+                if hi - lo < 1:
+                    continue
+                place[lo:hi, k] = points[lo:hi, k].mean(0)
+                held[lo:hi, k] = True
+    return place, held
+
+
+def bridge(offset: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """``offset`` (T, C) known where ``held`` (T,) -> (T, C) everywhere: across each free stretch between two held
+    frames it eases (smoothstep in time) from the offset before to the one after; before the first and after the
+    last held frame it stays at the nearest one; all zeros where nothing is held."""
+    T = len(held)
+    idx = np.flatnonzero(held)
+    if not len(idx):
+        return np.zeros_like(offset)
+    before = np.maximum.accumulate(np.where(held, np.arange(T), -1))  # last held frame at or before t
+    after = np.minimum.accumulate(np.where(held, np.arange(T), T)[::-1])[::-1]  # first held frame at or after t
+    b = np.where(before < 0, after, before)
+    a = np.where(after >= T, before, after)
+    span = np.maximum(a - b, 1)
+    s = smoothstep((np.arange(T) - b) / span)[:, None]
+    return (1 - s) * offset[b] + s * offset[a]
+
+
+def foot_shifts(points: np.ndarray, place: np.ndarray, held: np.ndarray, fps: float, blend: float) -> np.ndarray:
+    """(T, 2, 3) how far to move each foot (left, right) as one piece so that its held joints stay at their holds
+    (``points``, ``place`` (T, 4, 3), ``held`` (T, 4) in HumanML3D's contact order: left ankle, left toe, right
+    ankle, right toe); horizontal only. While the foot is held its shift is the pull of its held joints (heel and
+    toe blended over ``blend`` s where one takes over from the other); between holds it eases from one hold's
+    shift to the next (:func:`bridge`), so the foot travels the whole swing to its next footprint."""
+    pull = place - points  # (T, 4, 3)
+    pull[..., 1] = 0.0
+    r = max(1, int(round(blend * fps)))
+    kernel = np.hanning(2 * r + 3)[1:-1]
+    out = np.zeros((len(points), 2, 3))
+    for f, (ankle, toe) in enumerate(((0, 1), (2, 3))):
+        any_held = held[:, ankle] | held[:, toe]
+        w = np.stack([np.convolve(held[:, j].astype(float), kernel, mode="same") * held[:, j] for j in (ankle, toe)], -1)
+        total = np.maximum(w.sum(-1, keepdims=True), 1e-12)
+        inside = (w[:, :1] * pull[:, ankle] + w[:, 1:] * pull[:, toe]) / total
+        out[:, f] = bridge(inside, any_held)
+    return out
 
 
 def detect_contacts(joints: np.ndarray, fps: float, config: CleanupConfig,
@@ -139,81 +165,46 @@ def detect_contacts(joints: np.ndarray, fps: float, config: CleanupConfig,
     raise SMFError(f"unknown contact route {config.contacts!r}; choose from {', '.join(CONTACT_ROUTES)}")
 
 
+def clean_joints(joints: np.ndarray, contacts: np.ndarray, bone_lengths: np.ndarray, fps: float,
+                 config: CleanupConfig = CleanupConfig()) -> np.ndarray:
+    """The cleanup of rigid joints (T, 22, 3) metres (Y up, floor y = 0) with ``contacts`` (T, 4): the body leans
+    into its turns, planted feet are held (:func:`holds`, :func:`foot_shifts`), the pelvis moves where a
+    leg could not reach its foot (:func:`~stablemofusion.motion.ik.reach_shift`), and the legs are placed by IK.
+    Bone lengths ``bone_lengths`` (22,) are kept."""
+    x0 = np.asarray(joints, dtype=np.float64)
+    feet = x0[:, list(HML_FOOT_JOINTS)]  # (T, 4, 3)
+    gap = max(1, int(round(config.blend * fps)))
+    place, held = holds(feet, contacts, config.max_slide, gap)
+    shift = foot_shifts(feet, place, held, fps, config.blend)  # (T, 2, 3)
+    ankles = x0[:, [7, 8]] + shift
+    toes = x0[:, [10, 11]] + shift
+    if config.toes_on_floor:  # a planted toe goes to the floor, a toe below it comes up: the foot turns
+        r = max(1, int(round(config.blend * fps)))
+        kernel = np.hanning(2 * r + 3)[1:-1]
+        kernel /= kernel.sum()
+        for f, k in ((0, 1), (1, 3)):
+            down = np.clip(np.convolve(held[:, k].astype(float), kernel, mode="same"), 0.0, 1.0)
+            y = toes[:, f, 1]
+            toes[:, f, 1] = np.maximum(y - down * y, 0.0)
+    x = lean_into_turns(x0, fps, config.lean) if config.lean > 0 else x0.copy()
+    move = reach_shift(x, ankles, bone_lengths, fps, config.reach_smooth)
+    if move.any():
+        body = [j for j in range(x.shape[1]) if j not in (4, 5, 7, 8, 10, 11)]
+        x[:, body] += move[:, None]
+    return place_legs(x, ankles, toes, bone_lengths)
+
+
 def cleanup_rigid(motion: RigidMotion, fps: float = 20.0, config: CleanupConfig = CleanupConfig(), *,
                   vgrf_model: VgrfModel | None = None, contacts: np.ndarray | None = None) -> CleanupResult:
-    """Remove foot skating from a rigid HumanML3D motion (metres, Y up, floor y = 0) at ``fps``: moves its
-    rotations and root, never its bone lengths."""
+    """Remove foot skating from a rigid HumanML3D motion (metres, Y up, floor y = 0) at ``fps`` (module
+    docstring); bone lengths never change."""
     if motion.skeleton != "humanml3d" or len(motion) < 2:
         raise SMFError(f"footskate cleanup needs a HumanML3D motion of at least 2 frames, got {motion.skeleton} "
                        f"with {len(motion)}")
     x0 = motion.joints()
     c = detect_contacts(x0, fps, config, vgrf_model) if contacts is None else np.asarray(contacts, bool)
-    target, mask = anchor_targets(x0, c, floor=config.anchor_floor, max_shift=config.max_anchor_shift,
-                                  bone_lengths=motion.bone_lengths, reach_margin=config.reach_margin)
-    loss_fn = _cleanup_loss(x0 * CM, target * CM, mask, config, vgrf_model)
-    out = optimise_pose(motion, loss_fn, config.iterations)
-    return CleanupResult(out.joints(), c, out)
-
-
-def _cleanup_loss(X0: np.ndarray, tgt: np.ndarray, mask: np.ndarray, config: CleanupConfig,
-                  vgrf_model: VgrfModel | None):
-    """The loss of :func:`cleanup_rigid` (module docstring) and its gradient, on joints X (T, 22, 3) cm and the
-    root's shift (T, 3) cm: (value, dvalue/dX, dvalue/dshift)."""
-    T, J = X0.shape[:2]
-    m = mask.astype(np.float64)[..., None]
-    n_anchor = max(1.0, float(mask.sum()))
-    w_joint = np.ones(J)
-    w_joint[list(LEG_JOINTS)] = config.leg_pose_scale
-    feet = list(HML_FOOT_JOINTS)
-    vgrf = _vgrf_term(X0, vgrf_model) if vgrf_model is not None and config.w_vgrf > 0 else None
-
-    def loss(X: np.ndarray, shift: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-        local = X - X0 - shift[:, None]  # the pose's own change (the root's is zero)
-        step = shift[1:] - shift[:-1]
-        moved = local[1:] - local[:-1]
-        below = np.maximum(-X[..., 1], 0.0)
-        off = (X[:, feet] - tgt) * m
-        value = (config.w_pose * ((local ** 2).sum(-1) * w_joint).mean()
-                 + config.w_anchor * (off ** 2).sum() / n_anchor
-                 + config.w_root * (step ** 2).sum(-1).mean()
-                 + config.w_root_offset * (shift ** 2).sum(-1).mean()
-                 + config.w_smooth * (moved ** 2).sum(-1).mean()
-                 + config.w_floor * (below ** 2).mean())
-        g_local = config.w_pose * 2 * local * w_joint[:, None] / (T * J)
-        g_moved = config.w_smooth * 2 * moved / ((T - 1) * J)
-        g_local[1:] += g_moved
-        g_local[:-1] -= g_moved
-        gX = g_local.copy()
-        gX[:, feet] += config.w_anchor * 2 * off / n_anchor
-        gX[..., 1] -= config.w_floor * 2 * below / (T * J)
-        g_step = config.w_root * 2 * step / (T - 1)
-        g_shift = config.w_root_offset * 2 * shift / T - g_local.sum(1)
-        g_shift[1:] += g_step
-        g_shift[:-1] -= g_step
-        if vgrf is not None:
-            v, g = vgrf(X)
-            value += config.w_vgrf * v
-            gX += config.w_vgrf * g
-        return float(value), gX, g_shift
-
-    return loss
-
-
-def _vgrf_term(X0: np.ndarray, vgrf_model: VgrfModel):
-    """The vGRF term (100 x the mean squared change of the predicted forces) and its gradient, through the torch
-    model (the vGRF route needs torch)."""
-    import torch
-
-    with torch.no_grad():
-        g0 = vgrf_model(torch.as_tensor(X0[None] / CM, dtype=torch.float32)).double()
-
-    def term(X: np.ndarray) -> tuple[float, np.ndarray]:
-        x = torch.tensor(X, dtype=torch.float64, requires_grad=True)
-        v = 100.0 * ((vgrf_model(x[None].float() / CM).double() - g0) ** 2).mean()
-        v.backward()
-        return float(v.detach()), x.grad.numpy()
-
-    return term
+    x = clean_joints(x0, c, motion.bone_lengths, fps, config)
+    return CleanupResult(x, c, bodies_of_joints([x], [motion.bone_lengths])[0])
 
 
 def cleanup_joints(joints: np.ndarray, fps: float = 20.0, config: CleanupConfig = CleanupConfig(), *,
@@ -253,11 +244,24 @@ def cleanup_features_many(features: list[np.ndarray], config: CleanupConfig = Cl
     for f in fs:
         if f.ndim != 2 or f.shape[1] != 263 or len(f) < 2:
             raise SMFError(f"expected features of shape (T>=2, 263), got {tuple(f.shape)}")
+    bodies = rigid_from_features_many(fs, "humanml3d", rigid)
+    cleaned = [clean_joints(b.joints(), detect_contacts(b.joints(), fps, config, vgrf_model), b.bone_lengths, fps,
+                            config) for b in bodies]
     out = []
-    for body, f in zip(rigid_from_features_many(fs, "humanml3d", rigid), fs):
-        res = cleanup_rigid(body, fps, config, vgrf_model=vgrf_model)
-        motion, written = rigid_to_features(res.motion, f, rigid)
+    for body, f, x in zip(bodies_of_joints(cleaned, [b.bone_lengths for b in bodies]), fs, cleaned):
+        motion, written = rigid_to_features(body, f, rigid)
         out.append((written, motion))
+    return out
+
+
+def bodies_of_joints(joints: list[np.ndarray], lengths: list[np.ndarray]) -> list[RigidMotion]:
+    """Rigid HumanML3D bodies of rigid joints (T_i, 22, 3) with bone lengths (22,) each: the closed-form pose of all
+    their frames at once (exact for rigid joints), each remembering its joints."""
+    starts = np.cumsum([0] + [len(x) for x in joints[:-1]])
+    offsets, rotations = rigid_batch.pose_of_joints(np.concatenate(joints), starts, "humanml3d", np.stack(lengths))
+    out = []
+    for i, (a, x) in enumerate(zip(starts, joints)):
+        out.append(RigidMotion(offsets[i], rotations[a:a + len(x)], x[:, 0].copy(), "humanml3d").with_joints(x))
     return out
 
 

@@ -1,12 +1,9 @@
-// Footskate cleanup in JavaScript: the twin of stablemofusion/footskate/cleanup.py (cleanup_rigid, its docstring
-// explains the losses), with its kinematic contacts (footskate/contacts.py), the pose parametrisation of
-// motion/rigid.py (optimise_pose, _PoseParams) and the L-BFGS of motion/lbfgs.py. Joints are flat Float64Arrays
-// (T x J x 3, metres, Y up); the optimisation works in centimetres, as the Python does. Its settings come from the
-// model's web.json ("cleanup"), written from the Python defaults.
+// Footskate cleanup in JavaScript: the twin of stablemofusion/footskate/cleanup.py (clean_joints, its docstring
+// explains the steps), with its kinematic contacts (footskate/contacts.py), the lean into turns (motion/lean.py) and
+// the legs' two-bone IK (motion/ik.py); each function here names its Python twin, and tests compare them. Joints are
+// flat Float64Arrays (T x J x 3, metres, Y up). Settings come from the model's web.json ("cleanup"), written from the
+// Python defaults.
 
-import { branchFrame, cross, dot, sub } from './motion.js';
-
-const CM = 100;
 const norm3 = (v) => Math.hypot(v[0], v[1], v[2]);
 
 // numpy's percentile with linear interpolation
@@ -68,260 +65,213 @@ function splitContact(points, maxShift) {
   return pieces;
 }
 
-// The anchors (T x 4 x 3 metres) and mask (T x 4) of the planted feet.
-function anchorTargets(x, T, J, contacts, lengths, c) {
-  const target = new Float64Array(T * 4 * 3), mask = new Uint8Array(T * 4);
-  c.foot_joints.forEach((j, k) => {
-    const pts = Array.from({ length: T }, (_, t) => [x[(t * J + j) * 3], x[(t * J + j) * 3 + 1], x[(t * J + j) * 3 + 2]]);
+
+const smoothstep = (x) => { const c = Math.min(Math.max(x, 0), 1); return c * c * (3 - 2 * c); };
+const at3 = (x, J, t, j) => [x[(t * J + j) * 3], x[(t * J + j) * 3 + 1], x[(t * J + j) * 3 + 2]];
+
+// numpy's hanning(2r + 3)[1:-1]: a window of 2r + 1 weights
+function hanningInner(r) {
+  const M = 2 * r + 3, out = [];
+  for (let n = 1; n < M - 1; n++) out.push(0.5 - 0.5 * Math.cos((2 * Math.PI * n) / (M - 1)));
+  return out;
+}
+
+// numpy's convolve(a, k, 'same') for an odd, symmetric kernel
+function convolveSame(a, k) {
+  const r = (k.length - 1) / 2, out = new Float64Array(a.length);
+  for (let t = 0; t < a.length; t++) {
+    let s = 0;
+    for (let i = 0; i < k.length; i++) { const u = t + r - i; if (u >= 0 && u < a.length) s += a[u] * k[i]; }
+    out[t] = s;
+  }
+  return out;
+}
+
+// holds(): the place (T x 4 x [x, y, z]) and mask (T x 4) of the held foot joints
+function holds(points, contacts, T, maxSlide, cutGap) {
+  const place = points.map((row) => row.map((p) => p.slice())), held = Array.from({ length: T }, () => [0, 0, 0, 0]);
+  for (let k = 0; k < 4; k++) {
     for (const [a, b] of runs(contacts[k])) {
-      for (const [a2, b2] of splitContact(pts.slice(a, b), c.max_anchor_shift)) {
-        const p = [0, 0, 0];
-        for (let t = a + a2; t < a + b2; t++) for (let e = 0; e < 3; e++) p[e] += pts[t][e] / (b2 - a2);
-        p[1] = c.anchor_floor && (k === 1 || k === 3) ? 0 : Math.max(0, p[1]);
-        for (let t = a + a2; t < a + b2; t++) { target.set(p, (t * 4 + k) * 3); mask[t * 4 + k] = 1; }
-      }
+      const pieces = splitContact(points.slice(a, b).map((row) => row[k]), maxSlide);
+      pieces.forEach(([a2, b2], i) => {
+        const lo = a + a2 + (i > 0 ? cutGap : 0), hi = a + b2 - (i < pieces.length - 1 ? cutGap : 0);
+        if (hi - lo < 1) return;
+        const m = [0, 0, 0];
+        for (let t = lo; t < hi; t++) for (let e = 0; e < 3; e++) m[e] += points[t][k][e];
+        for (let t = lo; t < hi; t++) { place[t][k] = m.map((v) => v / (hi - lo)); held[t][k] = 1; }
+      });
     }
-    const chain = c.foot_chains[k];
-    const reach = chain.slice(1).reduce((s, i) => s + lengths[i], 0) + c.reach_margin;
+  }
+  return { place, held };
+}
+
+// bridge(): offsets (T x [x, y, z]) known where held (T) -> everywhere, eased across free stretches
+function bridge(offset, held, T) {
+  const before = new Array(T), after = new Array(T);
+  let last = -1;
+  for (let t = 0; t < T; t++) { if (held[t]) last = t; before[t] = last; }
+  let next = T;
+  for (let t = T - 1; t >= 0; t--) { if (held[t]) next = t; after[t] = next; }
+  if (last < 0) return offset.map(() => [0, 0, 0]);
+  return offset.map((_, t) => {
+    const b = before[t] < 0 ? after[t] : before[t], a = after[t] >= T ? before[t] : after[t];
+    const s = smoothstep((t - b) / Math.max(a - b, 1));
+    return [0, 1, 2].map((e) => (1 - s) * offset[b][e] + s * offset[a][e]);
+  });
+}
+
+// foot_shifts(): how far to move each foot (T x 2 x [x, y, z]) so that its held joints stay at their holds
+function footShifts(points, place, held, T, r) {
+  const kernel = hanningInner(r);
+  return [[0, 1], [2, 3]].map(([ankle, toe]) => {
+    const w = [ankle, toe].map((j) => {
+      const h = Float64Array.from(held, (row) => row[j]);
+      return convolveSame(h, kernel).map((v, t) => v * h[t]);
+    });
+    const inside = points.map((row, t) => {
+      const total = Math.max(w[0][t] + w[1][t], 1e-12);
+      return [0, 1, 2].map((e) => (e === 1 ? 0 : (w[0][t] * (place[t][ankle][e] - row[ankle][e])
+        + w[1][t] * (place[t][toe][e] - row[toe][e])) / total));
+    });
+    return bridge(inside, held.map((row) => row[ankle] || row[toe]), T);
+  });
+}
+
+// lean.py's smooth(): a Gaussian of sigma frames along time, edges held, of T values
+function smoothGauss(values, sigma) {
+  const T = values.length, r = Math.ceil(3 * sigma), k = [];
+  for (let i = -r; i <= r; i++) k.push(Math.exp(-0.5 * (i / sigma) ** 2));
+  const total = k.reduce((a, b) => a + b, 0);
+  return Float64Array.from({ length: T }, (_, t) => {
+    let s = 0;
+    for (let i = 0; i < k.length; i++) s += (k[i] / total) * values[Math.min(Math.max(t + i - r, 0), T - 1)];
+    return s;
+  });
+}
+
+// numpy's gradient of T values (one-sided at the ends)
+const gradient = (v) => Float64Array.from(v, (_, t) => (t === 0 ? v[1] - v[0] : t === v.length - 1 ? v[t] - v[t - 1]
+  : (v[t + 1] - v[t - 1]) / 2));
+
+// lean.py's lean_into_turns(): the body above the legs turned about the pelvis by the lean it lacks
+function leanIntoTurns(x, T, J, fps, c) {
+  const out = Float64Array.from(x);
+  if (c.lean <= 0 || T < 3) return out;
+  const sigma = c.lean_smooth * fps;
+  const sx = smoothGauss(Float64Array.from({ length: T }, (_, t) => x[t * J * 3]), sigma);
+  const sz = smoothGauss(Float64Array.from({ length: T }, (_, t) => x[t * J * 3 + 2]), sigma);
+  const vx = gradient(sx).map((v) => v * fps), vz = gradient(sz).map((v) => v * fps);
+  const axs = gradient(vx).map((v) => v * fps), azs = gradient(vz).map((v) => v * fps);
+  const up = [0, 1, 2].map((e) => smoothGauss(Float64Array.from({ length: T }, (_, t) => x[(t * J + c.neck) * 3 + e]
+    - x[t * J * 3 + e]), sigma));
+  const body = [];
+  for (let j = 0; j < J; j++) if (!c.leg_chain_joints.includes(j)) body.push(j);
+  const extra = [], aheads = [];
+  for (let t = 0; t < T; t++) {
+    const speed = Math.hypot(vx[t], vz[t]), ax = vx[t] / Math.max(speed, 1e-6), az = vz[t] / Math.max(speed, 1e-6);
+    const aLat = axs[t] * az - azs[t] * ax;
+    const want = Math.min(Math.max(c.lean * Math.atan(aLat / c.gravity) * 180 / Math.PI, -c.max_lean_deg), c.max_lean_deg);
+    const have = Math.atan2(up[0][t] * az - up[2][t] * ax, up[1][t]) * 180 / Math.PI;
+    extra.push(Math.sign(want) * Math.max(Math.abs(want) - Math.max(Math.sign(want) * have, 0), 0));
+    aheads.push([ax, az]);
+  }
+  if (!extra.some((e) => Math.abs(e) > 1e-3)) return out;
+  for (let t = 0; t < T; t++) {
+    const th = extra[t] * Math.PI / 180, cs = Math.cos(th), sn = Math.sin(th), [ax, az] = aheads[t];
+    const r0 = at3(x, J, t, 0);
+    for (const j of body) {
+      const p = at3(x, J, t, j), rx = p[0] - r0[0], ry = p[1] - r0[1], rz = p[2] - r0[2];
+      const along = rx * ax + rz * az, lat = rx * az - rz * ax;
+      const lat2 = cs * lat + sn * ry, up2 = -sn * lat + cs * ry;
+      const o = (t * J + j) * 3;
+      out[o] = r0[0] + along * ax + lat2 * az;
+      out[o + 2] = r0[2] + along * az - lat2 * ax;
+      out[o + 1] = r0[1] + up2;
+    }
+  }
+  return out;
+}
+
+const unit = (v) => { const n = Math.max(norm3(v), 1e-9); return [v[0] / n, v[1] / n, v[2] / n]; };
+
+// ik.py's reach_shift(): how far to move the pelvis (T x [x, y, z]) so that each leg reaches its ankle target
+function reachShift(x, T, J, ankles, lengths, fps, c) {
+  const need = Array.from({ length: T }, () => [0, 0, 0]);
+  let any = false;
+  c.legs.forEach(([h, kn, a], k) => {
     for (let t = 0; t < T; t++) {
-      const hip = pts[t].map((_, e) => x[(t * J + chain[0]) * 3 + e]);
-      const d = norm3(sub([target[(t * 4 + k) * 3], target[(t * 4 + k) * 3 + 1], target[(t * 4 + k) * 3 + 2]], hip));
-      if (d > reach) mask[t * 4 + k] = 0;
+      const d = ankles[k][t].map((v, e) => v - x[(t * J + h) * 3 + e]), dist = norm3(d), u = unit(d);
+      const short = Math.max(dist - c.straight * 0.995 * (lengths[kn] + lengths[a]), 0);
+      if (short > 0) any = true;
+      for (let e = 0; e < 3; e++) need[t][e] += u[e] * short;
     }
   });
-  return { target, mask };
+  if (!any) return need;
+  const r = Math.max(1, Math.round(c.reach_smooth * fps)), kernel = hanningInner(r), top = Math.max(...kernel);
+  const kn = kernel.map((v) => v / top), mag = need.map(norm3);
+  return need.map((_, t) => {
+    let best = 0, score = -Infinity;
+    for (let i = 0; i < kn.length; i++) {
+      const s = mag[Math.min(Math.max(t + i - r, 0), T - 1)] * kn[i];
+      if (s > score) { score = s; best = i; }
+    }
+    return need[Math.min(Math.max(t + best - r, 0), T - 1)].map((v) => v * kn[best]);
+  });
 }
 
-// The cleanup loss and its gradient on joints X (T x J x 3 cm) and the root's shift (T x 3 cm).
-function cleanupLoss(X0, tgt, mask, T, J, c) {
-  const feet = c.foot_joints;
-  let nAnchor = 0;
-  for (const m of mask) nAnchor += m;
-  nAnchor = Math.max(1, nAnchor);
-  const wJoint = new Float64Array(J).fill(1);
-  for (const j of c.leg_joints) wJoint[j] = c.leg_pose_scale;
-  return (X, shift) => {
-    const local = new Float64Array(T * J * 3);
-    for (let t = 0; t < T; t++) for (let j = 0; j < J; j++) for (let e = 0; e < 3; e++) {
-      const i = (t * J + j) * 3 + e;
-      local[i] = X[i] - X0[i] - shift[t * 3 + e];
-    }
-    let pose = 0, anchor = 0, root = 0, offset = 0, smooth = 0, floor = 0;
-    const gX = new Float64Array(T * J * 3), gShift = new Float64Array(T * 3);
-    for (let t = 0; t < T; t++) for (let j = 0; j < J; j++) for (let e = 0; e < 3; e++) {
-      const i = (t * J + j) * 3 + e;
-      pose += local[i] * local[i] * wJoint[j];
-      gX[i] = c.w_pose * 2 * local[i] * wJoint[j] / (T * J);
-    }
-    for (let t = 0; t + 1 < T; t++) for (let j = 0; j < J; j++) for (let e = 0; e < 3; e++) {
-      const i = (t * J + j) * 3 + e, moved = local[i + J * 3] - local[i];
-      smooth += moved * moved;
-      const g = c.w_smooth * 2 * moved / ((T - 1) * J);
-      gX[i + J * 3] += g;
-      gX[i] -= g;
-    }
-    for (let t = 0; t < T; t++) for (let j = 0; j < J; j++) for (let e = 0; e < 3; e++) gShift[t * 3 + e] -= gX[(t * J + j) * 3 + e];
+// ik.py's place_legs(): both legs re-posed by two-bone IK, ankles towards their targets, feet towards their toes
+function placeLegs(x, T, J, ankles, toes, lengths, c) {
+  c.legs.forEach(([h, kn, a, to], k) => {
+    const upper = lengths[kn], lower = lengths[a];
     for (let t = 0; t < T; t++) {
-      for (let j = 0; j < J; j++) {
-        const i = (t * J + j) * 3 + 1, below = Math.max(-X[i], 0);
-        floor += below * below;
-        gX[i] -= c.w_floor * 2 * below / (T * J);
-      }
-      feet.forEach((j, k) => {
-        if (!mask[t * 4 + k]) return;
-        for (let e = 0; e < 3; e++) {
-          const off = X[(t * J + j) * 3 + e] - tgt[(t * 4 + k) * 3 + e];
-          anchor += off * off;
-          gX[(t * J + j) * 3 + e] += c.w_anchor * 2 * off / nAnchor;
-        }
-      });
+      const hip = at3(x, J, t, h), knee0 = at3(x, J, t, kn);
+      const d0 = ankles[k][t].map((v, e) => v - hip[e]), dist = norm3(d0), axis = d0.map((v) => v / Math.max(dist, 1e-9));
+      const d = Math.min(Math.max(dist, Math.abs(upper - lower) + 1e-6), c.straight * (upper + lower));
+      const ankle = hip.map((v, e) => v + axis[e] * d);
+      const p = knee0.map((v, e) => v - hip[e]), pa = p[0] * axis[0] + p[1] * axis[1] + p[2] * axis[2];
+      const pole = unit(p.map((v, e) => v - axis[e] * pa));
+      const along = (upper ** 2 + d ** 2 - lower ** 2) / (2 * d), across = Math.sqrt(Math.max(upper ** 2 - along ** 2, 0));
+      const knee = hip.map((v, e) => v + axis[e] * along + pole[e] * across);
+      const foot = unit(toes[k][t].map((v, e) => v - ankle[e]));
       for (let e = 0; e < 3; e++) {
-        const s = shift[t * 3 + e];
-        offset += s * s;
-        gShift[t * 3 + e] += c.w_root_offset * 2 * s / T;
-        if (t + 1 < T) {
-          const step = shift[(t + 1) * 3 + e] - s;
-          root += step * step;
-          const g = c.w_root * 2 * step / (T - 1);
-          gShift[(t + 1) * 3 + e] += g;
-          gShift[t * 3 + e] -= g;
-        }
+        x[(t * J + kn) * 3 + e] = knee[e];
+        x[(t * J + a) * 3 + e] = ankle[e];
+        x[(t * J + to) * 3 + e] = ankle[e] + foot[e] * lengths[to];
       }
     }
-    const value = c.w_pose * pose / (T * J) + c.w_anchor * anchor / nAnchor + c.w_root * root / (T - 1)
-      + c.w_root_offset * offset / T + c.w_smooth * smooth / ((T - 1) * J) + c.w_floor * floor / (T * J);
-    return { value, gX, gShift };
-  };
-}
-
-
-// The pose parameters of motion/rigid.py's _PoseParams for rigid joints x (metres): free bones' vectors (cm),
-// branching joints' scaled 6D orientations, the root's shift (cm), as one flat vector; positions and the chain rule.
-function poseParams(x, T, tree, lengths, offsets, branchScale) {
-  const J = tree.parents.length, parents = tree.parents;
-  const kids = parents.map((_, j) => parents.filter((p) => p === j).length);
-  const branch = [...Array(J).keys()].filter((j) => kids[j] > 1);
-  const free = [...Array(J).keys()].filter((c) => c > 0 && kids[parents[c]] === 1);
-  const under = [...Array(J).keys()].filter((c) => c > 0 && kids[parents[c]] > 1);
-  const branchOf = under.map((c) => branch.indexOf(parents[c]));
-  const members = [...Array(J).keys()].map((j) => [...Array(J).keys()].filter((k) => {
-    for (let a = k; a >= 0; a = parents[a]) if (a === j) return true;
-    return false;
-  }));
-  const F = free.length, B = branch.length;
-  const nU = T * F * 3, nG = T * B * 6;
-  const theta0 = new Float64Array(nU + nG + T * 3);
-  const at = (t, j) => [x[(t * J + j) * 3], x[(t * J + j) * 3 + 1], x[(t * J + j) * 3 + 2]];
-  for (let t = 0; t < T; t++) {
-    free.forEach((c, f) => theta0.set(sub(at(t, c), at(t, parents[c])).map((v) => v * CM), (t * F + f) * 3));
-    branch.forEach((b, i) => { // the branch's frame (motion.js), its X and Y columns scaled
-      const [xn, yn] = branchFrame((j) => at(t, j), tree, tree.branches.indexOf(b));
-      theta0.set([...xn, ...yn].map((v) => v * branchScale), nU + (t * B + i) * 6);
-    });
-  }
-  const root0 = Array.from({ length: T }, (_, t) => at(t, 0).map((v) => v * CM));
-  const off = offsets.map((o) => o.map((v) => v * CM));
-  const len = lengths.map((v) => v * CM);
-
-  function positions(theta) {
-    const X = new Float64Array(T * J * 3), frames = [];
-    for (let t = 0; t < T; t++) {
-      const bones = Array.from({ length: J }, () => [0, 0, 0]);
-      const fr = branch.map((_, i) => {
-        const g = theta.subarray(nU + (t * B + i) * 6, nU + (t * B + i) * 6 + 6);
-        const a = [g[0] / branchScale, g[1] / branchScale, g[2] / branchScale];
-        const b = [g[3] / branchScale, g[4] / branchScale, g[5] / branchScale];
-        const na = norm3(a), xa = a.map((v) => v / na), w = cross(xa, b), nw = norm3(w);
-        const z = w.map((v) => v / nw), y = cross(z, xa);
-        return { a, b, na, x: xa, w, nw, y, z };
-      });
-      frames.push(fr);
-      free.forEach((c, f) => {
-        const u = theta.subarray((t * F + f) * 3, (t * F + f) * 3 + 3);
-        const nu = Math.max(norm3(u), 1e-6);
-        bones[c] = [0, 1, 2].map((e) => len[c] * u[e] / nu);
-      });
-      under.forEach((c, k) => {
-        const r = fr[branchOf[k]];
-        bones[c] = [0, 1, 2].map((e) => r.x[e] * off[c][0] + r.y[e] * off[c][1] + r.z[e] * off[c][2]);
-      });
-      const s = theta.subarray(nU + nG + t * 3, nU + nG + t * 3 + 3);
-      for (let k = 0; k < J; k++) for (let e = 0; e < 3; e++) X[(t * J + k) * 3 + e] = root0[t][e] + s[e];
-      for (let j = 0; j < J; j++) for (const k of members[j]) for (let e = 0; e < 3; e++) X[(t * J + k) * 3 + e] += bones[j][e];
-    }
-    return { X, frames };
-  }
-
-  function objective(loss) {
-    return (theta) => {
-      const { X, frames } = positions(theta);
-      const shift = theta.subarray(nU + nG);
-      const { value, gX, gShift } = loss(X, shift);
-      const grad = new Float64Array(theta.length);
-      for (let t = 0; t < T; t++) {
-        const gBone = Array.from({ length: J }, (_, j) => {
-          const g = [0, 0, 0];
-          for (const k of members[j]) for (let e = 0; e < 3; e++) g[e] += gX[(t * J + k) * 3 + e];
-          return g;
-        });
-        free.forEach((c, f) => {
-          const u = theta.subarray((t * F + f) * 3, (t * F + f) * 3 + 3);
-          const nu = Math.max(norm3(u), 1e-6), n = [u[0] / nu, u[1] / nu, u[2] / nu], gb = gBone[c];
-          const d = dot(n, gb);
-          for (let e = 0; e < 3; e++) grad[(t * F + f) * 3 + e] = len[c] / nu * (gb[e] - n[e] * d);
-        });
-        branch.forEach((_, i) => {
-          const r = frames[t][i];
-          const gcol = [[0, 0, 0], [0, 0, 0], [0, 0, 0]]; // d/d x, y, z (the rotation's columns)
-          under.forEach((c, k) => {
-            if (branchOf[k] !== i) return;
-            for (let col = 0; col < 3; col++) for (let e = 0; e < 3; e++) gcol[col][e] += gBone[c][e] * off[c][col];
-          });
-          let [gx, gy, gz] = gcol;
-          gz = gz.map((v, e) => v + cross(r.x, gy)[e]); // y = z x x
-          gx = gx.map((v, e) => v + cross(gy, r.z)[e]);
-          const zgz = dot(r.z, gz);
-          const gw = gz.map((v, e) => (v - r.z[e] * zgz) / r.nw); // z = w / |w|
-          gx = gx.map((v, e) => v + cross(r.b, gw)[e]); // w = x x b
-          const gb = cross(gw, r.x);
-          const xgx = dot(r.x, gx);
-          const ga = gx.map((v, e) => (v - r.x[e] * xgx) / r.na); // x = a / |a|
-          grad.set([...ga, ...gb].map((v) => v / branchScale), nU + (t * B + i) * 6);
-        });
-        for (let e = 0; e < 3; e++) {
-          let g = gShift[t * 3 + e];
-          for (let k = 0; k < J; k++) g += gX[(t * J + k) * 3 + e];
-          grad[nU + nG + t * 3 + e] = g;
-        }
-      }
-      return { value, grad };
-    };
-  }
-
-  return { theta0, positions, objective };
-}
-
-// motion/lbfgs.py: at most `iterations` L-BFGS iterations (history 10, an Armijo backtracking line search from
-// step 1, the first from min(1, 1 / |g|_1)) and 1.25 evaluations per iteration.
-function lbfgs(f, x0, iterations, history = 10) {
-  const vdot = (a, b) => { let s = 0; for (let i = 0; i < a.length; i++) s += a[i] * b[i]; return s; };
-  let x = Float64Array.from(x0);
-  let { value, grad: g } = f(x);
-  let evals = 1;
-  const budget = Math.floor(iterations * 1.25);
-  const S = [], Y = [];
-  for (let it = 0; it < iterations; it++) {
-    let gmax = 0, gsum = 0;
-    for (const v of g) { gmax = Math.max(gmax, Math.abs(v)); gsum += Math.abs(v); }
-    if (gmax <= 1e-7 || evals >= budget) break;
-    // the two-loop recursion: d = -H g
-    const q = Float64Array.from(g), alphas = [];
-    for (let k = S.length - 1; k >= 0; k--) {
-      const a = vdot(S[k], q) / vdot(Y[k], S[k]);
-      alphas.push(a);
-      for (let i = 0; i < q.length; i++) q[i] -= a * Y[k][i];
-    }
-    if (S.length) {
-      const h = vdot(S[S.length - 1], Y[Y.length - 1]) / vdot(Y[Y.length - 1], Y[Y.length - 1]);
-      for (let i = 0; i < q.length; i++) q[i] *= h;
-    }
-    for (let k = 0; k < S.length; k++) {
-      const b = vdot(Y[k], q) / vdot(Y[k], S[k]);
-      const a = alphas[S.length - 1 - k];
-      for (let i = 0; i < q.length; i++) q[i] += (a - b) * S[k][i];
-    }
-    let d = q.map((v) => -v);
-    let slope = vdot(g, d);
-    if (slope >= 0) { S.length = 0; Y.length = 0; d = g.map((v) => -v); slope = -vdot(g, g); }
-    let step = it === 0 ? Math.min(1, 1 / gsum) : 1;
-    let xNew, vNew, gNew;
-    for (;;) {
-      xNew = x.map((v, i) => v + step * d[i]);
-      ({ value: vNew, grad: gNew } = f(xNew));
-      evals += 1;
-      if (vNew <= value + 1e-4 * step * slope || evals >= budget) break;
-      step *= 0.5;
-    }
-    if (!(vNew <= value)) break;
-    const s = xNew.map((v, i) => v - x[i]), y = gNew.map((v, i) => v - g[i]);
-    if (vdot(s, y) > 1e-10) {
-      S.push(s);
-      Y.push(y);
-      if (S.length > history) { S.shift(); Y.shift(); }
-    }
-    [x, value, g] = [xNew, vNew, gNew];
-  }
+  });
   return x;
 }
 
-// Footskate-cleaned rigid joints (T x J x 3 metres) of rigid joints x with bone `lengths` and rest `offsets`
-// (poseOfJoints): the rotations and the root move, never the bone lengths.
+// Footskate-cleaned rigid joints (T x J x 3 metres) of rigid joints x with bone `lengths` (cleanup.py's
+// clean_joints with kinematic contacts): never changes a bone's length.
 export function cleanupRigid(x, T, tree, lengths, offsets, fps, c) {
   const J = tree.parents.length;
   const contacts = kinematicContacts(x, T, J, fps, c);
-  const { target, mask } = anchorTargets(x, T, J, contacts, lengths, c);
-  const body = poseParams(x, T, tree, lengths, offsets, c.branch_scale);
-  const loss = cleanupLoss(x.map((v) => v * CM), target.map((v) => v * CM), mask, T, J, c);
-  const theta = lbfgs(body.objective(loss), body.theta0, c.iterations);
-  return body.positions(theta).X.map((v) => v / CM);
+  const feet = c.foot_joints;
+  const points = Array.from({ length: T }, (_, t) => feet.map((j) => at3(x, J, t, j)));
+  const r = Math.max(1, Math.round(c.blend * fps));
+  const { place, held } = holds(points, contacts, T, c.max_slide, r);
+  const shift = footShifts(points, place, held, T, r);
+  const ankles = [0, 1].map((f) => Array.from({ length: T }, (_, t) => at3(x, J, t, c.legs[f][2]).map((v, e) => v + shift[f][t][e])));
+  const toes = [0, 1].map((f) => Array.from({ length: T }, (_, t) => at3(x, J, t, c.legs[f][3]).map((v, e) => v + shift[f][t][e])));
+  if (c.toes_on_floor) {
+    const kernel = hanningInner(r), total = kernel.reduce((a, b) => a + b, 0);
+    [[0, 1], [1, 3]].forEach(([f, k]) => {
+      const down = convolveSame(Float64Array.from(held, (row) => row[k]), kernel.map((v) => v / total));
+      for (let t = 0; t < T; t++) {
+        const y = toes[f][t][1], s = Math.min(Math.max(down[t], 0), 1);
+        toes[f][t][1] = Math.max(y - s * y, 0);
+      }
+    });
+  }
+  const out = leanIntoTurns(x, T, J, fps, c);
+  const move = reachShift(out, T, J, ankles, lengths, fps, c);
+  for (let t = 0; t < T; t++) {
+    for (let j = 0; j < J; j++) {
+      if (c.leg_chain_joints.includes(j)) continue;
+      for (let e = 0; e < 3; e++) out[(t * J + j) * 3 + e] += move[t][e];
+    }
+  }
+  return placeLegs(out, T, J, ankles, toes, lengths, c);
 }

@@ -1,0 +1,96 @@
+"""Leaning into turns: the body tilts towards the centre of the curve its root follows, as real people do.
+
+Measured on the corpus's walks, runs and turning walks (``benchmarks/final_stage_check.py lean``): the torso's
+sideways lean (pelvis to neck, from vertical, both smoothed over :data:`SMOOTH_S`) follows
+``LEAN_SHARE * atan(a_lat / g)``, where ``a_lat`` is the sideways acceleration of the root's smoothed ground path
+(``v * omega`` on a curve). :func:`lean_into_turns` adds, where a motion leans less than that, the missing part:
+the body above the legs turns about the pelvis (the legs are placed afterwards by the footskate cleanup).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .ik import LEG_CHAIN_JOINTS
+
+G = 9.81  # m/s^2
+LEAN_SHARE = 0.65  # measured slope of lean against atan(a_lat / g) on the corpus (least squares through 0)
+SMOOTH_S = 0.5  # s: the Gaussian (standard deviation) over which the path and the lean are smoothed
+MAX_LEAN_DEG = 30.0
+NECK = 12
+
+
+def smooth(x: np.ndarray, sigma: float) -> np.ndarray:
+    """``x`` (T, ...) smoothed along time by a Gaussian of ``sigma`` frames (edges held)."""
+    if sigma <= 0 or len(x) < 2:
+        return np.array(x, dtype=np.float64, copy=True)
+    r = int(np.ceil(3 * sigma))
+    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+    k /= k.sum()
+    x = np.asarray(x, dtype=np.float64)
+    pad = np.pad(x.reshape(len(x), -1), [(r, r), (0, 0)], mode="edge")
+    windows = np.lib.stride_tricks.sliding_window_view(pad, 2 * r + 1, axis=0)  # (T, C, 2r + 1)
+    return (windows @ k).reshape(x.shape)
+
+
+def turn_frame(joints: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Of joints (T, 22, 3) metres: the unit direction of travel (T, 2) (x, z), the sideways acceleration of the
+    smoothed root path (T,) m/s^2 (positive: towards the left of travel) and the speed (T,) m/s."""
+    sigma = SMOOTH_S * fps
+    xz = smooth(joints[:, 0, [0, 2]], sigma)
+    v = np.gradient(xz, axis=0) * fps if len(xz) > 1 else np.zeros_like(xz)
+    a = np.gradient(v, axis=0) * fps if len(xz) > 1 else np.zeros_like(xz)
+    speed = np.linalg.norm(v, axis=-1)
+    ahead = v / np.maximum(speed, 1e-6)[:, None]
+    left = np.stack([ahead[:, 1], -ahead[:, 0]], -1)  # facing +Z, +X is to the left
+    return ahead, np.sum(a * left, -1), speed
+
+
+def sideways_lean(joints: np.ndarray, fps: float, ahead: np.ndarray | None = None) -> np.ndarray:
+    """(T,) degrees: the smoothed torso's (pelvis to neck) lean towards the left of the direction of travel
+    (``ahead`` (T, 2), :func:`turn_frame`'s, computed when not given)."""
+    if ahead is None:
+        ahead, _, _ = turn_frame(joints, fps)
+    left = np.stack([ahead[:, 1], -ahead[:, 0]], -1)
+    up = smooth(joints[:, NECK] - joints[:, 0], SMOOTH_S * fps)
+    return np.degrees(np.arctan2(np.sum(up[:, [0, 2]] * left, -1), up[:, 1]))
+
+
+def expected_lean(joints: np.ndarray, fps: float, share: float = LEAN_SHARE) -> np.ndarray:
+    """(T,) degrees: the lean real people show for this path, ``share * atan(a_lat / g)`` (positive: left)."""
+    _, a_lat, _ = turn_frame(joints, fps)
+    return np.clip(share * np.degrees(np.arctan(a_lat / G)), -MAX_LEAN_DEG, MAX_LEAN_DEG)
+
+
+def lean_into_turns(joints: np.ndarray, fps: float, share: float = LEAN_SHARE) -> np.ndarray:
+    """Joints (T, 22, 3) metres with the body above the legs turned about the pelvis, about the direction of
+    travel, by what it lacks of :func:`expected_lean` (a motion already leaning enough is left as it is). Rigid:
+    every joint but the legs' turns with the pelvis; the legs are placed by the cleanup's IK."""
+    x = np.asarray(joints, dtype=np.float64)
+    if share <= 0 or len(x) < 3:
+        return x.copy()
+    ahead, a_lat, _ = turn_frame(x, fps)
+    want = np.clip(share * np.degrees(np.arctan(a_lat / G)), -MAX_LEAN_DEG, MAX_LEAN_DEG)
+    have = sideways_lean(x, fps, ahead)
+    extra = np.sign(want) * np.maximum(np.abs(want) - np.maximum(np.sign(want) * have, 0.0), 0.0)
+    if not np.any(np.abs(extra) > 1e-3):
+        return x.copy()
+    theta = np.radians(extra)
+    # rotation about the axis of travel a = (ax, 0, az); positive theta tips +Y towards the left (az, 0, -ax)
+    ax, az = ahead[:, 0], ahead[:, 1]
+    c, s = np.cos(theta), np.sin(theta)
+    body = [j for j in range(x.shape[1]) if j not in LEG_CHAIN_JOINTS]
+    rel = x[:, body] - x[:, :1]
+    along = rel[..., 0] * ax[:, None] + rel[..., 2] * az[:, None]  # component along the axis
+    lat = rel[..., 0] * az[:, None] - rel[..., 2] * ax[:, None]  # towards the left
+    up = rel[..., 1]
+    lat2 = c[:, None] * lat + s[:, None] * up
+    up2 = -s[:, None] * lat + c[:, None] * up
+    out = x.copy()
+    out[:, body, 0] = x[:, :1, 0] + along * ax[:, None] + lat2 * az[:, None]
+    out[:, body, 2] = x[:, :1, 2] + along * az[:, None] - lat2 * ax[:, None]
+    out[:, body, 1] = x[:, :1, 1] + up2
+    return out
+
+
+__all__ = ["LEAN_SHARE", "expected_lean", "lean_into_turns", "sideways_lean", "turn_frame"]

@@ -50,6 +50,7 @@ class CleanupConfig:
     contacts: str = "kinematic"  # or "vgrf" (needs a vGRF model)
     blend: float = 0.15  # s: frames left free either side of a cut contact; heel-toe hand-over
     max_slide: float = 0.15  # m: a contact whose joint strays further from its hold is cut into pieces
+    catch_up: float = 1.2  # m/s: how much faster than the motion moved it a foot may travel between two holds
     toes_on_floor: bool = True  # planted toes are put on the floor (y = 0) by turning the foot
     lean: float = LEAN_SHARE  # share of atan(a_lat / g) the body leans into turns (0: no lean)
     reach_smooth: float = 0.15  # s: a pelvis move that lets a leg reach its foot is spread over this either side
@@ -91,11 +92,14 @@ def smoothstep(x: np.ndarray) -> np.ndarray:
     return x * x * (3.0 - 2.0 * x)
 
 
-def holds(points: np.ndarray, contacts: np.ndarray, max_slide: float, cut_gap: int) -> tuple[np.ndarray, np.ndarray]:
+def holds(points: np.ndarray, contacts: np.ndarray, max_slide: float, cut_gap: int, fps: float = 20.0,
+          catch_up: float = 1.2) -> tuple[np.ndarray, np.ndarray]:
     """Where each foot joint is held: ``points`` (T, K, 3) metres, ``contacts`` (T, K) bool -> the place (T, K, 3)
     and a mask (T, K) of the held frames. A contact is cut into pieces that stray at most ``max_slide`` m
     (:func:`split_contact`), each held at the mean of its positions; ``cut_gap`` frames either side of a cut are
-    left free, so that the foot has time to move from one hold to the next."""
+    left free. Then two holds of a joint are kept apart long enough for the foot to move from one to the next
+    (:func:`bridge`) at most ``catch_up`` m/s faster than the motion moved it: the earlier is released and the
+    later caught a frame later, in turn, until they are."""
     T, K = contacts.shape
     place = np.array(points, dtype=np.float64, copy=True)
     held = np.zeros((T, K), dtype=bool)
@@ -109,7 +113,26 @@ def holds(points: np.ndarray, contacts: np.ndarray, max_slide: float, cut_gap: i
                     continue
                 place[lo:hi, k] = points[lo:hi, k].mean(0)
                 held[lo:hi, k] = True
+        _space_holds(points[:, k], place[:, k], held[:, k], 1.5 * fps / catch_up)
     return place, held
+
+
+def _space_holds(points: np.ndarray, place: np.ndarray, held: np.ndarray, frames_per_metre: float) -> None:
+    """In place on ``held`` (T,): release the ends of consecutive holds until the frames between the last frame of
+    one and the first of the next are at least ``frames_per_metre`` times the change of the pull (place minus
+    position, horizontally) between them (a smoothstep's peak speed is 1.5x its mean)."""
+    pull = (place - points)[:, [0, 2]]
+    spans = runs(held)
+    for (a1, e1), (s2, b2) in zip(spans[:-1], spans[1:]):
+        last, first, turn = e1 - 1, s2, 0
+        while last >= a1 and first < b2 and first - last < frames_per_metre * np.linalg.norm(pull[first] - pull[last]):
+            if turn % 2 == 0:
+                held[last] = False
+                last -= 1
+            else:
+                held[first] = False
+                first += 1
+            turn += 1
 
 
 def bridge(offset: np.ndarray, held: np.ndarray) -> np.ndarray:
@@ -132,20 +155,19 @@ def bridge(offset: np.ndarray, held: np.ndarray) -> np.ndarray:
 def foot_shifts(points: np.ndarray, place: np.ndarray, held: np.ndarray, fps: float, blend: float) -> np.ndarray:
     """(T, 2, 3) how far to move each foot (left, right) as one piece so that its held joints stay at their holds
     (``points``, ``place`` (T, 4, 3), ``held`` (T, 4) in HumanML3D's contact order: left ankle, left toe, right
-    ankle, right toe); horizontal only. While the foot is held its shift is the pull of its held joints (heel and
-    toe blended over ``blend`` s where one takes over from the other); between holds it eases from one hold's
-    shift to the next (:func:`bridge`), so the foot travels the whole swing to its next footprint."""
+    ankle, right toe); horizontal only. Each joint's pull (hold minus position) is known where it is held and eased
+    across the frames between (:func:`bridge`), so a foot travels the whole swing to its next footprint; a foot's
+    shift blends its heel's and toe's pulls by how firmly each is held around that frame (a window of ``blend`` s),
+    so neither a hand-over from heel to toe nor a release ever jumps."""
     pull = place - points  # (T, 4, 3)
     pull[..., 1] = 0.0
     r = max(1, int(round(blend * fps)))
     kernel = np.hanning(2 * r + 3)[1:-1]
     out = np.zeros((len(points), 2, 3))
     for f, (ankle, toe) in enumerate(((0, 1), (2, 3))):
-        any_held = held[:, ankle] | held[:, toe]
-        w = np.stack([np.convolve(held[:, j].astype(float), kernel, mode="same") * held[:, j] for j in (ankle, toe)], -1)
-        total = np.maximum(w.sum(-1, keepdims=True), 1e-12)
-        inside = (w[:, :1] * pull[:, ankle] + w[:, 1:] * pull[:, toe]) / total
-        out[:, f] = bridge(inside, any_held)
+        w = np.stack([np.convolve(held[:, j].astype(float), kernel, mode="same") for j in (ankle, toe)], -1) + 1e-3
+        o = np.stack([bridge(pull[:, j], held[:, j]) for j in (ankle, toe)], 1)  # (T, 2, 3)
+        out[:, f] = (w[..., None] * o).sum(1) / w.sum(-1, keepdims=True)
     return out
 
 
@@ -174,7 +196,7 @@ def clean_joints(joints: np.ndarray, contacts: np.ndarray, bone_lengths: np.ndar
     x0 = np.asarray(joints, dtype=np.float64)
     feet = x0[:, list(HML_FOOT_JOINTS)]  # (T, 4, 3)
     gap = max(1, int(round(config.blend * fps)))
-    place, held = holds(feet, contacts, config.max_slide, gap)
+    place, held = holds(feet, contacts, config.max_slide, gap, fps, config.catch_up)
     shift = foot_shifts(feet, place, held, fps, config.blend)  # (T, 2, 3)
     ankles = x0[:, [7, 8]] + shift
     toes = x0[:, [10, 11]] + shift

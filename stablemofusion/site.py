@@ -88,7 +88,8 @@ def cleanup_settings(fps: float) -> dict:
                floor_percentile=k.floor_percentile, min_contact_frames=max(1, round(k.min_contact * fps)),
                min_gap_frames=max(1, round(k.min_gap * fps)), foot_joints=list(HML_FOOT_JOINTS),
                legs=[list(leg) for leg in ik.LEGS], leg_chain_joints=list(ik.LEG_CHAIN_JOINTS), straight=ik.STRAIGHT,
-               lean_smooth=lean.SMOOTH_S, gravity=lean.G, max_lean_deg=lean.MAX_LEAN_DEG, neck=lean.NECK)
+               lean_smooth=lean.SMOOTH_S, gravity=lean.G, max_lean_deg=lean.MAX_LEAN_DEG, neck=lean.NECK,
+               moving=list(lean.MOVING))
     return out
 
 

@@ -51,6 +51,8 @@ class CleanupConfig:
     blend: float = 0.15  # s: frames left free either side of a cut contact; heel-toe hand-over
     max_slide: float = 0.15  # m: a contact whose joint strays further from its hold is cut into pieces
     catch_up: float = 1.2  # m/s: how much faster than the motion moved it a foot may travel between two holds
+    lift: float = 0.5  # a foot carried between holds is lifted by this share of the distance it is carried ...
+    max_lift: float = 0.1  # m: ... at most this
     toes_on_floor: bool = True  # planted toes are put on the floor (y = 0) by turning the foot
     lean: float = LEAN_SHARE  # share of atan(a_lat / g) the body leans into turns (0: no lean)
     reach_smooth: float = 0.15  # s: a pelvis move that lets a leg reach its foot is spread over this either side
@@ -171,6 +173,22 @@ def foot_shifts(points: np.ndarray, place: np.ndarray, held: np.ndarray, fps: fl
     return out
 
 
+def bridge_lift(shift: np.ndarray, held: np.ndarray, share: float, most: float) -> np.ndarray:
+    """(T,) metres to lift a foot while it travels between two holds further than the motion took it: across each
+    free stretch, an arc (4 s (1 - s), s the stretch's progress) of height ``share`` times the change of its shift
+    ``shift`` (T, 3) over the stretch, at most ``most``; zero elsewhere. A foot carried to its next footprint is
+    stepped there, not slid along the floor."""
+    T = len(held)
+    out = np.zeros(T)
+    spans = runs(held)
+    for (_, e1), (s2, _) in zip(spans[:-1], spans[1:]):
+        last, first = e1 - 1, s2
+        h = min(share * float(np.linalg.norm(shift[first, [0, 2]] - shift[last, [0, 2]])), most)
+        x = (np.arange(last + 1, first) - last) / (first - last)
+        out[last + 1:first] = 4 * x * (1 - x) * h
+    return out
+
+
 def detect_contacts(joints: np.ndarray, fps: float, config: CleanupConfig,
                     vgrf_model: VgrfModel | None = None) -> np.ndarray:
     """Contacts (T, 4) by the route named in ``config.contacts``."""
@@ -200,6 +218,11 @@ def clean_joints(joints: np.ndarray, contacts: np.ndarray, bone_lengths: np.ndar
     shift = foot_shifts(feet, place, held, fps, config.blend)  # (T, 2, 3)
     ankles = x0[:, [7, 8]] + shift
     toes = x0[:, [10, 11]] + shift
+    if config.lift > 0:
+        for f, (ankle, toe) in enumerate(((0, 1), (2, 3))):
+            up = bridge_lift(shift[:, f], held[:, ankle] | held[:, toe], config.lift, config.max_lift)
+            ankles[:, f, 1] += up
+            toes[:, f, 1] += up
     if config.toes_on_floor:  # a planted toe goes to the floor, a toe below it comes up: the foot turns
         r = max(1, int(round(config.blend * fps)))
         kernel = np.hanning(2 * r + 3)[1:-1]

@@ -17,6 +17,8 @@ G = 9.81  # m/s^2
 LEAN_SHARE = 0.65  # measured slope of lean against atan(a_lat / g) on the corpus (least squares through 0)
 SMOOTH_S = 0.5  # s: the Gaussian (standard deviation) over which the path and the lean are smoothed
 MAX_LEAN_DEG = 30.0
+MOVING = (0.3, 0.6)  # m/s: below the first speed nobody leans into a "turn" (a sway of a standing body), above the
+# second the full lean (the corpus fit is of frames faster than 0.5 m/s); smoothstep between
 NECK = 12
 
 
@@ -47,19 +49,27 @@ def turn_frame(joints: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray, 
 
 
 def sideways_lean(joints: np.ndarray, fps: float, ahead: np.ndarray | None = None) -> np.ndarray:
-    """(T,) degrees: the smoothed torso's (pelvis to neck) lean towards the left of the direction of travel
-    (``ahead`` (T, 2), :func:`turn_frame`'s, computed when not given)."""
+    """(T,) degrees: the torso's (pelvis to neck) lean towards the left of the direction of travel, frame by frame
+    in the frame of travel, then smoothed (a vector smoothed in the world would lose its sideways part on a tight
+    curve); ``ahead`` (T, 2) is :func:`turn_frame`'s, computed when not given."""
     if ahead is None:
         ahead, _, _ = turn_frame(joints, fps)
     left = np.stack([ahead[:, 1], -ahead[:, 0]], -1)
-    up = smooth(joints[:, NECK] - joints[:, 0], SMOOTH_S * fps)
-    return np.degrees(np.arctan2(np.sum(up[:, [0, 2]] * left, -1), up[:, 1]))
+    up = joints[:, NECK] - joints[:, 0]
+    return smooth(np.degrees(np.arctan2(np.sum(up[:, [0, 2]] * left, -1), up[:, 1])), SMOOTH_S * fps)
 
 
 def expected_lean(joints: np.ndarray, fps: float, share: float = LEAN_SHARE) -> np.ndarray:
-    """(T,) degrees: the lean real people show for this path, ``share * atan(a_lat / g)`` (positive: left)."""
-    _, a_lat, _ = turn_frame(joints, fps)
-    return np.clip(share * np.degrees(np.arctan(a_lat / G)), -MAX_LEAN_DEG, MAX_LEAN_DEG)
+    """(T,) degrees: the lean real people show for this path, ``share * atan(a_lat / g)`` (positive: left), faded
+    out below walking speed (:data:`MOVING`)."""
+    _, a_lat, speed = turn_frame(joints, fps)
+    return _lean_for(a_lat, speed, share)
+
+
+def _lean_for(a_lat: np.ndarray, speed: np.ndarray, share: float) -> np.ndarray:
+    x = np.clip((speed - MOVING[0]) / (MOVING[1] - MOVING[0]), 0.0, 1.0)
+    moving = x * x * (3.0 - 2.0 * x)
+    return np.clip(share * np.degrees(np.arctan(a_lat / G)), -MAX_LEAN_DEG, MAX_LEAN_DEG) * moving
 
 
 def lean_into_turns(joints: np.ndarray, fps: float, share: float = LEAN_SHARE) -> np.ndarray:
@@ -69,10 +79,10 @@ def lean_into_turns(joints: np.ndarray, fps: float, share: float = LEAN_SHARE) -
     x = np.asarray(joints, dtype=np.float64)
     if share <= 0 or len(x) < 3:
         return x.copy()
-    ahead, a_lat, _ = turn_frame(x, fps)
-    want = np.clip(share * np.degrees(np.arctan(a_lat / G)), -MAX_LEAN_DEG, MAX_LEAN_DEG)
+    ahead, a_lat, speed = turn_frame(x, fps)
+    want = _lean_for(a_lat, speed, share)
     have = sideways_lean(x, fps, ahead)
-    extra = np.sign(want) * np.maximum(np.abs(want) - np.maximum(np.sign(want) * have, 0.0), 0.0)
+    extra = np.sign(want) * np.maximum(np.abs(want) - np.sign(want) * have, 0.0)
     if not np.any(np.abs(extra) > 1e-3):
         return x.copy()
     theta = np.radians(extra)

@@ -88,7 +88,7 @@ function convolveSame(a, k) {
 }
 
 // holds(): the place (T x 4 x [x, y, z]) and mask (T x 4) of the held foot joints
-function holds(points, contacts, T, maxSlide, cutGap) {
+function holds(points, contacts, T, maxSlide, cutGap, framesPerMetre) {
   const place = points.map((row) => row.map((p) => p.slice())), held = Array.from({ length: T }, () => [0, 0, 0, 0]);
   for (let k = 0; k < 4; k++) {
     for (const [a, b] of runs(contacts[k])) {
@@ -101,8 +101,26 @@ function holds(points, contacts, T, maxSlide, cutGap) {
         for (let t = lo; t < hi; t++) { place[t][k] = m.map((v) => v / (hi - lo)); held[t][k] = 1; }
       });
     }
+    spaceHolds(points, place, held, k, framesPerMetre);
   }
   return { place, held };
+}
+
+// _space_holds(): release the ends of consecutive holds of joint k until the foot has time to travel between them
+function spaceHolds(points, place, held, k, framesPerMetre) {
+  const pull = (t) => [place[t][k][0] - points[t][k][0], place[t][k][2] - points[t][k][2]];
+  const spans = runs(held.map((row) => row[k]));
+  for (let i = 0; i + 1 < spans.length; i++) {
+    const [a1, e1] = spans[i], [s2, b2] = spans[i + 1];
+    let last = e1 - 1, first = s2, turn = 0;
+    for (;;) {
+      if (!(last >= a1 && first < b2)) break;
+      const p = pull(first), q = pull(last);
+      if (!(first - last < framesPerMetre * Math.hypot(p[0] - q[0], p[1] - q[1]))) break;
+      if (turn % 2 === 0) { held[last][k] = 0; last -= 1; } else { held[first][k] = 0; first += 1; }
+      turn += 1;
+    }
+  }
 }
 
 // bridge(): offsets (T x [x, y, z]) known where held (T) -> everywhere, eased across free stretches
@@ -120,21 +138,27 @@ function bridge(offset, held, T) {
   });
 }
 
-// foot_shifts(): how far to move each foot (T x 2 x [x, y, z]) so that its held joints stay at their holds
+// foot_shifts(): how far to move each foot (T x 2 x [x, y, z]): heel's and toe's pulls, each bridged, blended by
+// how firmly each is held around the frame
 function footShifts(points, place, held, T, r) {
   const kernel = hanningInner(r);
   return [[0, 1], [2, 3]].map(([ankle, toe]) => {
-    const w = [ankle, toe].map((j) => {
-      const h = Float64Array.from(held, (row) => row[j]);
-      return convolveSame(h, kernel).map((v, t) => v * h[t]);
-    });
-    const inside = points.map((row, t) => {
-      const total = Math.max(w[0][t] + w[1][t], 1e-12);
-      return [0, 1, 2].map((e) => (e === 1 ? 0 : (w[0][t] * (place[t][ankle][e] - row[ankle][e])
-        + w[1][t] * (place[t][toe][e] - row[toe][e])) / total));
-    });
-    return bridge(inside, held.map((row) => row[ankle] || row[toe]), T);
+    const w = [ankle, toe].map((j) => convolveSame(Float64Array.from(held, (row) => row[j]), kernel).map((v) => v + 1e-3));
+    const o = [ankle, toe].map((j) => bridge(points.map((row, t) => [place[t][j][0] - row[j][0], 0,
+      place[t][j][2] - row[j][2]]), held.map((row) => row[j]), T));
+    return points.map((_, t) => [0, 1, 2].map((e) => (w[0][t] * o[0][t][e] + w[1][t] * o[1][t][e]) / (w[0][t] + w[1][t])));
   });
+}
+
+// bridge_lift(): how far to lift a foot (T) while it travels between two holds
+function bridgeLift(shift, held, share, most, T) {
+  const out = new Float64Array(T), spans = runs(held);
+  for (let i = 0; i + 1 < spans.length; i++) {
+    const last = spans[i][1] - 1, first = spans[i + 1][0];
+    const h = Math.min(share * Math.hypot(shift[first][0] - shift[last][0], shift[first][2] - shift[last][2]), most);
+    for (let t = last + 1; t < first; t++) { const x = (t - last) / (first - last); out[t] = 4 * x * (1 - x) * h; }
+  }
+  return out;
 }
 
 // lean.py's smooth(): a Gaussian of sigma frames along time, edges held, of T values
@@ -162,19 +186,21 @@ function leanIntoTurns(x, T, J, fps, c) {
   const sz = smoothGauss(Float64Array.from({ length: T }, (_, t) => x[t * J * 3 + 2]), sigma);
   const vx = gradient(sx).map((v) => v * fps), vz = gradient(sz).map((v) => v * fps);
   const axs = gradient(vx).map((v) => v * fps), azs = gradient(vz).map((v) => v * fps);
-  const up = [0, 1, 2].map((e) => smoothGauss(Float64Array.from({ length: T }, (_, t) => x[(t * J + c.neck) * 3 + e]
-    - x[t * J * 3 + e]), sigma));
   const body = [];
   for (let j = 0; j < J; j++) if (!c.leg_chain_joints.includes(j)) body.push(j);
-  const extra = [], aheads = [];
+  const aheads = [], wants = [], raw = new Float64Array(T);
   for (let t = 0; t < T; t++) {
     const speed = Math.hypot(vx[t], vz[t]), ax = vx[t] / Math.max(speed, 1e-6), az = vz[t] / Math.max(speed, 1e-6);
     const aLat = axs[t] * az - azs[t] * ax;
-    const want = Math.min(Math.max(c.lean * Math.atan(aLat / c.gravity) * 180 / Math.PI, -c.max_lean_deg), c.max_lean_deg);
-    const have = Math.atan2(up[0][t] * az - up[2][t] * ax, up[1][t]) * 180 / Math.PI;
-    extra.push(Math.sign(want) * Math.max(Math.abs(want) - Math.max(Math.sign(want) * have, 0), 0));
+    const m = Math.min(Math.max((speed - c.moving[0]) / (c.moving[1] - c.moving[0]), 0), 1);
+    wants.push(Math.min(Math.max(c.lean * Math.atan(aLat / c.gravity) * 180 / Math.PI, -c.max_lean_deg), c.max_lean_deg)
+      * m * m * (3 - 2 * m));
     aheads.push([ax, az]);
+    const u = [0, 1, 2].map((e) => x[(t * J + c.neck) * 3 + e] - x[t * J * 3 + e]);
+    raw[t] = Math.atan2(u[0] * az - u[2] * ax, u[1]) * 180 / Math.PI;
   }
+  const have = smoothGauss(raw, sigma);
+  const extra = wants.map((w, t) => Math.sign(w) * Math.max(Math.abs(w) - Math.sign(w) * have[t], 0));
   if (!extra.some((e) => Math.abs(e) > 1e-3)) return out;
   for (let t = 0; t < T; t++) {
     const th = extra[t] * Math.PI / 180, cs = Math.cos(th), sn = Math.sin(th), [ax, az] = aheads[t];
@@ -251,10 +277,16 @@ export function cleanupRigid(x, T, tree, lengths, offsets, fps, c) {
   const feet = c.foot_joints;
   const points = Array.from({ length: T }, (_, t) => feet.map((j) => at3(x, J, t, j)));
   const r = Math.max(1, Math.round(c.blend * fps));
-  const { place, held } = holds(points, contacts, T, c.max_slide, r);
+  const { place, held } = holds(points, contacts, T, c.max_slide, r, (1.5 * fps) / c.catch_up);
   const shift = footShifts(points, place, held, T, r);
   const ankles = [0, 1].map((f) => Array.from({ length: T }, (_, t) => at3(x, J, t, c.legs[f][2]).map((v, e) => v + shift[f][t][e])));
   const toes = [0, 1].map((f) => Array.from({ length: T }, (_, t) => at3(x, J, t, c.legs[f][3]).map((v, e) => v + shift[f][t][e])));
+  if (c.lift > 0) {
+    [[0, 1], [2, 3]].forEach(([ankle, toe], f) => {
+      const up = bridgeLift(shift[f], held.map((row) => row[ankle] || row[toe]), c.lift, c.max_lift, T);
+      for (let t = 0; t < T; t++) { ankles[f][t][1] += up[t]; toes[f][t][1] += up[t]; }
+    });
+  }
   if (c.toes_on_floor) {
     const kernel = hanningInner(r), total = kernel.reduce((a, b) => a + b, 0);
     [[0, 1], [1, 3]].forEach(([f, k]) => {

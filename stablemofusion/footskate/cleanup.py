@@ -74,6 +74,9 @@ def split_contact(points: np.ndarray, max_shift: float) -> list[tuple[int, int]]
     position lies further than ``max_shift`` (m, horizontally) from the piece's mean: a piece grows frame by
     frame until one of its positions strays, and the next piece starts there."""
     pieces, a, n = [], 0, len(points)
+    lo, hi = points[:, [0, 2]].min(0), points[:, [0, 2]].max(0)
+    if np.hypot(*(hi - lo)) <= max_shift:  # every mean lies in the box: nothing can stray (the usual case)
+        return [(0, n)]
     while True:
         xz = points[a:, [0, 2]]
         means = np.cumsum(xz, 0) / np.arange(1, len(xz) + 1)[:, None]  # row m: the mean of the first m + 1

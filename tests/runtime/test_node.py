@@ -37,8 +37,8 @@ def node_generate(folder, *args) -> subprocess.CompletedProcess:
                                                               ("a child runs zigzagging forward", None, 3, "post"),
                                                               ("an old woman turns 45 degrees to the right", 3, 1, "off")])
 def test_node_reproduces_the_python_runtime(site, prompt, seconds, seed, footskate):
-    """Text, path words, sampling, decoding, the rigid stage and the footskate cleanup (its contacts, anchors and
-    L-BFGS): the Python runtime's joints."""
+    """Text, path words, sampling, decoding, the rigid stage and the final stage (contacts, holds, the lean, the
+    legs' IK): the Python runtime's joints."""
     folder, pipe = site
     extra = [] if seconds is None else ["--seconds", seconds]
     run = node_generate(folder, prompt, *extra, "--seed", seed, "--footskate", footskate)
@@ -47,7 +47,7 @@ def test_node_reproduces_the_python_runtime(site, prompt, seconds, seed, footska
     want = pipe(prompt, seconds=seconds, seed=seed, footskate=footskate)[0]
     joints = np.asarray(got["joints"])
     assert joints.shape == want.joints.shape  # the length model's length too, where none is given
-    assert np.abs(joints - want.joints).max() < 1e-3
+    assert np.abs(joints - want.joints).max() < 5e-6  # metres: 0.2-1.3 um seen (the graphs' float32 differ)
     assert got["outOfDomain"] == want.domain.out_of_domain
     assert [c[0] for c in got["closest"]] == [c[0] for c in want.domain.closest]
     assert abs(got["similarity"] - want.domain.similarity) < 1e-4
@@ -72,4 +72,4 @@ def test_node_follows_an_explicit_path_as_the_python_runtime(site, prompt, path,
     assert run.returncode == 0, run.stderr
     want = pipe(prompt, seed=1, footskate=footskate, path=path)[0].joints
     got = np.asarray(json.loads(run.stdout)["joints"])
-    assert got.shape == want.shape and np.abs(got - want).max() < 1e-3
+    assert got.shape == want.shape and np.abs(got - want).max() < 5e-6

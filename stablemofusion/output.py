@@ -96,9 +96,13 @@ def rig_bvh_text(result: MotionResult, rig: Rig) -> str:
 
 def json_payload(result: MotionResult, **meta) -> dict:
     """The JSON object of a result: prompt, fps, frames, seed, ``meta``, the closest known action (models
-    with actions.json) and the joints (T, J, 3) rounded to :data:`JSON_DECIMALS`; the HTTP response body."""
+    with actions.json), the joints (T, J, 3) rounded to :data:`JSON_DECIMALS` and, where the footskate cleanup
+    ran, ``contacts``: the frames it held each foot joint, 4 lists (left ankle, left toe, right ankle, right toe) of
+    T 0/1; the HTTP response body."""
+    held = result.contacts
     return {"prompt": result.prompt, "fps": result.fps, "frames": result.frames, "seed": result.seed, **meta,
             **(result.domain.to_dict(result.prompt) if result.domain else {}),
+            **({} if held is None else {"contacts": np.asarray(held, int).T.tolist()}),
             "joints": _rounded(result.joints)}
 
 

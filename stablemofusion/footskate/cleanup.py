@@ -209,11 +209,11 @@ def detect_contacts(joints: np.ndarray, fps: float, config: CleanupConfig,
 
 
 def clean_joints(joints: np.ndarray, contacts: np.ndarray, bone_lengths: np.ndarray, fps: float,
-                 config: CleanupConfig = CleanupConfig()) -> np.ndarray:
+                 config: CleanupConfig = CleanupConfig()) -> tuple[np.ndarray, np.ndarray]:
     """The cleanup of rigid joints (T, 22, 3) metres (Y up, floor y = 0) with ``contacts`` (T, 4): the body leans
     into its turns, planted feet are held (:func:`holds`, :func:`foot_shifts`), the pelvis moves where a
     leg could not reach its foot (:func:`~stablemofusion.motion.ik.reach_shift`), and the legs are placed by IK.
-    Bone lengths ``bone_lengths`` (22,) are kept."""
+    Bone lengths ``bone_lengths`` (22,) are kept. Returns the joints (T, 22, 3) and the held frames (T, 4)."""
     x0 = np.asarray(joints, dtype=np.float64)
     feet = x0[:, list(HML_FOOT_JOINTS)]  # (T, 4, 3)
     gap = max(1, int(round(config.blend * fps)))
@@ -239,7 +239,7 @@ def clean_joints(joints: np.ndarray, contacts: np.ndarray, bone_lengths: np.ndar
     if move.any():
         body = [j for j in range(x.shape[1]) if j not in (4, 5, 7, 8, 10, 11)]
         x[:, body] += move[:, None]
-    return place_legs(x, ankles, toes, bone_lengths)
+    return place_legs(x, ankles, toes, bone_lengths), held
 
 
 def cleanup_rigid(motion: RigidMotion, fps: float = 20.0, config: CleanupConfig = CleanupConfig(), *,
@@ -251,8 +251,8 @@ def cleanup_rigid(motion: RigidMotion, fps: float = 20.0, config: CleanupConfig 
                        f"with {len(motion)}")
     x0 = motion.joints()
     c = detect_contacts(x0, fps, config, vgrf_model) if contacts is None else np.asarray(contacts, bool)
-    x = clean_joints(x0, c, motion.bone_lengths, fps, config)
-    return CleanupResult(x, c, bodies_of_joints([x], [motion.bone_lengths])[0])
+    x, held = clean_joints(x0, c, motion.bone_lengths, fps, config)
+    return CleanupResult(x, c, bodies_of_joints([x], [motion.bone_lengths], [held])[0])
 
 
 def cleanup_joints(joints: np.ndarray, fps: float = 20.0, config: CleanupConfig = CleanupConfig(), *,
@@ -296,20 +296,23 @@ def cleanup_features_many(features: list[np.ndarray], config: CleanupConfig = Cl
     cleaned = [clean_joints(b.joints(), detect_contacts(b.joints(), fps, config, vgrf_model), b.bone_lengths, fps,
                             config) for b in bodies]
     out = []
-    for body, f, x in zip(bodies_of_joints(cleaned, [b.bone_lengths for b in bodies]), fs, cleaned):
+    for body, f in zip(bodies_of_joints([x for x, _ in cleaned], [b.bone_lengths for b in bodies],
+                                        [held for _, held in cleaned]), fs):
         motion, written = rigid_to_features(body, f, rigid)
         out.append((written, motion))
     return out
 
 
-def bodies_of_joints(joints: list[np.ndarray], lengths: list[np.ndarray]) -> list[RigidMotion]:
-    """Rigid HumanML3D bodies of rigid joints (T_i, 22, 3) with bone lengths (22,) each: the closed-form pose of all
-    their frames at once (exact for rigid joints), each remembering its joints."""
+def bodies_of_joints(joints: list[np.ndarray], lengths: list[np.ndarray], planted: list[np.ndarray]
+                     ) -> list[RigidMotion]:
+    """Rigid HumanML3D bodies of rigid joints (T_i, 22, 3) with bone lengths (22,) and held feet (T_i, 4) each: the
+    closed-form pose of all their frames at once (exact for rigid joints), each remembering its joints."""
     starts = np.cumsum([0] + [len(x) for x in joints[:-1]])
     offsets, rotations = rigid_batch.pose_of_joints(np.concatenate(joints), starts, "humanml3d", np.stack(lengths))
     out = []
-    for i, (a, x) in enumerate(zip(starts, joints)):
-        out.append(RigidMotion(offsets[i], rotations[a:a + len(x)], x[:, 0].copy(), "humanml3d").with_joints(x))
+    for i, (a, x, held) in enumerate(zip(starts, joints, planted)):
+        out.append(RigidMotion(offsets[i], rotations[a:a + len(x)], x[:, 0].copy(), "humanml3d",
+                               np.asarray(held, bool)).with_joints(x))
     return out
 
 

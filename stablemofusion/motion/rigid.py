@@ -39,12 +39,15 @@ PoseLoss = Callable[[np.ndarray, np.ndarray], tuple[float, np.ndarray, np.ndarra
 @dataclass
 class RigidMotion:
     """A rigid skeleton's motion: ``offsets`` (J, 3) metres, local ``rotations`` (T, J, 3, 3), ``root`` (T, 3)
-    metres (see the module docstring for the convention)."""
+    metres (see the module docstring for the convention); ``planted`` (T, 4) the feet the cleanup held."""
 
     offsets: np.ndarray
     rotations: np.ndarray
     root: np.ndarray
     skeleton: str = "humanml3d"
+    # (T, 4) bool: the frames in which the footskate cleanup held each foot joint (left ankle, left toe, right ankle,
+    # right toe); None where no cleanup ran
+    planted: np.ndarray | None = field(default=None, repr=False, compare=False)
     # the joints of (offsets, rotations, root) when already known (the batched fit computes them for all
     # motions at once); used while those three are the same arrays (treat them as read-only)
     _known: tuple | None = field(default=None, init=False, repr=False, compare=False)

@@ -38,6 +38,12 @@ class MotionResult:
         return cls(prompt, features, joints, fps, seed, motion, domain)
 
     @property
+    def contacts(self) -> np.ndarray | None:
+        """(T, 4) bool: the frames in which the footskate cleanup held each foot joint (left ankle, left toe, right
+        ankle, right toe), None where no cleanup ran."""
+        return None if self.motion is None else self.motion.planted
+
+    @property
     def frames(self) -> int:
         return len(self.joints)
 

@@ -23,8 +23,10 @@ DRIVER = """
 import { readFileSync } from 'node:fs';
 const { cleanupRigid } = await import(process.argv[2]);
 const jobs = JSON.parse(readFileSync(0, 'utf8'));
-const out = jobs.motions.map((m) => Array.from(cleanupRigid(Float64Array.from(m.x), m.T, { parents: new Array(22) },
-  m.lengths, null, jobs.fps, jobs.settings)));
+const out = jobs.motions.map((m) => {
+  const { joints, held } = cleanupRigid(Float64Array.from(m.x), m.T, m.lengths, jobs.fps, jobs.settings);
+  return { joints: Array.from(joints), held };
+});
 process.stdout.write(JSON.stringify(out));
 """
 CASES = [  # (prompt, path) covering every path kind of the lexicon and explicit waypoints
@@ -54,7 +56,8 @@ def test_the_javascript_final_stage_is_the_python_one(tmp_path):
                          text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     got = json.loads(run.stdout)
-    for (prompt, _), g, w in zip(CASES, got, want):
-        diff = np.abs(np.asarray(g).reshape(w.shape) - w).max()
+    for (prompt, _), g, (w, held) in zip(CASES, got, want):
+        diff = np.abs(np.asarray(g["joints"]).reshape(w.shape) - w).max()
         assert diff < 1e-9, (prompt, diff)
-    assert any(np.abs(w - np.asarray(m["x"]).reshape(w.shape)).max() > 0.05 for w, m in zip(want, motions))
+        assert np.array_equal(np.asarray(g["held"], bool).T, held), prompt
+    assert any(np.abs(w - np.asarray(m["x"]).reshape(w.shape)).max() > 0.05 for (w, _), m in zip(want, motions))

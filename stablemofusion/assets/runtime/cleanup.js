@@ -269,10 +269,11 @@ function placeLegs(x, T, J, ankles, toes, lengths, c) {
   return x;
 }
 
-// Footskate-cleaned rigid joints (T x J x 3 metres) of rigid joints x with bone `lengths` (cleanup.py's
-// clean_joints with kinematic contacts): never changes a bone's length.
-export function cleanupRigid(x, T, tree, lengths, offsets, fps, c) {
-  const J = tree.parents.length;
+// Footskate-cleaned rigid joints of rigid joints x (T x J x 3 metres) with bone `lengths` (cleanup.py's clean_joints
+// with kinematic contacts): {joints, held}, held the frames each foot joint was held (4 x T of 0/1, left ankle, left
+// toe, right ankle, right toe). Never changes a bone's length.
+export function cleanupRigid(x, T, lengths, fps, c) {
+  const J = lengths.length;
   const contacts = kinematicContacts(x, T, J, fps, c);
   const feet = c.foot_joints;
   const points = Array.from({ length: T }, (_, t) => feet.map((j) => at3(x, J, t, j)));
@@ -305,5 +306,5 @@ export function cleanupRigid(x, T, tree, lengths, offsets, fps, c) {
       for (let e = 0; e < 3; e++) out[(t * J + j) * 3 + e] += move[t][e];
     }
   }
-  return placeLegs(out, T, J, ankles, toes, lengths, c);
+  return { joints: placeLegs(out, T, J, ankles, toes, lengths, c), held: [0, 1, 2, 3].map((k) => held.map((row) => row[k])) };
 }

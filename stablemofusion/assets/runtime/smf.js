@@ -6,7 +6,7 @@
 import { normal } from './noise.js';
 import { cleanupRigid } from './cleanup.js';
 import { bend, followWaypoints, parsePath, placeJoints, readWaypoints, waypointSeconds } from './paths.js';
-import { bvhText, fitRigid, jointsFromFeatures, poseOfJoints, recentre } from './motion.js';
+import { bvhText, fitRigid, jointsFromFeatures, recentre } from './motion.js';
 
 export class MotionRuntime {
   // read(name, kind) -> Promise of the file `name` of the model folder: kind 'json' (an object) or 'bytes'
@@ -146,10 +146,8 @@ export class MotionRuntime {
     if (wp) ({ features, ...placing } = followWaypoints(features, n, D, wp, i.fps));
     else features = bend(features, n, D, J, spec, i.cleanup, i.fps);
     let flat = fitRigid(jointsFromFeatures(features, n, D, J), n, sk, sk.bone_lengths, i.rigid_sweeps);
-    if (footskate === 'post') {
-      const { offsets } = poseOfJoints(flat, n, sk, sk.bone_lengths);
-      flat = cleanupRigid(flat, n, sk, sk.bone_lengths, offsets, i.fps, i.cleanup);
-    }
+    let contacts = null;
+    if (footskate === 'post') ({ joints: flat, held: contacts } = cleanupRigid(flat, n, sk.bone_lengths, i.fps, i.cleanup));
     recentre(flat, n, J);
     if (placing) placeJoints(flat, n, J, placing.start, placing.origin);
     const joints = [];
@@ -158,7 +156,8 @@ export class MotionRuntime {
       for (let j = 0; j < J; j++) frame.push([flat[(f * J + j) * 3], flat[(f * J + j) * 3 + 1], flat[(f * J + j) * 3 + 2]]);
       joints.push(frame);
     }
-    const motion = { joints, frames: n, fps: i.fps, prompt, seed, ...domain };
+    // contacts: the frames the cleanup held each foot joint (left ankle, left toe, right ankle, right toe), 4 x T 0/1
+    const motion = { joints, frames: n, fps: i.fps, prompt, seed, ...domain, ...(contacts ? { contacts } : {}) };
     Object.defineProperty(motion, 'flat', { value: flat }); // (T x J x 3) as one array, not serialised
     return motion;
   }

@@ -104,7 +104,9 @@ function setFrame(t) {
 }
 function show(motion, ms) {
   Object.assign(player, { joints: Float32Array.from(motion.joints.flat(2)), frames: motion.frames, fps: motion.fps });
-  player.contacts = contactsOf(player.joints, player.frames, player.fps);
+  // the feet the cleanup held, else found on the joints (footskate off)
+  player.contacts = motion.contacts ? motion.contacts.map((c) => Uint8Array.from(c))
+    : contactsOf(player.joints, player.frames, player.fps);
   figure.visible = true;
   $('scrub').max = String(player.frames - 1);
   for (const id of ['scrub', 'play', ...Object.keys(DOWNLOADS)]) $(id).disabled = false;

@@ -61,11 +61,12 @@ window.smf.path = drawn;
 
 
 // motion
-function setMotion(joints, frames, fps, label) {
+// `contacts`: the feet the server's footskate cleanup held (4 x frames of 0/1), else found here
+function setMotion(joints, frames, fps, label, contacts = null) {
   state.joints = Float32Array.from(joints.flat(2));
   state.frames = frames;
   state.fps = fps;
-  state.contacts = contactsOf(state.joints, frames, fps);
+  state.contacts = contacts ? contacts.map((c) => Uint8Array.from(c)) : contactsOf(state.joints, frames, fps);
   $('scrub').max = String(frames - 1);
   $('scrub').disabled = false;
   $('play').disabled = false;
@@ -172,7 +173,7 @@ $('form').addEventListener('submit', async (ev) => {
     const m = await res.json();
     state.request = { ...body, seed: m.seed };
     state.endpoint = endpoint;
-    setMotion(m.joints, m.frames, m.fps, `"${m.prompt}": ${m.frames} frames, seed ${m.seed}`);
+    setMotion(m.joints, m.frames, m.fps, `"${m.prompt}": ${m.frames} frames, seed ${m.seed}`, m.contacts);
     for (const f of Object.keys(DOWNLOADS)) $(f).disabled = false;
     await showCharacter();  // the server converts the motion it just made (no second generation)
     if (m.warning) status(`${$('status').textContent}. Warning: ${m.warning}`, true);

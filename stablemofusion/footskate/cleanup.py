@@ -1,20 +1,22 @@
-"""Footskate cleanup on a rigid body: planted feet locked in place, legs placed by closed-form IK.
+"""Footskate cleanup on a rigid body: planted feet held in place, legs placed by closed-form IK, no optimisation.
 
 The body is a :class:`~stablemofusion.motion.rigid.RigidMotion`, so the cleanup moves joints, never bone lengths.
-For each foot joint (ankle, toe) the planted intervals are found (:func:`detect_contacts`); each is held at one
-place (the mean of where the motion put it, weighted by the lock, :func:`lock_targets`), with the lock blended in
-and out over ``blend`` seconds (smoothstep), so a foot eases into and out of its hold and never jumps. A foot
-moves as one piece: the shift that holds its planted joints is applied to both its ankle and its toe (toes on
-the floor by turning the foot). The legs then reach for the held feet by two-bone IK (:mod:`~stablemofusion.motion.ik`),
-the pelvis moving towards a foot it cannot otherwise reach, smoothly. Before that, the body leans into the
-turns its path makes (:mod:`~stablemofusion.motion.lean`).
+:func:`clean_joints` in five steps, each a function of arrays:
 
-An interval in which the foot travels further than ``max_slide`` from where it would be held is cut into
-pieces, each held at its own place, with the lock eased out and in between them: a long glide becomes steps,
-not a teleport.
+1. contacts of the four foot joints (:func:`detect_contacts`);
+2. holds (:func:`holds`): each contact held at the mean of where the motion put the joint; a contact that strays
+   further than ``max_slide`` is cut into pieces with frames left free between them, and consecutive holds are
+   kept far enough apart for the foot to travel between them;
+3. foot shifts (:func:`foot_shifts`, :func:`bridge`, :func:`bridge_lift`): what holds each joint, eased across the
+   frames between two holds so the foot travels the whole swing to its next footprint (lifted where it is carried
+   further than the motion took it); heel and toe blended, so a foot moves as one piece and never jumps;
+4. the body leans into its turns (:mod:`~stablemofusion.motion.lean`);
+5. the legs reach for the feet by two-bone IK, the pelvis moving towards a foot it cannot otherwise reach
+   (:mod:`~stablemofusion.motion.ik`).
 
 Back to features (:func:`cleanup_features`): the cleaned body is written in the body frames of the input
-features (:func:`~stablemofusion.motion.rigid.rigid_to_features`), so the features decode to its joints.
+features (:func:`~stablemofusion.motion.rigid.rigid_to_features`), so the features decode to its joints. The
+JavaScript runtime (``assets/runtime/cleanup.js``) runs the same steps; tests hold the two together.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import numpy as np
 
 from ..errors import SMFError
 from ..motion.features import feature_slices, features_from_joints
-from ..motion.ik import place_legs, reach_shift
+from ..motion.ik import LEG_CHAIN_JOINTS, place_legs, reach_shift
 from ..motion.lean import LEAN_SHARE, lean_into_turns
 from ..motion import rigid_batch
 from ..motion.rigid import (DEFAULT_FIT, RigidFitConfig, RigidMotion, fit_rigid,
@@ -237,7 +239,7 @@ def clean_joints(joints: np.ndarray, contacts: np.ndarray, bone_lengths: np.ndar
     x = lean_into_turns(x0, fps, config.lean) if config.lean > 0 else x0.copy()
     move = reach_shift(x, ankles, bone_lengths, fps, config.reach_smooth)
     if move.any():
-        body = [j for j in range(x.shape[1]) if j not in (4, 5, 7, 8, 10, 11)]
+        body = [j for j in range(x.shape[1]) if j not in LEG_CHAIN_JOINTS]
         x[:, body] += move[:, None]
     return place_legs(x, ankles, toes, bone_lengths), held
 

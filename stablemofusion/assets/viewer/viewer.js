@@ -336,7 +336,7 @@ function liveStart() {
     if (!current()) return;  // frames already in flight when the stream was stopped
     const m = JSON.parse(ev.data);
     if (m.type === 'frames') liveAppend(m);
-    else if (m.type === 'error') status(m.error, true);
+    else if (m.type === 'error') { state.live.failed = true; status(m.error, true); }
   });
   ws.addEventListener('close', () => {
     if (current()) liveStop(false);
@@ -359,7 +359,8 @@ function liveStop(send = true) {
     state.playing = true;
     $('play').textContent = 'Pause';
   }
-  if ($('status').className !== 'error') status(`live stream ended: ${L.received} frames`);
+  // a server's error stays on screen; a stream that only ran late says so beside its end
+  if (!L.failed) status(`live stream ended: ${L.received} frames${L.late ? ` (${L.late} arrived late)` : ''}`, L.late > 0);
 }
 
 $('live').addEventListener('change', () => {

@@ -91,8 +91,10 @@ class PortablePipeline:
             tokens[i, :len(t)], mask[i, :len(t)] = t, True
         return tokens, mask, np.stack([s for _, s in rows])
 
-    def predict_seconds(self, prompts: list[str]) -> list[float]:
-        """The length each prompt's motion is expected to have (seconds), from the length model."""
+    def predict_seconds(self, prompts: str | list[str]) -> list[float]:
+        """The length each prompt's motion is expected to have (seconds), from the length model; one text is one
+        prompt (not one per character)."""
+        prompts = [prompts] if isinstance(prompts, str) else list(prompts)
         tokens, mask, _ = self.encode(prompts)
         frames = self.graphs.predict_frames(tokens, mask)
         if frames is None:

@@ -201,6 +201,14 @@ def test_a_folder_without_graphs_or_of_another_version_is_one_clear_error(tmp_pa
         PortablePipeline.from_pretrained(tmp_path)
 
 
+def test_predicted_lengths_agree_between_runtimes(shipped):
+    """One text is one prompt on both runtimes, and both length models give the same lengths."""
+    rt, torch_pipe = shipped
+    assert rt.predict_seconds("a person walks forward") == torch_pipe.predict_seconds("a person walks forward")
+    assert len(rt.predict_seconds("a person walks forward")) == 1
+    np.testing.assert_allclose(rt.predict_seconds(PROMPTS), torch_pipe.predict_seconds(PROMPTS), atol=1 / rt.fps)
+
+
 def test_runtime_checks_inputs_as_the_torch_path(shipped):
     rt = shipped[0]
     with pytest.raises(SMFError, match="seconds"):

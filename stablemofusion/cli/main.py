@@ -98,7 +98,12 @@ def requested_command(argv: list[str]) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Entry point: bad input prints one line 'smf: error: ...' and returns exit code 2."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    args = build_parser(requested_command(argv)).parse_args(argv)
+    command = requested_command(argv)
+    try:
+        parser = build_parser(command)
+    except ModuleNotFoundError as e:  # a command whose options come from the [train] extra, even for --help
+        return _missing_extra(e, command)
+    args = parser.parse_args(argv)
     try:
         args.func(args)
     except SMFError as e:
@@ -111,13 +116,19 @@ def main(argv: list[str] | None = None) -> int:
         print("smf: interrupted", file=sys.stderr)
         return 130
     except ModuleNotFoundError as e:  # a command of the [train] extra on a runtime-only install
-        extra = EXTRA_OF.get((e.name or "").split(".")[0])
-        if extra is None:
-            raise
-        print(f"smf: error: `smf {args.command}` needs {e.name}, which this install lacks: pip install "
-              f"'stablemofusion[{extra}]'", file=sys.stderr)
-        return 2
+        return _missing_extra(e, args.command)
     return 0
+
+
+def _missing_extra(error: ModuleNotFoundError, command: str) -> int:
+    """The one-line error of a command that needs a package of an extra this install lacks (exit code 2); any other
+    missing module is a bug and raised."""
+    extra = EXTRA_OF.get((error.name or "").split(".")[0])
+    if extra is None:
+        raise error
+    print(f"smf: error: `smf {command}` needs {error.name}, which this install lacks: pip install "
+          f"'stablemofusion[{extra}]'", file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":

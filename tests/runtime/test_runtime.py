@@ -187,7 +187,9 @@ def test_commands_that_need_torch_say_which_extra_to_install(tmp_path):
     for args in (["edit", "a person waves", "--motion", joints, "--mode", "upper-body", "--impose", "xt", "--out",
                   tmp_path],
                  ["generate", "a person walks", "--engine", "eager", "--out", tmp_path],
-                 ["info"]):
+                 ["info"], ["adapt", "--help"], ["train", "--data", tmp_path, "--out", tmp_path / "run"],
+                 ["distil", "--help"], ["train-length", "--help"], ["train-evaluator", "--help"],
+                 ["train-classifier", "--help"]):
         run = _smf_without_torch(*args)
         assert run.returncode == 2 and "stablemofusion[train]" in run.stderr and "Traceback" not in run.stderr, args
         assert len(run.stderr.strip().splitlines()) == 1, run.stderr

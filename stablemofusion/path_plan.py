@@ -183,7 +183,8 @@ def _pivoted_path(features: np.ndarray, extra: np.ndarray) -> np.ndarray:
 
 
 MAX_WAYPOINTS = 256  # an explicit path's most points
-MAX_PATH_METRES = 200.0  # and its longest total length
+MAX_PATH_METRES = 200.0  # and its longest total length; and how far from the origin any point may lie
+MAX_PATH_SPEED = 12.0  # m/s: the fastest a path's times may ask the body to move between two points (a sprinter's)
 TANGENT_SPAN = 0.3  # m either side of a point over which an explicit path's direction there is taken
 
 
@@ -223,6 +224,9 @@ class Waypoints:
             raise SMFError(f"a path is 2 to {MAX_WAYPOINTS} [x, z] points, got shape {points.shape}")
         if not np.isfinite(points).all():
             raise SMFError("path points must be finite numbers")
+        if np.abs(points).max() > MAX_PATH_METRES:
+            raise SMFError(f"path points must lie within {MAX_PATH_METRES:g} m of the origin, got "
+                           f"{np.abs(points).max():.3g} m")
         steps = np.linalg.norm(np.diff(points, axis=0), axis=-1)
         if steps.sum() > MAX_PATH_METRES or steps.sum() < MIN_TRAVEL:
             raise SMFError(f"a path must be {MIN_TRAVEL:g} to {MAX_PATH_METRES:g} m long, got {steps.sum():.2f} m")
@@ -237,6 +241,11 @@ class Waypoints:
             if times.shape != (len(points),) or not np.isfinite(times).all() or times[0] != 0 \
                     or np.any(np.diff(times) <= 0):
                 raise SMFError("path times are one per point, from 0, increasing (seconds)")
+            speed = steps / np.diff(times)
+            if speed.max() > MAX_PATH_SPEED:
+                k = int(np.flatnonzero(speed > MAX_PATH_SPEED)[0])
+                raise SMFError(f"a path's times ask for {speed[k]:.3g} m/s between points {k + 1} and {k + 2}; at most "
+                               f"{MAX_PATH_SPEED:g} m/s")
         return cls(points, times)
 
     @property

@@ -146,7 +146,10 @@ def test_a_long_explicit_path_is_a_timeline_and_both_runtimes_agree(pipe):
 
 @pytest.mark.parametrize("data, message", [([[0, 0]], "2 to 256"), ([[0, 0], [0, 500]], "200 m"),
                                            ({"points": SQUARE, "times": [0, 2, 1, 3]}, "increasing"),
-                                           ({"points": SQUARE, "speed": 2}, "not speed"), ([[0, 0], [0, "x"]], "numbers")])
+                                           ({"points": SQUARE, "speed": 2}, "not speed"), ([[0, 0], [0, "x"]], "numbers"),
+                                           ([[1e15, 0], [1e15, 3]], "within 200 m of the origin"),
+                                           ({"points": [[0, 0], [0, 3]], "times": [0, 1e-9]}, "at most 12 m/s"),
+                                           ({"points": SQUARE, "times": [0, 1, 2, 2.01]}, "between points 3 and 4")])
 def test_a_bad_path_is_one_clear_error(pipe, data, message):
     from stablemofusion.errors import SMFError
 

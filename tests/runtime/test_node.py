@@ -58,7 +58,10 @@ def test_node_gives_one_clear_error_for_bad_input(site):
     for args, why in [(["", "--seed", "1"], "prompt"), (["a person walks", "--seed", "-3"], "seed"),
                       (["a person walks", "--seconds", "30"], "at most"),
                       (["a person walks", "--footskate", "loop"], "footskate"),
-                      (["a person walks", "--path", "[[0, 0]]"], "2 to 256")]:
+                      (["a person walks", "--path", "[[0, 0]]"], "2 to 256"),
+                      (["a person walks", "--path", "[[1e15, 0], [1e15, 3]]"], "within 200 m of the origin"),
+                      (["a person walks", "--path", '{"points": [[0, 0], [0, 3]], "times": [0, 1e-9]}'],
+                       "at most 12 m/s")]:
         run = node_generate(folder, *args)
         assert run.returncode == 2 and why in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr
 

@@ -134,7 +134,7 @@ export function bend(features, T, D, J, spec, cleanupSettings, fps) {
 }
 
 // ---- explicit paths: waypoints (stablemofusion/path_plan.py: Waypoints, follow_waypoints, place)
-const MAX_WAYPOINTS = 256, MAX_PATH_METRES = 200, TANGENT_SPAN = 0.3;
+const MAX_WAYPOINTS = 256, MAX_PATH_METRES = 200, MAX_PATH_SPEED = 12, TANGENT_SPAN = 0.3;
 
 // {points: [[x, z], ...], times: [...] | null} from a list of points or {points, times}; RangeError naming the problem.
 export function readWaypoints(data) {
@@ -146,6 +146,8 @@ export function readWaypoints(data) {
       || !points.every((p) => Array.isArray(p) && p.length === 2 && p.every(Number.isFinite))) {
     throw new RangeError(`a path is 2 to ${MAX_WAYPOINTS} [x, z] points of finite numbers (metres)`);
   }
+  const far = Math.max(...points.map((p) => Math.max(Math.abs(p[0]), Math.abs(p[1]))));
+  if (far > MAX_PATH_METRES) throw new RangeError(`path points must lie within ${MAX_PATH_METRES} m of the origin, got ${far.toPrecision(3)} m`);
   const cum = [0];
   for (let k = 1; k < points.length; k++) {
     const step = Math.hypot(points[k][0] - points[k - 1][0], points[k][1] - points[k - 1][1]);
@@ -160,6 +162,14 @@ export function readWaypoints(data) {
   if (times !== null && (!Array.isArray(times) || times.length !== points.length || !times.every(Number.isFinite)
       || times[0] !== 0 || times.some((t, k) => k > 0 && t <= times[k - 1]))) {
     throw new RangeError('path times are one per point, from 0, increasing (seconds)');
+  }
+  if (times !== null) {
+    for (let k = 1; k < points.length; k++) {
+      const speed = (cum[k] - cum[k - 1]) / (times[k] - times[k - 1]);
+      if (speed > MAX_PATH_SPEED) {
+        throw new RangeError(`a path's times ask for ${speed.toPrecision(3)} m/s between points ${k} and ${k + 1}; at most ${MAX_PATH_SPEED} m/s`);
+      }
+    }
   }
   return { points, times, cum, length };
 }

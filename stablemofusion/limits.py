@@ -31,9 +31,9 @@ BATCH_SIZE = 32  # prompts per sampling call
 DEFAULT_SECONDS = 4.0  # length of a motion when none is given and the model has no length estimator
 FOOTSKATE_MODES = ("off", "post", "loop")
 # footskate cleanup of a generated motion unless a request says otherwise (the rigid stage on): measured on the shipped
-# 1-step student, 64 test captions, `benchmarks/footskate_generated.py --n 64` (2-core AMD EPYC): the raw motion's
-# skate ratio is 0.234 against 0.080 for the real motions of those captions; after 'post' 0.064, the joints moved
-# 1.2 cm on average, for 51 ms more per motion (61 against 11 ms). docs/footskate.md.
+# 1-step student, 96 test captions x 2 seeds, `benchmarks/final_stage_check.py quality` (2-core AMD EPYC): the raw
+# motion's skate ratio is 0.213 against 0.070 for the real clips of those captions; after 'post' 0.049 and no foot
+# ever jumps, for about 3-4 ms more per motion. docs/footskate.md.
 FOOTSKATE = "post"
 PORTABLE_ENGINE = "onnx"  # the portable graphs on ONNX Runtime (stablemofusion.runtime), no torch
 ENGINES = ("eager", "fast", "compiled", "graph", "compiled-graph", "aot")  # diffusion/engine.py: what each does
@@ -44,6 +44,10 @@ IMPOSE = ("x0", "xt")  # where an edit imposes the kept part: the x0 prediction 
 
 # --- limits ---
 MAX_SECONDS = 120.0  # a motion or a whole timeline; longer than the model's window: made window by window
+# motion files read at any door (the command line, the library, HTTP uploads): checked before anything is resampled
+MIN_FRAME_TIME_S = 1e-3  # a BVH between 1 and 1000 frames per second
+MAX_FRAME_TIME_S = 1.0
+MAX_ABS_VALUE = 1e6  # any number of a motion file (metres, centimetres, millimetres or degrees)
 MIN_STEPS, MAX_STEPS = 1, 50
 MIN_GUIDANCE, MAX_GUIDANCE = 0.0, 20.0
 MAX_SEGMENTS = 16  # segments of a timeline

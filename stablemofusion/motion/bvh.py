@@ -15,6 +15,7 @@ import numpy as np
 
 from ..errors import MotionFormatError, SMFError
 from ..io import atomic_path
+from ..limits import MAX_ABS_VALUE, MAX_FRAME_TIME_S, MIN_FRAME_TIME_S
 from .kinematics import forward_kinematics as forward_kinematics_of_tree
 from .rotation import matrix_to_euler, quat_to_matrix
 
@@ -252,12 +253,17 @@ def read_bvh(path: str | os.PathLike, *, unit: str = "auto") -> BVH:
     frames, frame_time = int(header[0]), header[1]
     if frames < 0 or not (np.isfinite(frame_time) and frame_time > 0):
         raise MotionFormatError(f"{where}:{header_lines[0]}: bad 'Frames:' or 'Frame Time:' value")
+    if not MIN_FRAME_TIME_S <= frame_time <= MAX_FRAME_TIME_S:
+        raise MotionFormatError(f"{where}:{header_lines[1]}: 'Frame Time: {frame_time:g}' must be between "
+                                f"{MIN_FRAME_TIME_S:g} and {MAX_FRAME_TIME_S:g} s (1 to 1000 frames per second)")
     n_chan = sum(len(c) for c in channels)
     motion = _parse_motion(lines, k, n_chan, where)
     if len(motion) != frames:
         raise MotionFormatError(f"{where}:{header_lines[0]}: 'Frames: {frames}' but {len(motion)} frames follow")
 
     offsets_a = np.array(offsets, dtype=np.float64).reshape(-1, 3)
+    if not (np.isfinite(offsets_a).all() and np.abs(offsets_a).max(initial=0.0) <= MAX_ABS_VALUE):
+        raise MotionFormatError(f"{where}:1: OFFSET values must be finite numbers of at most {MAX_ABS_VALUE:g}")
     parents_a = np.array(parents, dtype=np.int64)
     if unit == "auto":
         unit = _detect_unit(offsets_a, parents_a, end_sites)
@@ -271,14 +277,15 @@ def read_bvh(path: str | os.PathLike, *, unit: str = "auto") -> BVH:
 
 
 def _parse_motion(lines: list[str], start: int, n_chan: int, where: str) -> np.ndarray:
-    """(F, n_chan) values of ``lines[start:]`` (blank lines skipped), parsed by one numpy call; on error
-    a slow pass finds the offending line."""
+    """(F, n_chan) values of ``lines[start:]`` (blank lines skipped), each a finite number of at most
+    :data:`~stablemofusion.limits.MAX_ABS_VALUE`, parsed by one numpy call; on error a slow pass finds the offending
+    line."""
     body = lines[start:]
     if not any(s.strip() for s in body):
         return np.empty((0, n_chan))
     try:
         motion = np.loadtxt(body, dtype=np.float64, comments=None, ndmin=2)
-        if motion.shape[1] == n_chan and np.isfinite(motion).all():
+        if motion.shape[1] == n_chan and np.isfinite(motion).all() and np.abs(motion).max() <= MAX_ABS_VALUE:
             return motion
     except ValueError:
         pass
@@ -295,6 +302,8 @@ def _parse_motion(lines: list[str], start: int, n_chan: int, where: str) -> np.n
                 ok = False
             if not ok:
                 raise MotionFormatError(f"{where}:{i}: non-numeric value '{v[:20]}'")
+            if abs(float(v)) > MAX_ABS_VALUE:
+                raise MotionFormatError(f"{where}:{i}: value '{v[:20]}' is beyond +-{MAX_ABS_VALUE:g}")
     raise MotionFormatError(f"{where}:{start + 1}: unreadable MOTION data")  # pragma: no cover
 
 

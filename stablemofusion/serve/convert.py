@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from .http_errors import ServeError
-from .server_limits import (MAX_ABS_METRES, MAX_ABS_VALUE, MAX_CONVERT_FRAMES, MAX_CONVERT_SECONDS, MAX_CONVERT_VALUES,
-                            MAX_FRAME_TIME_S, MAX_HIERARCHY_BYTES, MIN_FRAME_TIME_S)
+from ..limits import MAX_ABS_VALUE, MAX_FRAME_TIME_S, MIN_FRAME_TIME_S
+from .server_limits import (MAX_ABS_METRES, MAX_CONVERT_FRAMES, MAX_CONVERT_SECONDS, MAX_CONVERT_VALUES,
+                            MAX_HIERARCHY_BYTES)
 from ..output import joints_json_bytes
 
 SUFFIXES = (".bvh", ".npy")

@@ -30,12 +30,9 @@ RECENT_RESULTS = 8  # motions kept by their request, so that asking again in ano
 
 # POST /v1/convert (serve/convert.py): a file shown by the viewer
 MAX_CONVERT_SECONDS = MAX_SECONDS  # as long as the longest motion
-MIN_FRAME_TIME_S = 1e-3  # a BVH between 1 and 1000 frames per second
 MAX_CONVERT_FRAMES = 120 * 120  # frames of an uploaded BVH (120 s at 120 fps), checked before any is decoded ...
 MAX_CONVERT_VALUES = 4_000_000  # ... and frames x channels (32 MB as float64)
 MAX_HIERARCHY_BYTES = 256 * 1024  # a BVH's HIERARCHY section, checked before it is parsed
-MAX_FRAME_TIME_S = 1.0
-MAX_ABS_VALUE = 1e6  # any number of an uploaded file (metres, centimetres, millimetres or degrees)
 MAX_ABS_METRES = 1e4  # any joint position shown
 
 # the worker process (serve/worker.py)

@@ -179,6 +179,12 @@ def test_malformed_motion(tmp_path: Path) -> None:
     assert _error(tmp_path, body.replace("0 -20", "0 nan")).endswith(f":{n}: non-numeric value 'nan'")
     assert "expected 'Frame Time: <number>'" in _error(tmp_path, body.replace("Frame Time:", "FrameTime:"))
     assert "expected 'Frames: <number>'" in _error(tmp_path, body.replace("Frames:   2", "Frames: two"))
+    # bounded before anything is resampled or allocated: frame times of 1-1000 fps, values finite and at most 1e6
+    for bad in ("1e8", "1e308", "1e-9", "100000"):
+        assert "must be between 0.001 and 1 s" in _error(tmp_path, body.replace("0.05", bad))
+    assert _error(tmp_path, body.replace("0 -20", "0 1e300")).endswith(f":{n}: value '1e300' is beyond +-1e+06")
+    assert _error(tmp_path, body.replace("0 -20", "0 -1e308")).endswith(f":{n}: value '-1e308' is beyond +-1e+06")
+    assert _error(tmp_path, body.replace("0 -20", "0 inf")).endswith(f":{n}: non-numeric value 'inf'")
 
 
 def test_missing_file(tmp_path: Path) -> None:
@@ -306,3 +312,23 @@ def test_bvh_dataclass_defaults() -> None:
               end_sites={}, frame_time=0.5, motion=np.array([[1.0], [2.0]]))
     assert bvh.unit == "m" and bvh.fps == 2 and bvh.num_frames == 2
     np.testing.assert_allclose(forward_kinematics(bvh)[:, 0, 1], [1, 2])
+
+
+def test_the_command_line_refuses_unbounded_bvh_in_one_line_within_bounded_memory(tmp_path: Path) -> None:
+    """`smf convert` of a BVH whose frame time or values would blow up resampling or the joints: one line, exit 2,
+    under a 1.5 GB address-space cap (a Frame Time of 1e8 s once asked for 15 GB)."""
+    import resource
+    import subprocess
+    import sys
+
+    def cap():
+        resource.setrlimit(resource.RLIMIT_AS, (1536 << 20, 1536 << 20))
+
+    body = SYNTH.replace("\r\n", "\n")
+    for old, new, why in (("0.05", "1e8", "Frame Time"), ("0.05", "1e308", "Frame Time"), ("0.05", "1e-9", "Frame Time"),
+                          ("0 -20", "0 1e300", "beyond"), ("0 -20", "0 nan", "non-numeric")):
+        path = _write(tmp_path / "bad.bvh", body.replace(old, new))
+        run = subprocess.run([sys.executable, "-m", "stablemofusion.cli.main", "convert", str(path),
+                              str(tmp_path / "out.npy")], capture_output=True, text=True, timeout=120, preexec_fn=cap)
+        assert run.returncode == 2 and why in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr
+        assert not (tmp_path / "out.npy").exists()

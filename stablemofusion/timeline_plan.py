@@ -92,6 +92,7 @@ def segment_frames(segments: list[tuple[str, float]], fps: float) -> list[tuple[
         if not isinstance(secs, (int, float)) or not math.isfinite(secs) or secs * fps < 1:
             raise SMFError(f"timeline segment {prompt!r}: seconds must be at least one frame ({1 / fps:g} s), "
                            f"got {secs}")
+        check_seconds(secs, f"timeline segment {prompt!r}: seconds")
         out.append((prompt, int(round(secs * fps))))
     check_seconds(sum(secs for _, secs in segments), "a timeline's total seconds")
     return out

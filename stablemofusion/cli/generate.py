@@ -78,6 +78,8 @@ def read_path(path: Path | None):
         data = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise SMFError(f"{path}: not a JSON path ({e})") from None
+    except RecursionError:
+        raise SMFError(f"{path}: not a JSON path (nested too deeply)") from None
     return Waypoints.read(data)
 
 

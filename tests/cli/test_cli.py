@@ -71,6 +71,8 @@ def test_bvh_round_trip_of_features(ref_motion, tmp_path):
     ("garbage", ["render", "{d}/in.npy", "--out", "{d}/x.mp4"], "not a readable .npy"),
     ("good", ["site", "--out", "{d}"], "not a site"),  # a folder of other files is never replaced
     (None, ["site", "--out", "{d}/x.site", "--checkpoint", "{d}/nothing"], "holds no portable graphs"),
+    (None, ["generate", "--timeline", "walk:1e308", "--out", "{d}/x.out"], "at most 120 s"),
+    ("deep_path", ["generate", "a person walks", "--path", "{d}/in.json", "--out", "{d}/x.out"], "nested too deeply"),
 ])
 def test_bad_input_is_one_line_exit_2(tmp_path, capsys, setup, argv, message):
     good = np.zeros((10, 22, 3)) + np.linspace(0, 1, 22)[None, :, None]
@@ -84,6 +86,8 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, setup, argv, message):
         (tmp_path / "in.txt").write_text("x")
     elif setup == "garbage":
         (tmp_path / "in.npy").write_bytes(b"not numpy")
+    elif setup == "deep_path":
+        (tmp_path / "in.json").write_text("[" * 2000 + "]" * 2000)
     code = run(*[a.format(d=tmp_path) for a in argv])
     err = capsys.readouterr().err
     assert code == 2

@@ -77,11 +77,13 @@ class Adapter:
     info: AdapterInfo
     weights: dict[str, dict[str, torch.Tensor]]
 
-    def deltas(self, part: str) -> dict[str, torch.Tensor]:
-        """Dense weight updates of ``part`` (layer weight name -> tensor); SMFError when it has none."""
+    def deltas(self, part: str, shapes: dict[str, tuple]) -> dict[str, torch.Tensor]:
+        """Dense weight updates of ``part`` (layer weight name -> tensor) for a model whose weights have ``shapes``
+        (parameter name -> shape), checked against them before any is computed (:func:`layer_deltas`); SMFError
+        when it has none or they do not fit."""
         if part not in self.weights or not self.weights[part]:
             raise SMFError(f"adapter {self.info.name!r} has no {part} weights")
-        return layer_deltas(self.weights[part], self.info.lora.scale)
+        return layer_deltas(self.weights[part], self.info.lora.scale, shapes)
 
     def check_base(self, part: str, folder: str | Path) -> None:
         """SMFError unless ``folder`` holds the very weights this adapter's ``part`` was trained on."""

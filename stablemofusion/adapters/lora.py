@@ -9,6 +9,8 @@ other weights, so every engine and runtime runs it at the base model's speed.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import asdict, dataclass
 
 import torch
@@ -75,21 +77,44 @@ def load_lora_state(model: nn.Module, state: dict[str, torch.Tensor]) -> None:
         raise SMFError(f"adapter weights do not fit the model (e.g. {result.unexpected_keys[0]})")
 
 
-def layer_deltas(state: dict[str, torch.Tensor], scale: float) -> dict[str, torch.Tensor]:
-    """``<layer>.weight`` -> the dense update ``scale * B @ A`` of each adapted layer (shape of the weight)."""
+MAX_SCALE = 1e3  # alpha / rank of an adapter: trained ones are about 1-2; beyond this the merged model is noise
+
+
+def layer_deltas(state: dict[str, torch.Tensor], scale: float, shapes: dict[str, tuple]) -> dict[str, torch.Tensor]:
+    """``<layer>.weight`` -> the dense update ``scale * B @ A`` of each adapted layer (shape of the weight). Every pair
+    is checked against the model's weight shapes ``shapes`` (parameter name -> shape) before it is multiplied, so a
+    file cannot ask for more memory than the model's own weights: one-line SMFError for a layer the model lacks, a
+    rank, shape or dimension that does not fit, non-finite values or a scale beyond :data:`MAX_SCALE`."""
+    if not (math.isfinite(scale) and abs(scale) <= MAX_SCALE):
+        raise SMFError(f"adapter scale (alpha / rank) must be finite and at most {MAX_SCALE:g}, got {scale:g}")
     out = {}
     for key in state:
         if not key.endswith(LORA_A):
+            if not key.endswith(LORA_B):
+                raise SMFError(f"adapter tensor {key} is neither a lora_A nor a lora_B weight")
+            if key[: -len(LORA_B)] + LORA_A not in state:
+                raise SMFError(f"adapter layer {key[: -len(LORA_B)]} has lora_B but no lora_A")
             continue
         layer = key[: -len(LORA_A)]
-        a, b = state[key].float(), state.get(layer + LORA_B)
+        a, b = state[key], state.get(layer + LORA_B)
         if b is None:
             raise SMFError(f"adapter layer {layer} has lora_A but no lora_B")
-        b = b.float()
-        if a.ndim == 2:  # linear: (r, in), (out, r)
-            delta = b @ a
-        else:  # conv1d: (r, in, k), (out, r, 1)
-            delta = torch.einsum("or,rik->oik", b[..., 0], a)
+        want = shapes.get(layer + ".weight")
+        if want is None:
+            raise SMFError(f"the adapter changes {layer}.weight, which this model lacks (an adapter fits only the base "
+                           "model it was trained on)")
+        want = tuple(want)
+        fits = (len(want) == 2 and a.ndim == 2 and b.ndim == 2 and 1 <= a.shape[0] == b.shape[1]
+                and a.shape[1] == want[1] and b.shape[0] == want[0]) or \
+               (len(want) == 3 and a.ndim == 3 and b.ndim == 3 and 1 <= a.shape[0] == b.shape[1] and b.shape[2] == 1
+                and a.shape[1:] == want[1:] and b.shape[0] == want[0])
+        if not fits or a.shape[0] > min(want[0], want[1]):
+            raise SMFError(f"adapter layer {layer}: lora_A {tuple(a.shape)} and lora_B {tuple(b.shape)} do not fit its "
+                           f"weight {want} at a rank from 1 to {min(want[0], want[1])}")
+        a, b = a.float(), b.float()
+        if not (torch.isfinite(a).all() and torch.isfinite(b).all()):
+            raise SMFError(f"adapter layer {layer} holds values that are not finite")
+        delta = b @ a if a.ndim == 2 else torch.einsum("or,rik->oik", b[..., 0], a)  # linear; conv1d
         out[layer + ".weight"] = scale * delta
     return out
 

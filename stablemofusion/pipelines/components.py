@@ -123,7 +123,7 @@ class Components:
         model = copy.deepcopy(self.model)
         for a in adapters:
             a.check_base(part, self.path)
-            merge_into(model, a.deltas(part))
+            merge_into(model, a.deltas(part, {n: tuple(p.shape) for n, p in model.named_parameters()}))
         new = copy.copy(self)
         new.model, new._engines, new.variants = model, {}, {}
         new.adapters = self.adapters + tuple(a.info.name for a in adapters)

@@ -45,7 +45,7 @@ def test_merged_weights_compute_what_the_wrapped_model_does(tiny_checkpoint):
     with torch.no_grad(), no_fast_path():  # the wrapped model as it trains (its text layers through the wrappers)
         want = wrapped.eval()(*_inputs(wrapped))
         before = plain.eval()(*_inputs(plain))
-        merge_into(plain, layer_deltas(state, cfg.scale))
+        merge_into(plain, layer_deltas(state, cfg.scale, {n: tuple(p.shape) for n, p in plain.named_parameters()}))
         got = plain(*_inputs(plain))
     assert (want - before).abs().max() > 1e-3  # the updates change the output
     torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-5)
@@ -77,7 +77,7 @@ def test_adapter_file_round_trips_and_checks_its_base(tiny_checkpoint, save_rand
     with pytest.raises(SMFError, match="another base model"):
         b.check_base("student", tiny_checkpoint)
     with pytest.raises(SMFError, match="no student weights"):
-        b.deltas("student")
+        b.deltas("student", {})
 
 
 def test_bad_adapter_files_are_one_line_errors(tiny_checkpoint, save_random_adapter, tmp_path):
@@ -94,3 +94,31 @@ def test_bad_adapter_files_are_one_line_errors(tiny_checkpoint, save_random_adap
     a = save_random_adapter(tmp_path / "a.safetensors", tiny_checkpoint)
     with pytest.raises(SMFError, match="share a name"):
         load_adapters([a, a])
+
+
+def test_crafted_adapters_are_refused_before_any_weight_is_multiplied(tiny_checkpoint, save_random_adapter, tmp_path):
+    """A small file whose lora_B @ lora_A would be a huge matrix, a rank of 0, a 1-D tensor, a wrong shape, NaN or a
+    huge scale: one-line SMFError from the checks against the model's weight shapes, before any product (the
+    first case would be a 40 GB matrix)."""
+    from stablemofusion.pipeline import MotionPipeline
+
+    pipe = MotionPipeline.from_pretrained(tiny_checkpoint, device="cpu")
+    good = Adapter.load(save_random_adapter(tmp_path / "a.safetensors", tiny_checkpoint))
+    part = next(p for p in good.weights if good.weights[p])
+    layer = next(k[: -len(".lora_A.weight")] for k in good.weights[part] if k.endswith(".lora_A.weight"))
+    a, b = good.weights[part][layer + ".lora_A.weight"], good.weights[part][layer + ".lora_B.weight"]
+    cases = {
+        "do not fit": {layer + ".lora_A.weight": torch.zeros(1, 100_000), layer + ".lora_B.weight": torch.zeros(100_000, 1)},
+        "rank from 1": {layer + ".lora_A.weight": a[:0], layer + ".lora_B.weight": b[:, :0]},
+        "not fit": {layer + ".lora_A.weight": a.flatten(), layer + ".lora_B.weight": b},
+        "lacks": {"no.such.layer.lora_A.weight": a, "no.such.layer.lora_B.weight": b},
+        "not finite": {layer + ".lora_A.weight": a * float("nan"), layer + ".lora_B.weight": b},
+        "lora_B but no lora_A": {layer + ".lora_B.weight": b},
+    }
+    shapes = {n: tuple(p.shape) for n, p in pipe.model.named_parameters()}
+    for why, weights in cases.items():
+        with pytest.raises(SMFError, match=why):
+            Adapter(good.info, {**good.weights, part: weights}).deltas(part, shapes)
+    with pytest.raises(SMFError, match="scale"):
+        layer_deltas(good.weights[part], 1e9, shapes)
+    assert layer_deltas(good.weights[part], good.info.lora.scale, shapes)  # the genuine file still loads

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stablemofusion.footskate.metrics import mean_metrics, pop_frames
+from stablemofusion.footskate.metrics import mean_metrics, pop_frames, steps_after_stillness
 from stablemofusion.motion.lean import LEAN_SHARE, expected_lean, sideways_lean, turn_frame
 from stablemofusion.motion.rigid import bone_length_deviation
 
@@ -44,19 +44,10 @@ SHAPES = {
 }
 
 
-def still_steps(j: np.ndarray) -> np.ndarray:
-    """Horizontal steps (m) of foot joints low on both frames, taken right after a step of less than 3 cm."""
-    feet = j[:, [7, 10, 8, 11]]
-    low = (feet[1:, :, 1] <= 0.06) & (feet[:-1, :, 1] <= 0.06)
-    step = np.linalg.norm(np.diff(feet[:, :, [0, 2]], axis=0), axis=-1)
-    before = np.concatenate([np.full((1, 4), np.inf), step[:-1]], 0)
-    return step[low & (before < 0.03)]
-
-
 def summary(motions: list[np.ndarray]) -> dict:
     pops = [int(pop_frames(j).any(-1).sum()) for j in motions]
     secs = sum(len(j) for j in motions) / FPS
-    steps = np.concatenate([still_steps(j) for j in motions])
+    steps = np.concatenate([steps_after_stillness(j) for j in motions])
     m = mean_metrics(motions)
     return {"motions": len(motions), "with_pop": round(float(np.mean([p > 0 for p in pops])), 3),
             "pops_per_10s": round(sum(pops) / secs * 10, 2), "skate_ratio": round(m["skate_ratio"], 4),

@@ -32,7 +32,7 @@ import numpy as np
 
 from .footskate.cleanup import CLEANUP_CONTACTS
 from .footskate.contacts import HML_FOOT_JOINTS, kinematic_contacts
-from .motion.features import joints_from_features
+from .motion.features import joints_from_features, smoothstep
 from .motion.root import follow_path
 from .motion.skeleton import get_skeleton
 
@@ -95,11 +95,6 @@ def parse_path(prompt: str) -> PathSpec | None:
     return None
 
 
-def _smoothstep(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
-
-
 def _progress(features: np.ndarray) -> np.ndarray:
     """(T,) how far along the motion each frame is, 0 .. 1: by the root's travelled distance, or by time for a
     motion that hardly travels."""
@@ -121,13 +116,13 @@ def heading_offset(spec: PathSpec, features: np.ndarray) -> np.ndarray:
         if abs(math.degrees(face[-1])) >= MIN_MODEL_TURN:  # the model's own turn, scaled to the angle
             return face * (a / face[-1] - 1.0)
         t = np.linspace(0.0, 1.0, len(features))
-        return a * _smoothstep((t - TURN_SPAN[0]) / (TURN_SPAN[1] - TURN_SPAN[0])) - face
+        return a * smoothstep((t - TURN_SPAN[0]) / (TURN_SPAN[1] - TURN_SPAN[0])) - face
     if spec.kind == "strafe":  # keep facing ahead
         return -face
     if spec.kind == "arc":
         target = a * u
     elif spec.kind == "back":
-        target = a * _smoothstep((u - BACK_SPAN[0]) / (BACK_SPAN[1] - BACK_SPAN[0]))
+        target = a * smoothstep((u - BACK_SPAN[0]) / (BACK_SPAN[1] - BACK_SPAN[0]))
     elif spec.kind == "zigzag":
         legs = np.clip(1.5 * np.sin(math.pi * ZIGZAG_LEGS * np.minimum(u / ZIGZAG_END, 1.0)), -1.0, 1.0)
         target = math.radians(ZIGZAG_DEGREES) * legs

@@ -27,8 +27,8 @@ from typing import Callable
 import numpy as np
 
 from ..errors import SMFError
-from ..motion.features import feature_slices, features_from_joints
-from ..motion.ik import LEG_CHAIN_JOINTS, place_legs, reach_shift
+from ..motion.features import feature_slices, features_from_joints, smoothstep
+from ..motion.ik import LEG_CHAIN_JOINTS, hann_window, place_legs, reach_shift
 from ..motion.lean import LEAN_SHARE, lean_into_turns
 from ..motion import rigid_batch
 from ..motion.rigid import (DEFAULT_FIT, RigidFitConfig, RigidMotion, fit_rigid,
@@ -93,12 +93,6 @@ def split_contact(points: np.ndarray, max_shift: float) -> list[tuple[int, int]]
         a = b
 
 
-def smoothstep(x: np.ndarray) -> np.ndarray:
-    """3x^2 - 2x^3 of ``x`` clipped to [0, 1]: 0 and 1 with zero slope at both ends."""
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
-
-
 def holds(points: np.ndarray, contacts: np.ndarray, max_slide: float, cut_gap: int, fps: float = 20.0,
           catch_up: float = 1.2) -> tuple[np.ndarray, np.ndarray]:
     """Where each foot joint is held: ``points`` (T, K, 3) metres, ``contacts`` (T, K) bool -> the place (T, K, 3)
@@ -157,8 +151,7 @@ def bridge(offset: np.ndarray, held: np.ndarray) -> np.ndarray:
     frames it eases (smoothstep in time) from the offset before to the one after; before the first and after the
     last held frame it stays at the nearest one; all zeros where nothing is held."""
     T = len(held)
-    idx = np.flatnonzero(held)
-    if not len(idx):
+    if not held.any():
         return np.zeros_like(offset)
     before = np.maximum.accumulate(np.where(held, np.arange(T), -1))  # last held frame at or before t
     after = np.minimum.accumulate(np.where(held, np.arange(T), T)[::-1])[::-1]  # first held frame at or after t
@@ -169,17 +162,16 @@ def bridge(offset: np.ndarray, held: np.ndarray) -> np.ndarray:
     return (1 - s) * offset[b] + s * offset[a]
 
 
-def foot_shifts(points: np.ndarray, place: np.ndarray, held: np.ndarray, fps: float, blend: float) -> np.ndarray:
+def foot_shifts(points: np.ndarray, place: np.ndarray, held: np.ndarray, ramp: int) -> np.ndarray:
     """(T, 2, 3) how far to move each foot (left, right) as one piece so that its held joints stay at their holds
     (``points``, ``place`` (T, 4, 3), ``held`` (T, 4) in HumanML3D's contact order: left ankle, left toe, right
     ankle, right toe); horizontal only. Each joint's pull (hold minus position) is known where it is held and eased
     across the frames between (:func:`bridge`), so a foot travels the whole swing to its next footprint; a foot's
-    shift blends its heel's and toe's pulls by how firmly each is held around that frame (a window of ``blend`` s),
+    shift blends its heel's and toe's pulls by how firmly each is held around that frame (``ramp`` frames either side),
     so neither a hand-over from heel to toe nor a release ever jumps."""
     pull = place - points  # (T, 4, 3)
     pull[..., 1] = 0.0
-    r = max(1, int(round(blend * fps)))
-    kernel = np.hanning(2 * r + 3)[1:-1]
+    kernel = hann_window(ramp)
     out = np.zeros((len(points), 2, 3))
     for f, (ankle, toe) in enumerate(((0, 1), (2, 3))):
         w = np.stack([np.convolve(held[:, j].astype(float), kernel, mode="same") for j in (ankle, toe)], -1) + 1e-3
@@ -228,9 +220,9 @@ def clean_joints(joints: np.ndarray, contacts: np.ndarray, bone_lengths: np.ndar
     Bone lengths ``bone_lengths`` (22,) are kept. Returns the joints (T, 22, 3) and the held frames (T, 4)."""
     x0 = np.asarray(joints, dtype=np.float64)
     feet = x0[:, list(HML_FOOT_JOINTS)]  # (T, 4, 3)
-    gap = max(1, int(round(config.blend * fps)))
-    place, held = holds(feet, contacts, config.max_slide, gap, fps, config.catch_up)
-    shift = foot_shifts(feet, place, held, fps, config.blend)  # (T, 2, 3)
+    ramp = max(1, int(round(config.blend * fps)))  # frames
+    place, held = holds(feet, contacts, config.max_slide, ramp, fps, config.catch_up)
+    shift = foot_shifts(feet, place, held, ramp)  # (T, 2, 3)
     ankles = x0[:, [7, 8]] + shift
     toes = x0[:, [10, 11]] + shift
     if config.lift > 0:
@@ -239,8 +231,7 @@ def clean_joints(joints: np.ndarray, contacts: np.ndarray, bone_lengths: np.ndar
             ankles[:, f, 1] += up
             toes[:, f, 1] += up
     if config.toes_on_floor:  # a planted toe goes to the floor, a toe below it comes up: the foot turns
-        r = max(1, int(round(config.blend * fps)))
-        kernel = np.hanning(2 * r + 3)[1:-1]
+        kernel = hann_window(ramp)
         kernel /= kernel.sum()
         for f, k in ((0, 1), (1, 3)):
             down = np.clip(np.convolve(held[:, k].astype(float), kernel, mode="same"), 0.0, 1.0)
@@ -305,8 +296,10 @@ def cleanup_features_many(features: list[np.ndarray], config: CleanupConfig = Cl
         if f.ndim != 2 or f.shape[1] != 263 or len(f) < 2:
             raise SMFError(f"expected features of shape (T>=2, 263), got {tuple(f.shape)}")
     bodies = rigid_from_features_many(fs, "humanml3d", rigid)
-    cleaned = [clean_joints(b.joints(), detect_contacts(b.joints(), fps, config, vgrf_model), b.bone_lengths, fps,
-                            config) for b in bodies]
+    cleaned = []
+    for b in bodies:
+        x = b.joints()
+        cleaned.append(clean_joints(x, detect_contacts(x, fps, config, vgrf_model), b.bone_lengths, fps, config))
     out = []
     for body, f in zip(bodies_of_joints([x for x, _ in cleaned], [b.bone_lengths for b in bodies],
                                         [held for _, held in cleaned]), fs):

@@ -99,6 +99,12 @@ def _across(joints: np.ndarray, sk: Skeleton, official_ik: bool) -> np.ndarray:
     return (joints[:, r_hip] - joints[:, l_hip]) + (joints[:, r_sh] - joints[:, l_sh])
 
 
+def smoothstep(x: np.ndarray) -> np.ndarray:
+    """3x^2 - 2x^3 of ``x`` clipped to [0, 1]: 0 and 1 with zero slope at both ends."""
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
 def gaussian_smooth(x: np.ndarray, sigma: float, truncate: float = 4.0) -> np.ndarray:
     """Gaussian smoothing along axis 0 of ``x`` (T, ...) with standard deviation ``sigma`` frames, the edges
     extended by their nearest value; the kernel reaches ``truncate`` sigmas (scipy.ndimage.gaussian_filter1d with

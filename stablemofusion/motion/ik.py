@@ -53,6 +53,11 @@ def place_legs(joints: np.ndarray, ankle_targets: np.ndarray, toe_targets: np.nd
     return out
 
 
+def hann_window(r: int) -> np.ndarray:
+    """(2r + 1,) the Hann window without its zero ends: the weights of a frame's r neighbours either side."""
+    return np.hanning(2 * r + 3)[1:-1]
+
+
 def reach_shift(joints: np.ndarray, ankle_targets: np.ndarray, bone_lengths: np.ndarray, fps: float,
                 smooth: float = 0.1) -> np.ndarray:
     """(T, 3) metres: how far to move the pelvis (and the body above it) so that each leg can reach its ankle
@@ -66,7 +71,7 @@ def reach_shift(joints: np.ndarray, ankle_targets: np.ndarray, bone_lengths: np.
     if not need.any():
         return need
     r = max(1, int(round(smooth * fps)))
-    kernel = np.hanning(2 * r + 3)[1:-1]
+    kernel = hann_window(r)
     kernel /= kernel.max()  # a peak keeps its height: a window of max-weight 1, not of sum 1
     mag = np.linalg.norm(need, axis=-1)
     # a frame's shift: the need of the frames around it, whichever weighted need is largest
@@ -79,4 +84,4 @@ def reach_shift(joints: np.ndarray, ankle_targets: np.ndarray, bone_lengths: np.
     return picked
 
 
-__all__ = ["LEGS", "LEG_CHAIN_JOINTS", "place_legs", "reach_shift", "two_bone"]
+__all__ = ["LEGS", "LEG_CHAIN_JOINTS", "hann_window", "place_legs", "reach_shift", "two_bone"]

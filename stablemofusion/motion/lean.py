@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .features import gaussian_smooth, smoothstep
 from .ik import LEG_CHAIN_JOINTS
 
 G = 9.81  # m/s^2
@@ -23,16 +24,8 @@ NECK = 12
 
 
 def smooth(x: np.ndarray, sigma: float) -> np.ndarray:
-    """``x`` (T, ...) smoothed along time by a Gaussian of ``sigma`` frames (edges held)."""
-    if sigma <= 0 or len(x) < 2:
-        return np.array(x, dtype=np.float64, copy=True)
-    r = int(np.ceil(3 * sigma))
-    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
-    k /= k.sum()
-    x = np.asarray(x, dtype=np.float64)
-    pad = np.pad(x.reshape(len(x), -1), [(r, r), (0, 0)], mode="edge")
-    windows = np.lib.stride_tricks.sliding_window_view(pad, 2 * r + 1, axis=0)  # (T, C, 2r + 1)
-    return (windows @ k).reshape(x.shape)
+    """``x`` (T, ...) smoothed along time by a Gaussian of ``sigma`` frames reaching 3 sigmas (edges held)."""
+    return gaussian_smooth(x, sigma, truncate=3.0)
 
 
 def turn_frame(joints: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -67,8 +60,7 @@ def expected_lean(joints: np.ndarray, fps: float, share: float = LEAN_SHARE) -> 
 
 
 def _lean_for(a_lat: np.ndarray, speed: np.ndarray, share: float) -> np.ndarray:
-    x = np.clip((speed - MOVING[0]) / (MOVING[1] - MOVING[0]), 0.0, 1.0)
-    moving = x * x * (3.0 - 2.0 * x)
+    moving = smoothstep((speed - MOVING[0]) / (MOVING[1] - MOVING[0]))
     return np.clip(share * np.degrees(np.arctan(a_lat / G)), -MAX_LEAN_DEG, MAX_LEAN_DEG) * moving
 
 

@@ -161,9 +161,9 @@ function bridgeLift(shift, held, share, most, T) {
   return out;
 }
 
-// lean.py's smooth(): a Gaussian of sigma frames along time, edges held, of T values
+// lean.py's smooth() (features.py's gaussian_smooth, 3 sigmas): a Gaussian of sigma frames along time, edges held
 function smoothGauss(values, sigma) {
-  const T = values.length, r = Math.ceil(3 * sigma), k = [];
+  const T = values.length, r = Math.floor(3 * sigma + 0.5), k = [];
   for (let i = -r; i <= r; i++) k.push(Math.exp(-0.5 * (i / sigma) ** 2));
   const total = k.reduce((a, b) => a + b, 0);
   return Float64Array.from({ length: T }, (_, t) => {

@@ -71,3 +71,14 @@ def test_a_new_format_is_one_function(result, tmp_path):
     with pytest.raises(SMFError, match="choose from"):
         parse_formats("npy,txt")
     assert set(FORMATS) == {"npy", "bvh", "json", "glb", "mp4", "gif"}
+
+
+def test_the_feet_the_cleanup_held_travel_with_the_json_answer():
+    from stablemofusion.runtime.pipeline import PortablePipeline
+
+    pipe = PortablePipeline.from_pretrained(threads=1)
+    post = pipe("a person walks forward", seconds=3, seed=1)[0]
+    held = json_payload(post)["contacts"]
+    assert len(held) == 4 and all(len(c) == post.frames for c in held) and 0 < sum(map(sum, held)) < 4 * post.frames
+    assert np.array_equal(np.asarray(held, bool).T, post.contacts)
+    assert "contacts" not in json_payload(pipe("a person walks forward", seconds=3, seed=1, footskate="off")[0])

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from stablemofusion.errors import SMFError
-from stablemofusion.footskate.metrics import footskate_metrics, joint_change, penetration, pose_change, skate_ratio
+from stablemofusion.footskate.metrics import (footskate_metrics, joint_change, penetration, pop_count, pop_frames,
+                                             pose_change, skate_ratio, steps_after_stillness)
 
 
 def _motion(T=21, slide=0.0, toe_h=0.0, low=0.0):
@@ -45,3 +46,15 @@ def test_penetration_and_joint_change():
         joint_change(j, k[:-1])
     with pytest.raises(SMFError):
         footskate_metrics(np.zeros((5, 21, 3)))
+
+
+def test_a_planted_foot_that_jumps_is_a_pop_and_a_steady_slide_is_not():
+    j = _motion()
+    j[10:, 10, 0] += 0.3  # the left toe, still on the floor, jumps 0.3 m between frames 9 and 10
+    pops = pop_frames(j)
+    assert pops.shape == (20, 4) and pops[:, 1].tolist() == [k == 9 for k in range(20)] and pops.sum() == 1
+    assert pop_count(j) == 1 and 0.3 in np.round(steps_after_stillness(j), 6)
+    assert pop_count(_motion(slide=0.2)) == 0  # fast all along: never still before the step
+    lifted = j.copy()
+    lifted[10:, 10, 1] = 0.2  # the same jump through the air: not a planted foot
+    assert pop_count(lifted) == 0

@@ -143,6 +143,36 @@ def _store_fp16(model, exact: bool) -> None:
     graph.node.extend(casts + nodes)
 
 
+def weight_map(state: dict[str, torch.Tensor], folder: Path, files: tuple[str, ...]) -> dict[str, list]:
+    """Where each weight of ``state`` lies in the graphs ``files`` of ``folder``, so that the torch backend loads its
+    weights from the graphs and a release holds one copy of them: name -> [file, initialiser, layout], layout '' (the
+    initialiser's values in the weight's shape) or 'T' (its transpose). The exporter renames, reshapes and
+    transposes some weights, so each is found by value, its own name tried first. SMFError for a weight that no
+    graph holds."""
+    import onnx
+    from onnx import numpy_helper
+
+    inits = [(f, i.name, numpy_helper.to_array(i)) for f in files
+             for i in onnx.load(str(folder / f)).graph.initializer]
+    out = {}
+    for key, value in state.items():
+        want = value.detach().float().cpu().numpy()
+        named = [r for r in inits if r[1] in (f"model.{key}", f"model.{key}_fp16")]
+        hit = None
+        for f, name, arr in named + [r for r in inits if r[2].size == want.size and r not in named]:
+            arr = arr.astype(np.float32)
+            if np.array_equal(arr.ravel(), want.ravel()):
+                hit = [f, name, ""]
+            elif want.ndim == 2 and np.array_equal(arr.ravel(), want.T.ravel()):
+                hit = [f, name, "T"]
+            if hit:
+                break
+        if hit is None:
+            raise SMFError(f"no graph in {folder} holds the weight {key} {tuple(want.shape)}")
+        out[key] = hit + [list(want.shape)]
+    return out
+
+
 def _tables(sampler: str, steps_range: range, schedule, arrays: dict[str, np.ndarray]) -> dict:
     """The tables of one sampler for each step count it takes: their arrays into ``arrays`` (key
     ``sampler/steps/field``), returns {steps: {init_sigma, stochastic}}."""
@@ -206,7 +236,8 @@ def export_model_graphs(components, out: Path) -> dict:
             "steps": settings.steps, "max_steps": components.max_steps, "text_encoder": cfg.text_encoder,
             "files": {"condition": "condition.onnx", "denoise": "denoise.onnx", "mean": "Mean.npy", "std": "Std.npy",
                       "solvers": "solvers.npz"},
-            "solvers": tables}
+            "solvers": tables,
+            "weights": weight_map(model.state_dict(), out, ("condition.onnx", "denoise.onnx"))}
 
 
 def export_text_encoder(out: Path) -> dict:
@@ -306,7 +337,7 @@ def _noise_version() -> int:
     return NOISE_VERSION
 
 
-__all__ = ["MANIFEST", "export_onnx", "export_model_graphs", "export_text_encoder"]
+__all__ = ["MANIFEST", "export_onnx", "export_model_graphs", "export_text_encoder", "weight_map"]
 
 
 def _pad_multiple(model) -> int:

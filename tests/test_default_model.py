@@ -8,7 +8,10 @@ import pytest
 import torch
 
 from stablemofusion.cli.main import main
-from stablemofusion.diffusion.checkpoint import TEACHER_DIR, teacher_folder
+from stablemofusion.diffusion.checkpoint import (TEACHER_DIR, graphs_of, load_weights, read_config, teacher_folder,
+                                                 weights_from_graphs)
+from stablemofusion.errors import SMFError
+from stablemofusion.models.base import build_denoiser
 from stablemofusion.motion.skeleton import HUMANML3D
 from stablemofusion.motion.features import joints_from_features
 from stablemofusion.motion.files import load_motion
@@ -56,8 +59,25 @@ def test_the_default_model_is_a_one_step_student_with_its_teacher_inside():
     assert "distil" not in json.loads((path / TEACHER_DIR / "config.json").read_text())
     # the text side once, at the top; the teacher uses its parent's
     assert all((path / name).is_file() and not (path / TEACHER_DIR / name).exists() for name in TEXT_SIDE_FILES)
-    assert {f.name for f in (path / TEACHER_DIR).iterdir()} == {"config.json", "model.safetensors", "Mean.npy",
-                                                                "Std.npy"}
+    assert {f.name for f in (path / TEACHER_DIR).iterdir()} == {"config.json", "Mean.npy", "Std.npy"}
+
+
+def test_the_default_model_holds_each_weight_once_in_its_graphs(tmp_path):
+    """No weights file beside the graphs: the torch backend reads each weight from the graph that holds it, the
+    same values (a weight the exporter transposed or reshaped is read back in the model's layout)."""
+    path = default_model_path()
+    assert not list(path.rglob("model.safetensors"))
+    for folder, graphs in ((path, path / "onnx"), (path / TEACHER_DIR, path / "onnx" / TEACHER_DIR)):
+        where, entry = graphs_of(folder)
+        assert where == graphs
+        weights = weights_from_graphs(where, entry)
+        model = build_denoiser(read_config(folder).model)
+        own = model.state_dict()
+        assert set(weights) == set(own) and all(weights[k].shape == own[k].shape for k in own)
+        assert {layout for _, _, layout, _ in entry["weights"].values()} == {"", "T"}  # both kinds are exercised
+    (tmp_path / "config.json").write_bytes((path / "config.json").read_bytes())  # a model without graphs
+    with pytest.raises(SMFError, match="no weights file"):
+        load_weights(tmp_path)
 
 
 def test_teacher_true_selects_the_teacher_with_the_students_text_side(pipe, teacher):

@@ -22,6 +22,7 @@ from safetensors.torch import load_file, save_file
 
 from ..errors import SMFError
 from ..models.base import Denoiser, build_denoiser
+from ..runtime.graphs import MANIFEST
 from .config import CheckpointConfig, ExportInfo, check_guidance
 
 CONFIG = "config.json"
@@ -135,13 +136,68 @@ def companion_files(path: str | Path, names) -> dict[str, Path]:
     return {name: f for name, f in found.items() if f is not None}
 
 
+def graphs_of(path: str | Path) -> tuple[Path, dict] | None:
+    """The portable graphs that hold the weights of the model folder ``path`` (``smf export --onnx`` records where
+    each weight lies: ``weights`` in its manifest entry): (the folder of its graphs, its manifest entry), or None.
+    A model's graphs are in its ``onnx/``; a teacher shipped inside its student's folder has its graphs in the
+    student's ``onnx/`` under the teacher's folder name."""
+    path = resolve(path)
+    for folder, name in ((path / "onnx", "model"), (path.parent / "onnx", "teacher")):
+        try:
+            manifest = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+            continue
+        entry = manifest.get(name) if isinstance(manifest, dict) else None
+        if not isinstance(entry, dict) or not isinstance(entry.get("weights"), dict):
+            continue
+        if name == "teacher":  # only the teacher its student names, in the folder the graphs name
+            if entry.get("folder") != path.name or not (path.parent / CONFIG).is_file():
+                continue
+            try:
+                if teacher_folder(path.parent).resolve() != path.resolve():
+                    continue
+            except SMFError:
+                continue
+            folder = folder / entry["folder"]
+        return folder, entry
+    return None
+
+
+def weights_from_graphs(folder: Path, entry: dict) -> dict[str, torch.Tensor]:
+    """A model's weights read from its portable graphs (:func:`graphs_of`) as float32 tensors: each one the
+    initialiser its manifest entry names, transposed where it says 'T', in the weight's shape."""
+    import onnx
+    from onnx import numpy_helper
+
+    where = entry["weights"]
+    graphs = {}
+    for f in sorted({w[0] for w in where.values()}):
+        if Path(f).name != f or not (folder / f).is_file():
+            raise SMFError(f"{folder}: the graph {f!r} named by its weights is not there")
+        graphs[f] = {i.name: i for i in onnx.load(str(folder / f)).graph.initializer}
+    out = {}
+    for key, (f, name, layout, shape) in where.items():
+        if name not in graphs[f]:
+            raise SMFError(f"{folder / f}: no initialiser {name!r} (the weight {key})")
+        arr = numpy_helper.to_array(graphs[f][name]).astype(np.float32)
+        arr = arr.T if layout == "T" else arr
+        if arr.size != int(np.prod(shape)):
+            raise SMFError(f"{folder / f}: the initialiser {name!r} does not hold the weight {key} {tuple(shape)}")
+        out[key] = torch.from_numpy(np.ascontiguousarray(arr).reshape(shape))
+    return out
+
+
 def load_weights(path: str | Path, *, ema: bool = True) -> dict[str, torch.Tensor]:
-    """The (EMA) weights of a checkpoint, run or exported folder as float32 tensors."""
+    """The (EMA) weights of a checkpoint, run or exported folder as float32 tensors; a folder without a weights
+    file (the shipped model) reads them from its portable graphs (:func:`graphs_of`), shaped by the caller."""
     path = resolve(path)
     read_config(path)
     weights = path / (EMA if ema and (path / EMA).is_file() else MODEL)
     if not weights.is_file():
-        raise SMFError(f"checkpoint has no weights file {weights}")
+        graphs = graphs_of(path)
+        if graphs is None:
+            raise SMFError(f"checkpoint has no weights file {weights}")
+        return weights_from_graphs(*graphs)
     return {k: v.float() if v.is_floating_point() else v for k, v in load_file(weights).items()}
 
 

@@ -11,6 +11,7 @@ JavaScript). Any static file server can host it; it makes no request outside its
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from importlib import resources
 from pathlib import Path
@@ -24,6 +25,11 @@ from .motion.rigid_batch import tree
 from .motion.skeleton import get_skeleton
 
 SITE_GRAPHS = ("text_encoder", "condition", "denoise", "length", "ood")  # what the page runs: the student's path
+# ONNX Runtime Web's WebGPU build (?backend=webgpu, 26.9 MB): not in the package; `smf site --webgpu DIR` copies it
+# from the dist/ folder of the npm package onnxruntime-web of the version the package vendors (vendored_ort_web_version)
+WEBGPU_FILES = ("ort.webgpu.min.mjs", "ort-wasm-simd-threaded.asyncify.mjs", "ort-wasm-simd-threaded.asyncify.wasm")
+ORT_VENDOR = ("site", "vendor", "onnxruntime-web")
+_ORT_BANNER = re.compile(r"ONNX Runtime Web v(\d+\.\d+\.\d+)")
 MODEL_LICENCE = ("The model's weights were trained on Bandai-Namco motion capture (CC BY-NC 4.0): non-commercial "
                  "use only. MiniLM (the text encoder): Apache-2.0.")
 
@@ -125,11 +131,50 @@ def write_model(graphs, out: Path) -> Path:
     return out
 
 
-def write_site(out: Path, graphs) -> Path:
-    """The whole static folder at ``out`` (made anew: the folder must be absent or a site written before)."""
+def ort_web_version(path: Path) -> str | None:
+    """The ONNX Runtime Web version named in the banner of a build's ``.mjs`` file, or None."""
+    try:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            found = _ORT_BANNER.search(f.read(4096))
+    except OSError:
+        return None
+    return found.group(1) if found else None
+
+
+def vendored_ort_web_version() -> str:
+    """The version of ONNX Runtime Web the package vendors (its WebAssembly build)."""
+    assets = Path(str(resources.files("stablemofusion") / "assets"))
+    version = ort_web_version(assets.joinpath(*ORT_VENDOR) / "ort.wasm.min.mjs")
+    if version is None:
+        raise SMFError("this install's ONNX Runtime Web build names no version")
+    return version
+
+
+def check_webgpu_build(folder: Path) -> list[Path]:
+    """The files of ONNX Runtime Web's WebGPU build in ``folder`` (the npm package's ``dist/``), checked: all there
+    and of the vendored version. SMFError naming what is wrong and how to get it."""
+    want = vendored_ort_web_version()
+    how = f"the dist/ folder of `npm install onnxruntime-web@{want}`"
+    if not folder.is_dir():
+        raise SMFError(f"--webgpu {folder}: no such folder; give {how}")
+    missing = [name for name in WEBGPU_FILES if not (folder / name).is_file()]
+    if missing:
+        raise SMFError(f"--webgpu {folder}: {', '.join(missing)} not there; give {how}")
+    got = ort_web_version(folder / WEBGPU_FILES[0])
+    if got != want:
+        raise SMFError(f"--webgpu {folder}: ONNX Runtime Web {got or 'of no named version'}, the page runs {want}; "
+                       f"give {how}")
+    return [folder / name for name in WEBGPU_FILES]
+
+
+def write_site(out: Path, graphs, webgpu: Path | None = None) -> Path:
+    """The whole static folder at ``out`` (made anew: the folder must be absent or a site written before);
+    ``webgpu``: a folder holding ONNX Runtime Web's WebGPU build (:func:`check_webgpu_build`), copied in so that
+    ``?backend=webgpu`` runs; without it the page says how to add it."""
     assets = Path(str(resources.files("stablemofusion") / "assets"))
     if out.exists() and any(out.iterdir()) and not (out / "model" / "web.json").is_file():
         raise SMFError(f"{out} exists and is not a site written by `smf site`: choose an empty or new folder")
+    build = [] if webgpu is None else check_webgpu_build(Path(webgpu))
     tmp = out.with_name(out.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
     shutil.copytree(assets / "site", tmp, ignore=shutil.ignore_patterns("__pycache__"))
@@ -138,6 +183,8 @@ def write_site(out: Path, graphs) -> Path:
     for name in ("figure.js", "viewer.css"):  # the viewer's stick figure and style
         shutil.copyfile(assets / "viewer" / name, tmp / name)
     write_model(graphs, tmp / "model")
+    for f in build:
+        shutil.copyfile(f, tmp.joinpath(*ORT_VENDOR[1:]) / f.name)
     if out.exists():
         shutil.rmtree(out)
     tmp.rename(out)
@@ -149,4 +196,5 @@ def folder_size(path: Path) -> int:
     return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
 
 
-__all__ = ["MODEL_LICENCE", "SITE_GRAPHS", "folder_size", "web_description", "write_model", "write_site"]
+__all__ = ["MODEL_LICENCE", "SITE_GRAPHS", "WEBGPU_FILES", "check_webgpu_build", "folder_size",
+           "ort_web_version", "vendored_ort_web_version", "web_description", "write_model", "write_site"]

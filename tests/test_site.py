@@ -6,6 +6,7 @@ figure drawn. Skipped where Chromium or Playwright is absent (CI installs both).
 
 from __future__ import annotations
 
+import os
 import shutil
 import socket
 import subprocess
@@ -13,6 +14,7 @@ import sys
 import time
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,6 +24,7 @@ from stablemofusion.cli.main import main
 from stablemofusion.motion.bvh import forward_kinematics, read_bvh
 from stablemofusion.motion.skeleton import HUMANML3D
 from stablemofusion.runtime.pipeline import PortablePipeline
+from stablemofusion.site import WEBGPU_FILES
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
@@ -36,18 +39,7 @@ def served(tmp_path_factory):
     """`smf site` written and served by python -m http.server on a free loopback port."""
     folder = tmp_path_factory.mktemp("site") / "site"
     assert main(["site", "--out", str(folder)]) == 0
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    server = subprocess.Popen([sys.executable, "-m", "http.server", str(port), "-b", "127.0.0.1", "-d", str(folder)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    url = f"http://127.0.0.1:{port}/"
-    for _ in range(100):
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=1).close()
-            break
-        except OSError:
-            time.sleep(0.05)
+    server, url = serve(folder)
     yield url
     server.terminate()
     server.wait(10)
@@ -104,26 +96,71 @@ def test_the_page_generates_the_runtimes_motion_offline(served, tmp_path):
     assert (image[60:500] < 100).sum() > 200  # the figure's dark joints and bones are drawn over the light floor
 
 
-def test_the_page_runs_the_graphs_on_webgpu_where_asked(served):
-    """?backend=webgpu: the graphs on WebGPU (here Chromium's software adapter, SwiftShader), the same motion within
-    5 mm; without an adapter, one clear message."""
+def webgpu_build() -> Path | None:
+    """The dist/ folder of the npm package onnxruntime-web of the page's version, where .ci/run installs it
+    ($SMF_TOOLS), or None."""
+    folder = Path(os.environ.get("SMF_TOOLS", Path.home() / ".cache" / "stablemofusion-tools"))
+    dist = folder / "node_modules" / "onnxruntime-web" / "dist"
+    return dist if (dist / WEBGPU_FILES[0]).is_file() else None
+
+
+def serve(folder: Path):
+    """python -m http.server on ``folder`` at a free loopback port: (process, url)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = subprocess.Popen([sys.executable, "-m", "http.server", str(port), "-b", "127.0.0.1", "-d", str(folder)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    for _ in range(100):
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            break
+        except OSError:
+            time.sleep(0.05)
+    return server, f"http://127.0.0.1:{port}/"
+
+
+def test_the_page_runs_the_graphs_on_webgpu_where_its_build_was_added(tmp_path):
+    """`smf site --webgpu DIST` adds ONNX Runtime Web's WebGPU build; ?backend=webgpu runs the graphs on WebGPU
+    (here Chromium's software adapter, SwiftShader), the same motion within 5 mm; without an adapter, one clear
+    message."""
+    dist = webgpu_build()
+    if dist is None:
+        pytest.skip("the npm package onnxruntime-web is not installed in $SMF_TOOLS (.ci/run installs it)")
+    assert main(["site", "--out", str(tmp_path / "site"), "--webgpu", str(dist)]) == 0
+    server, url = serve(tmp_path / "site")
     webgpu = FLAGS + ["--enable-unsafe-webgpu", "--use-webgpu-adapter=swiftshader"]
-    with playwright.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=webgpu)
-        page = browser.new_page()
-        page.goto(served + "?backend=webgpu", wait_until="load")
-        if not page.evaluate("(async () => !!(navigator.gpu && await navigator.gpu.requestAdapter()))()"):
+    try:
+        with playwright.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, args=webgpu)
+            page = browser.new_page()
+            page.goto(url + "?backend=webgpu", wait_until="load")
+            if not page.evaluate("(async () => !!(navigator.gpu && await navigator.gpu.requestAdapter()))()"):
+                browser.close()
+                pytest.skip("this Chromium offers no software WebGPU adapter")
+            joints = page.evaluate(f"window.smf.generate({{prompt: '{PROMPT}', seconds: 2, seed: {SEED}, "
+                                   "footskate: 'off'}).then(() => window.smf.lastMotion.joints)")
+            backend = page.evaluate("window.smf.timings.backend")
             browser.close()
-            pytest.skip("this Chromium offers no software WebGPU adapter")
-        joints = page.evaluate(f"window.smf.generate({{prompt: '{PROMPT}', seconds: 2, seed: {SEED}, footskate: 'off'}})"
-                               ".then(() => window.smf.lastMotion.joints)")
-        backend = page.evaluate("window.smf.timings.backend")
-        browser.close()
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS)  # no WebGPU at all
+            browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS)  # no WebGPU at all
+            page = browser.new_page()
+            page.goto(url + "?backend=webgpu", wait_until="load")
+            refused = page.evaluate("window.smf.ready.then(() => '', (e) => e.message)")
+            browser.close()
+    finally:
+        server.terminate()
+        server.wait(10)
+    want = PortablePipeline.from_pretrained(threads=1)(PROMPT, seconds=2, seed=SEED, footskate="off")[0].joints
+    assert backend == "webgpu" and np.abs(np.asarray(joints) - want).max() < 5e-3
+    assert "no WebGPU adapter" in refused
+
+
+def test_a_site_without_the_webgpu_build_says_how_to_add_it(served):
+    """The package ships no WebGPU build: ?backend=webgpu on a site written without it names the command."""
+    with playwright.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS)
         page = browser.new_page()
         page.goto(served + "?backend=webgpu", wait_until="load")
         refused = page.evaluate("window.smf.ready.then(() => '', (e) => e.message)")
         browser.close()
-    want = PortablePipeline.from_pretrained(threads=1)(PROMPT, seconds=2, seed=SEED, footskate="off")[0].joints
-    assert backend == "webgpu" and np.abs(np.asarray(joints) - want).max() < 5e-3
-    assert "no WebGPU adapter" in refused
+    assert "without ONNX Runtime Web's WebGPU build" in refused and "smf site --webgpu" in refused

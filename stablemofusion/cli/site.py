@@ -1,4 +1,4 @@
-"""`smf site --out DIR [--checkpoint GRAPHS]`: a static folder that generates motions in the browser, with no server
+"""`smf site --out DIR [--checkpoint GRAPHS] [--webgpu ORT_DIST]`: a static folder that generates motions in the browser, with no server
 (docs/site.md)."""
 
 from __future__ import annotations
@@ -15,14 +15,22 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--checkpoint", type=Path, default=None,
                    help="a folder of portable graphs (smf export --onnx) or a model folder holding one (default: "
                         "the shipped model's)")
+    p.add_argument("--webgpu", type=Path, default=None, metavar="ORT_DIST",
+                   help="add ONNX Runtime Web's WebGPU build (26.9 MB, not in the package) for ?backend=webgpu: the "
+                        "dist/ folder of `npm install onnxruntime-web@VERSION`, VERSION the one the page runs "
+                        "(docs/site.md)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> None:
     from ..runtime.pipeline import PortablePipeline
-    from ..site import folder_size, write_site
+    from ..site import folder_size, vendored_ort_web_version, write_site
 
     graphs = PortablePipeline.from_pretrained(args.checkpoint).graphs
-    out = write_site(args.out, graphs)
+    out = write_site(args.out, graphs, args.webgpu)
     print(f"wrote {out} ({folder_size(out) / 1e6:.0f} MB): serve it with any static file server, for example "
           f"`python -m http.server -d {out}`, and open http://127.0.0.1:8000/")
+    if args.webgpu is None:
+        print(f"  the page runs on WebAssembly; for ?backend=webgpu add ONNX Runtime Web's WebGPU build: "
+              f"npm install onnxruntime-web@{vendored_ort_web_version()}, then smf site --out {out} --webgpu "
+              "node_modules/onnxruntime-web/dist")

@@ -7,6 +7,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from stablemofusion.site import WEBGPU_FILES
 from stablemofusion.cli.main import main
 from stablemofusion.motion.features import canonicalize, features_from_joints
 
@@ -71,6 +72,9 @@ def test_bvh_round_trip_of_features(ref_motion, tmp_path):
     ("garbage", ["render", "{d}/in.npy", "--out", "{d}/x.mp4"], "not a readable .npy"),
     ("good", ["site", "--out", "{d}"], "not a site"),  # a folder of other files is never replaced
     (None, ["site", "--out", "{d}/x.site", "--checkpoint", "{d}/nothing"], "holds no portable graphs"),
+    (None, ["site", "--out", "{d}/x.site", "--webgpu", "{d}/nothing"], "no such folder"),
+    ("webgpu_part", ["site", "--out", "{d}/x.site", "--webgpu", "{d}"], "not there; give the dist/ folder"),
+    ("webgpu_old", ["site", "--out", "{d}/x.site", "--webgpu", "{d}"], "ONNX Runtime Web 1.17.0, the page runs"),
     (None, ["generate", "--timeline", "walk:1e308", "--out", "{d}/x.out"], "at most 120 s"),
     ("deep_path", ["generate", "a person walks", "--path", "{d}/in.json", "--out", "{d}/x.out"], "nested too deeply"),
 ])
@@ -86,6 +90,9 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, setup, argv, message):
         (tmp_path / "in.txt").write_text("x")
     elif setup == "garbage":
         (tmp_path / "in.npy").write_bytes(b"not numpy")
+    elif setup in ("webgpu_part", "webgpu_old"):  # a WebGPU build with files missing, or of another version
+        for name in WEBGPU_FILES[:1] if setup == "webgpu_part" else WEBGPU_FILES:
+            (tmp_path / name).write_text("/*!\n * ONNX Runtime Web v1.17.0\n */\n")
     elif setup == "deep_path":
         (tmp_path / "in.json").write_text("[" * 2000 + "]" * 2000)
     code = run(*[a.format(d=tmp_path) for a in argv])

@@ -20,6 +20,10 @@ async function load() {
   // WebAssembly on the CPU by default; ?backend=webgpu runs the graphs on WebGPU (what it cannot run falls back)
   const backend = new URLSearchParams(location.search).get('backend') || 'wasm';
   if (backend !== 'wasm' && backend !== 'webgpu') throw new Error(`backend must be wasm or webgpu, got '${backend}'`);
+  if (backend === 'webgpu' && !(await fetch('vendor/onnxruntime-web/ort.webgpu.min.mjs', { method: 'HEAD' })).ok) {
+    throw new Error('this site was written without ONNX Runtime Web\'s WebGPU build: write it again with '
+      + '`smf site --webgpu DIR` (docs/site.md), or open the page without ?backend=webgpu');
+  }
   if (backend === 'webgpu' && !(navigator.gpu && await navigator.gpu.requestAdapter().catch(() => null))) {
     throw new Error('this browser offers no WebGPU adapter: open the page without ?backend=webgpu');
   }

@@ -272,6 +272,8 @@ def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder_
                        f"{student.config.text_encoder}")
     with atomic_dir(Path(out)) as tmp:
         manifest = {"format": FORMAT, "version": VERSION, "noise_version": _noise_version()}
+        if student.config.export is not None and student.config.export.version:
+            manifest["model_version"] = student.config.export.version
         if student.adapters:
             manifest["adapters"] = list(student.adapters)
         if text_encoder_from is None:

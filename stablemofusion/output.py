@@ -19,6 +19,7 @@ from typing import Callable
 import numpy as np
 import orjson
 
+from . import __version__
 from .errors import SMFError
 from .io import write_bytes
 from .limits import OUTPUT_FORMATS
@@ -68,12 +69,19 @@ def bvh_bytes(result: MotionResult) -> bytes:
     return bvh_text(result).encode("utf-8")
 
 
-def glb_bytes(result: MotionResult) -> bytes:
+def glb_bytes(result: MotionResult, **meta) -> bytes:
     """The result as a binary glTF 2.0 file (pygltflib): named joint nodes with a skin and a capsule body, one
-    animation (a rotation per joint, the root's translation) at the result's frame rate; metres, Y up."""
+    animation (a rotation per joint, the root's translation) at the result's frame rate; metres, Y up; ``meta``
+    (how it was made: :func:`made_by` and the settings) in the file's extras."""
     from .motion.gltf import rigid_to_glb
 
-    return rigid_to_glb(_rigid(result), result.fps)
+    return rigid_to_glb(_rigid(result), result.fps, extras=meta)
+
+
+def made_by(model_version: str | None) -> dict:
+    """What every output's metadata says of what made it: the package's version and the model's (a release's
+    name, ``export.version`` of its config; None for a model without one)."""
+    return {"smf_version": __version__, "model_version": model_version}
 
 
 @dataclass(frozen=True)
@@ -150,7 +158,7 @@ def write_json(result: MotionResult, stem: Path, meta: dict) -> list[Path]:
 
 @writer("glb", ".glb")
 def write_glb(result: MotionResult, stem: Path, meta: dict) -> list[Path]:
-    return [write_bytes(OUTPUTS["glb"](stem)[0], glb_bytes(result))]
+    return [write_bytes(OUTPUTS["glb"](stem)[0], glb_bytes(result, **meta))]
 
 
 RIG_SUFFIX = "_rig.bvh"

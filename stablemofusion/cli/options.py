@@ -203,19 +203,21 @@ def output_meta(args, pipe, *, edit: bool = False) -> dict:
     """What the JSON output records of how a motion was made (the guidance, steps and sampler ``pipe`` used;
     ``edit``: for an edit)."""
     from ..limits import PORTABLE_ENGINE
+    from ..output import made_by
 
     if args.engine == PORTABLE_ENGINE:
         from ..limits import STUDENT_EDIT_STEPS
 
         m = pipe.model
         own = max(m.steps, STUDENT_EDIT_STEPS) if edit and m.student else m.steps
-        return {"sampler": args.sampler or m.sampler, "steps": args.steps or own,
-                "guidance": m.guidance if args.guidance is None else args.guidance, "student": m.student, "adapters": []}
+        return {**made_by(pipe.graphs.manifest.get("model_version")), "sampler": args.sampler or m.sampler,
+                "steps": args.steps or own, "guidance": m.guidance if args.guidance is None else args.guidance,
+                "student": m.student, "adapters": []}
     from ..pipelines.settings import Settings
 
     s = pipe.settings(Settings(guidance_scale=args.guidance, steps=args.steps, sampler=args.sampler), edit=edit)
-    return {"sampler": s.sampler, "steps": s.steps, "guidance": s.guidance_scale, "student": pipe.student,
-            "adapters": list(pipe.adapters)}
+    return {**made_by(pipe.config.export.version if pipe.config.export is not None else None), "sampler": s.sampler,
+            "steps": s.steps, "guidance": s.guidance_scale, "student": pipe.student, "adapters": list(pipe.adapters)}
 
 
 @contextlib.contextmanager

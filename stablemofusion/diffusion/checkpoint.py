@@ -267,7 +267,9 @@ def export_checkpoint(src: str | Path, dst: str | Path, *, dtype: torch.dtype = 
 
 
 def _exported(config: CheckpointConfig, dtype: torch.dtype) -> CheckpointConfig:
-    return replace(config, export=ExportInfo(from_step=config.step, dtype=str(dtype).replace("torch.", "")))
+    version = config.export.version if config.export is not None else None  # a release exported again keeps its name
+    return replace(config, export=ExportInfo(from_step=config.step, dtype=str(dtype).replace("torch.", ""),
+                                             version=version))
 
 
 def check_teacher(student: Checkpoint, teacher: Checkpoint) -> None:

@@ -134,6 +134,7 @@ class ExportInfo:
 
     from_step: int | None
     dtype: str
+    version: str | None = None  # the release's name (the shipped model's: MODEL_CARD.md), in every output's metadata
 
 
 @dataclass

@@ -110,9 +110,11 @@ def _continuous_quats(q: np.ndarray) -> np.ndarray:
     return q
 
 
-def rigid_to_glb(motion: RigidMotion, fps: float | None = None, *, body: bool = True) -> bytes:
+def rigid_to_glb(motion: RigidMotion, fps: float | None = None, *, body: bool = True,
+                 extras: dict | None = None) -> bytes:
     """The .glb file (bytes) of ``motion``: named joint nodes, a skin, a capsule body (``body``), one
-    animation at ``fps`` (default the skeleton's) with a rotation per joint and the root's translation."""
+    animation at ``fps`` (default the skeleton's) with a rotation per joint and the root's translation;
+    ``extras``: more of how it was made, beside frame rate, frames, skeleton and units in the file's extras."""
     import pygltflib as g
 
     sk = get_skeleton(motion.skeleton)
@@ -201,7 +203,7 @@ def rigid_to_glb(motion: RigidMotion, fps: float | None = None, *, body: bool = 
     gltf.bufferViews = views
     blob.extend(b"\0" * (-len(blob) % 4))
     gltf.buffers = [g.Buffer(byteLength=len(blob))]
-    gltf.extras = {"fps": fps, "frames": T, "skeleton": sk.name, "units": "metres, Y up"}
+    gltf.extras = {"fps": fps, "frames": T, "skeleton": sk.name, "units": "metres, Y up", **(extras or {})}
     gltf.set_binary_blob(bytes(blob))
     return b"".join(gltf.save_to_bytes())
 

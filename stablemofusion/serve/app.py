@@ -32,6 +32,7 @@ from .convert import check_suffix, convert_upload
 from .http_errors import ServeError, log_event
 from .guard import Guard
 from .. import limits
+from ..output import made_by
 from .server_limits import MAX_BODY_BYTES, MAX_REQUEST_COST, MAX_STREAMS, RECENT_RESULTS, UPLOAD_BUDGET_BYTES
 from .responses import motion_response
 from .live import StreamHub, ThreadStreamWorker, serve_stream
@@ -72,12 +73,12 @@ class RecentResults:
 
 
 async def answer(request: Request, batcher: DynamicBatcher, job: Job, format: str,
-                 recent: RecentResults | None = None) -> Response:
-    """Submit ``job`` (unless ``recent`` holds its motion) and answer with its motion in ``format``; a client that
-    leaves cancels its job (it is dropped if it has not started)."""
+                 recent: RecentResults | None = None, meta: dict | None = None) -> Response:
+    """Submit ``job`` (unless ``recent`` holds its motion) and answer with its motion in ``format`` (with ``meta``:
+    what made it); a client that leaves cancels its job (it is dropped if it has not started)."""
     done = recent.get(job) if recent is not None else None
     if done is not None:
-        return motion_response(done, format)
+        return motion_response(done, format, meta)
     work = asyncio.ensure_future(batcher.submit(job))
     gone = asyncio.ensure_future(_until_disconnected(request))
     try:
@@ -93,7 +94,7 @@ async def answer(request: Request, batcher: DynamicBatcher, job: Job, format: st
     result = work.result()  # a ServeError of the job propagates
     if recent is not None:
         recent.put(job, result)
-    return motion_response(result, format)
+    return motion_response(result, format, meta)
 
 
 def _install_error_handlers(app: FastAPI) -> None:
@@ -135,6 +136,7 @@ def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.
     cfg = worker.model
     checks = RequestChecks(cfg, max_request_cost, getattr(worker, "adapters", ()))
     recent = RecentResults()
+    made = made_by(cfg.version)  # what every answer says made it
     converting = asyncio.Semaphore(1)  # one upload parsed at a time, on a thread
 
     @contextlib.asynccontextmanager
@@ -164,7 +166,7 @@ def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.
         return JSONResponse(
             {"status": "ok" if ready else state["state"], "worker": state, "fps": cfg.fps,
              "seconds": [cfg.min_frames / cfg.fps, limits.MAX_SECONDS], "limits": limits.table(),
-             "max_batch": max_batch, "waiting": batcher.waiting, "adapters": list(checks.adapters),
+             "max_batch": max_batch, **made, "waiting": batcher.waiting, "adapters": list(checks.adapters),
              "batches": len(sizes), "largest_batch": max(sizes, default=0), "dropped": batcher.dropped,
              "streams": hub.health() if streams is not None else {"state": "off", "active": 0, "max": 0}},
             status_code=200 if ready else 503)
@@ -173,13 +175,13 @@ def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.
     async def generate(request: Request, format: str = "json"):
         check_format(format)
         job = checks.generate(parse_body(await request.body(), GenerateRequest))
-        return await answer(request, batcher, job, format, recent)
+        return await answer(request, batcher, job, format, recent, made)
 
     @app.post("/v1/timeline")
     async def timeline(request: Request, format: str = "json"):
         check_format(format)
         job = checks.timeline(parse_body(await request.body(), TimelineRequest))
-        return await answer(request, batcher, job, format, recent)
+        return await answer(request, batcher, job, format, recent, made)
 
     @app.post("/v1/convert")
     async def convert(request: Request, filename: str):

@@ -16,8 +16,10 @@ MOTION_FORMATS = {
 }
 
 
-def motion_response(result, format: str) -> Response:
-    """A generated motion in ``format`` (a key of :data:`MOTION_FORMATS`)."""
+def motion_response(result, format: str, meta: dict | None = None) -> Response:
+    """A generated motion in ``format`` (a key of :data:`MOTION_FORMATS`); ``meta`` (what made it,
+    :func:`~stablemofusion.output.made_by`) in the formats that carry metadata (JSON, glb)."""
     encode, media, filename = MOTION_FORMATS[format]
     headers = {"Content-Disposition": f'attachment; filename="{filename}"'} if filename else None
-    return Response(encode(result), media_type=media, headers=headers)
+    body = encode(result, **(meta or {})) if format in ("json", "glb") else encode(result)
+    return Response(body, media_type=media, headers=headers)

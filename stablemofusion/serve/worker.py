@@ -60,6 +60,7 @@ class ServedModel:
     student: bool
     steps: int
     guidance: float
+    version: str | None = None  # the model's version (a release's name), in every answer
 
     @classmethod
     def from_config(cls, config) -> "ServedModel":
@@ -68,7 +69,8 @@ class ServedModel:
 
         return cls(config.fps, config.min_frames, config.max_frames, bool(config.student),
                    config.distil.sample_steps if config.student else STEPS,
-                   GUIDANCE if config.guidance is None else config.guidance)
+                   GUIDANCE if config.guidance is None else config.guidance,
+                   config.export.version if config.export is not None else None)
 
     @classmethod
     def of(cls, pipe) -> "ServedModel":
@@ -76,7 +78,8 @@ class ServedModel:
         if hasattr(pipe, "config"):
             return cls.from_config(pipe.config)
         m = pipe.model
-        return cls(m.fps, m.min_frames, m.max_frames, m.student, m.steps, m.guidance)
+        return cls(m.fps, m.min_frames, m.max_frames, m.student, m.steps, m.guidance,
+                   pipe.graphs.manifest.get("model_version"))
 
 
 @dataclass(frozen=True)

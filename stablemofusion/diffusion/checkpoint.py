@@ -23,6 +23,7 @@ from safetensors.torch import load_file, save_file
 from ..errors import SMFError
 from ..models.base import Denoiser, build_denoiser
 from ..runtime.graphs import MANIFEST
+from ..text.names import GRAPHS_DIR
 from .config import CheckpointConfig, ExportInfo, check_guidance
 
 CONFIG = "config.json"
@@ -142,7 +143,7 @@ def graphs_of(path: str | Path) -> tuple[Path, dict] | None:
     A model's graphs are in its ``onnx/``; a teacher shipped inside its student's folder has its graphs in the
     student's ``onnx/`` under the teacher's folder name."""
     path = resolve(path)
-    for folder, name in ((path / "onnx", "model"), (path.parent / "onnx", "teacher")):
+    for folder, name in ((path / GRAPHS_DIR, "model"), (path.parent / GRAPHS_DIR, "teacher")):
         try:
             manifest = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
         except (OSError, json.JSONDecodeError, UnicodeDecodeError):

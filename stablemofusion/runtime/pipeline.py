@@ -25,10 +25,10 @@ from ..edit_plan import check_edit_inputs, plan_edit, plan_edit_for, splice_rigi
 from ..path_plan import PromptPaths, bend_segments, follow, path_segments, placed
 from ..motion_stream import STREAM_CHUNK, STREAM_KEEP, STREAM_REWIND, MotionStream, check_window
 from ..timeline_plan import DEFAULT_OVERLAP, plan_windows, segment_frames
+from ..text.names import GRAPHS_DIR
 from .graphs import PortableGraphs
 from .sampling import sample
 
-GRAPHS_DIR = "onnx"  # inside a model folder: its portable graphs (smf export --onnx)
 
 
 def default_graphs_path() -> Path | None:

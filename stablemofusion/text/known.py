@@ -3,7 +3,9 @@
 A model folder may hold ``actions.json``: ``{"threshold": float, "actions": {label: [example sentences]},
 "detector": {"file": "ood.safetensors"}}`` (written by ``smf export --lexicon NAME``), and beside it
 ``actions.safetensors``: the example sentences' embeddings, so that a process's first check does not encode
-every example (used only when its sentences and text encoder match). A prompt's similarity
+every example (used only when its sentences and text encoder match); a model folder with portable graphs
+(``onnx/``, the shipped model) keeps them once, in the graphs' ``actions.npy``, read when the graphs name the same
+actions and text encoder. A prompt's similarity
 to an action is the largest cosine similarity between its sentence embedding (the frozen encoder's
 mean-pooled, normalised token states, :func:`~stablemofusion.text.frozen.sentence_embedding`) and those of
 the action's examples: the ``closest`` actions. The check's ``similarity`` is the detector's calibrated
@@ -24,7 +26,8 @@ import numpy as np
 
 from ..errors import SMFError
 from ..motion.arrays import to_numpy
-from .names import ACTIONS_FILE, DETECTOR_FILE, EMBEDDINGS_FILE
+from ..runtime.graphs import MANIFEST
+from .names import ACTIONS_FILE, DETECTOR_FILE, EMBEDDINGS_FILE, GRAPHS_DIR
 from .sentence import sentence_embedding
 MAX_EMBEDDINGS_BYTES = 64 * 2**20  # a larger embeddings file is not read (the examples are encoded instead)
 # a prompt this similar (cosine of sentence embeddings) to a caption an adapter was taught is in domain
@@ -109,7 +112,26 @@ class KnownActions:
             detector = DomainDetector.load(path.parent / detector_file)
         known = cls(actions, threshold, text_cache, detector=detector)
         known._emb = known._stored_embeddings(path.parent / EMBEDDINGS_FILE)
+        if known._emb is None:
+            known._emb = known._graph_embeddings(path.parent / GRAPHS_DIR)
         return known
+
+    def _graph_embeddings(self, folder: Path) -> np.ndarray | None:
+        """The examples' embeddings kept in a model's portable graphs (``actions.npy`` beside ``graphs.json``),
+        when the graphs know exactly these actions (none taught) with this text encoder; else None."""
+        encoder = getattr(getattr(self.text_cache, "encoder", None), "name", "")
+        try:
+            manifest = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
+            actions, name = manifest["actions"], manifest["text_encoder"]["name"]
+            if actions.get("taught") or actions["actions"] != self.actions or name != encoder:
+                return None
+            path = folder / actions["embeddings"]
+            if Path(actions["embeddings"]).name != actions["embeddings"] or path.stat().st_size > MAX_EMBEDDINGS_BYTES:
+                return None
+            emb = np.load(path, allow_pickle=False).astype(np.float32)
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            return None
+        return emb if emb.ndim == 2 and len(emb) == len(self._owner) else None
 
     def _fingerprint(self) -> str:
         """sha256 of the example sentences in order, and the text encoder's name when the cache has one."""

@@ -236,12 +236,13 @@ def test_foreign_phrasings_are_a_data_file_and_fill_the_grammar():
 
 
 def test_example_embeddings_are_read_from_the_model_folder_when_they_match(tmp_path, cache):
-    """A process's first check reads actions.safetensors instead of encoding every example; a stale file
-    (other sentences) is ignored, and the stored embeddings equal freshly encoded ones."""
+    """A process's first check reads the stored embeddings instead of encoding every example (the shipped
+    model's once, in its graphs' actions.npy; another folder's actions.safetensors); a stale file (other
+    sentences) is ignored, and the stored embeddings equal freshly encoded ones."""
     from stablemofusion.text.known import EMBEDDINGS_FILE
 
     folder = default_model_path()
-    assert (folder / EMBEDDINGS_FILE).is_file()
+    assert not (folder / EMBEDDINGS_FILE).exists() and (folder / "onnx" / "actions.npy").is_file()
     known = KnownActions.load(folder / ACTIONS_FILE, cache)
     assert known._emb is not None  # read, not encoded
     fresh = KnownActions(known.actions, known.threshold, LRUTextCache(load_text_encoder("minilm")))

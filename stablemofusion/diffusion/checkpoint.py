@@ -22,7 +22,7 @@ from safetensors.torch import load_file, save_file
 
 from ..errors import SMFError
 from ..models.base import Denoiser, build_denoiser
-from ..runtime.graphs import MANIFEST
+from ..runtime.graphs import MANIFEST, TEACHER_INSTALL
 from ..text.names import GRAPHS_DIR
 from .config import CheckpointConfig, ExportInfo, check_guidance
 
@@ -110,7 +110,8 @@ def teacher_folder(path: str | Path) -> Path:
     named = Path(config.distil.teacher)
     folder = resolve(named if named.is_absolute() else path / named)
     if not (folder / CONFIG).is_file():
-        raise SMFError(f"the teacher of {path} is not there: {folder}")
+        raise SMFError(f"the teacher of {path} is not there: {folder} (the shipped model's teacher is installed with "
+                       f"{TEACHER_INSTALL})")
     return folder
 
 

@@ -18,6 +18,8 @@ import numpy as np
 from ..errors import SMFError
 
 FORMAT, VERSION, MANIFEST = "stablemofusion-onnx", 1, "graphs.json"
+# the shipped model's teacher is a distribution of its own (packaging/teacher), installed into the same folders
+TEACHER_INSTALL = "pip install 'stablemofusion[teacher]'"
 TABLE_FIELDS = ("t", "c_in", "a", "b", "c", "d", "level_x0", "level_eps")
 MAX_MANIFEST_BYTES = 4 * 2**20
 
@@ -154,8 +156,10 @@ class PortableGraphs:
                            f"{NOISE_VERSION}: export the graphs again")
         self.manifest = m
         self.model = PortableModel(self.folder, m["model"], threads)
-        self.teacher = (PortableModel(self.folder / m["teacher"]["folder"], m["teacher"], threads)
-                        if "teacher" in m else None)
+        # a teacher named by the manifest whose files are not installed (the shipped model's without its extra)
+        teacher = self.folder / m["teacher"]["folder"] if "teacher" in m else None
+        self.teacher_missing = teacher is not None and not (teacher / m["teacher"]["files"]["mean"]).is_file()
+        self.teacher = None if teacher is None or self.teacher_missing else PortableModel(teacher, m["teacher"], threads)
         self.max_tokens = int(m["text_encoder"]["max_tokens"])
 
     @cached_property

@@ -26,7 +26,7 @@ from ..path_plan import PromptPaths, bend_segments, follow, path_segments, place
 from ..motion_stream import STREAM_CHUNK, STREAM_KEEP, STREAM_REWIND, MotionStream, check_window
 from ..timeline_plan import DEFAULT_OVERLAP, plan_windows, segment_frames
 from ..text.names import GRAPHS_DIR
-from .graphs import PortableGraphs
+from .graphs import TEACHER_INSTALL, PortableGraphs
 from .sampling import sample
 
 
@@ -44,7 +44,8 @@ class PortablePipeline:
     def __init__(self, graphs: PortableGraphs, *, teacher: bool = False, text_cache_size: int = 1024):
         model = graphs.teacher if teacher else graphs.model
         if model is None:
-            raise SMFError("these graphs hold no teacher")
+            raise SMFError(f"the teacher is not installed: {TEACHER_INSTALL}" if graphs.teacher_missing
+                           else "these graphs hold no teacher")
         self.graphs, self.model = graphs, model
         self.skeleton = get_skeleton(model.entry["skeleton"])
         self.fps, self.min_frames, self.max_frames, self.dim = model.fps, model.min_frames, model.max_frames, model.dim

@@ -15,8 +15,9 @@ OUTPUTS = (".npy", ".bvh", ".glb")
 
 def add_parser(sub, name: str) -> None:
     p = sub.add_parser(name,
-                       description="Convert a motion between joints .npy (T,J,3 metres), features .npy (T,263|251), "
-                                   "BVH and glTF 2.0 binary (.glb: a skinned character with one animation). A .npy "
+                       description="Convert a motion from joints .npy (T,J,3 metres), features .npy (T,263|251) or BVH to "
+                                   "any of those or glTF 2.0 binary (.glb, output only: a skinned character with "
+                                   "one animation). A .npy "
                                    "output holds the other kind than the input unless --to says. With --rig and "
                                    "--joint-map the .bvh output is the motion on that rig's skeleton.")
     p.add_argument("input", help="joints/features .npy, .bvh (ours, or any with --joint-map), or example:<name>")

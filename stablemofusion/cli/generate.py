@@ -1,4 +1,4 @@
-"""`smf generate "TEXT" --seconds 4 --out DIR [--format npy,mp4,gif,bvh,json] ...`: text to motion files."""
+"""`smf generate "TEXT" [--seconds S] --out DIR [--format npy,bvh,glb] ...`: text to motion files."""
 
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ def add_parser(sub, name: str) -> None:
     from .options import add_sampling_arguments
 
     p = sub.add_parser(name,
-                       description="Generate one motion per prompt and write joints/features .npy, video and BVH.")
+                       description="Generate one motion per prompt and write its files (by default joints and features "
+                                   ".npy, BVH and glTF .glb; --format adds JSON or a rendered gif or mp4).")
     p.add_argument("text", nargs="?", default=None, help="the prompt (or use --prompts FILE)")
     p.add_argument("--prompts", type=Path, default=None, help="file with one prompt per line")
     p.add_argument("--timeline", default=None,

@@ -143,12 +143,12 @@ def _store_fp16(model, exact: bool) -> None:
     graph.node.extend(casts + nodes)
 
 
-def weight_map(state: dict[str, torch.Tensor], folder: Path, files: tuple[str, ...]) -> dict[str, list]:
+def weight_map(state: dict[str, torch.Tensor], folder: Path, files: tuple[str, ...]) -> dict[str, list] | None:
     """Where each weight of ``state`` lies in the graphs ``files`` of ``folder``, so that the torch backend loads its
     weights from the graphs and a release holds one copy of them: name -> [file, initialiser, layout], layout '' (the
     initialiser's values in the weight's shape) or 'T' (its transpose). The exporter renames, reshapes and
-    transposes some weights, so each is found by value, its own name tried first. SMFError for a weight that no
-    graph holds."""
+    transposes some weights, so each is found by value, its own name tried first. None when a weight is held by
+    no graph as such (the exporter folded it into another: a model folder keeps its weights file then)."""
     import onnx
     from onnx import numpy_helper
 
@@ -168,7 +168,7 @@ def weight_map(state: dict[str, torch.Tensor], folder: Path, files: tuple[str, .
             if hit:
                 break
         if hit is None:
-            raise SMFError(f"no graph in {folder} holds the weight {key} {tuple(want.shape)}")
+            return None
         out[key] = hit + [list(want.shape)]
     return out
 
@@ -228,6 +228,7 @@ def export_model_graphs(components, out: Path) -> dict:
     arrays: dict[str, np.ndarray] = {}
     tables = {s: _tables(s, range(1, components.max_steps + 1), components.schedule, arrays) for s in samplers}
     np.savez(out / "solvers.npz", **arrays)
+    weights = weight_map(model.state_dict(), out, ("condition.onnx", "denoise.onnx"))
     cfg = components.config
     return {"student": bool(components.student), "sentence": has_sentence, "fps": cfg.fps, "min_frames": cfg.min_frames,
             "max_frames": cfg.max_frames, "length_multiple": LENGTH_MULTIPLE,
@@ -237,7 +238,7 @@ def export_model_graphs(components, out: Path) -> dict:
             "files": {"condition": "condition.onnx", "denoise": "denoise.onnx", "mean": "Mean.npy", "std": "Std.npy",
                       "solvers": "solvers.npz"},
             "solvers": tables,
-            "weights": weight_map(model.state_dict(), out, ("condition.onnx", "denoise.onnx"))}
+            **({"weights": weights} if weights is not None else {})}
 
 
 def export_text_encoder(out: Path) -> dict:

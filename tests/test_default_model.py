@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from stablemofusion.adapters.file import weights_hash
 from stablemofusion.cli.main import main
 from stablemofusion.diffusion.checkpoint import (TEACHER_DIR, graphs_of, load_weights, read_config, teacher_folder,
                                                  weights_from_graphs)
@@ -80,6 +81,9 @@ def test_the_default_model_holds_each_weight_once_in_its_graphs(tmp_path):
         own = model.state_dict()
         assert set(weights) == set(own) and all(weights[k].shape == own[k].shape for k in own)
         assert {layout for _, _, layout, _ in entry["weights"].values()} == {"", "T"}  # both kinds are exercised
+    # what an adapter records of its base: the sha256 of the weights files the folder had before (adapters still fit)
+    assert weights_hash(path) == "d092fd58f8708e3fc066215c7e91519fbaeca3b396fac288499eb1254ab07f12"
+    assert weights_hash(path / TEACHER_DIR) == "3d08bcb40bafcf890ff7e800f516ee0975811cb6163745df5583e45d0ed8c450"
     (tmp_path / "config.json").write_bytes((path / "config.json").read_bytes())  # a model without graphs
     with pytest.raises(SMFError, match="no weights file"):
         load_weights(tmp_path)

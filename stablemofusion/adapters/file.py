@@ -28,11 +28,22 @@ PARTS = ("student", "teacher")
 
 def weights_hash(folder: str | Path) -> str:
     """sha256 of the weights file a model folder loads (its EMA weights if it has them): what an adapter records
-    of its base and checks at load."""
-    from ..diffusion.checkpoint import EMA, MODEL, resolve
+    of its base and checks at load. A model whose weights are held by its portable graphs (the shipped model) is
+    hashed as the weights file it would have: its weights in its export dtype, as ``smf export`` writes them (the
+    same bytes as the file the shipped model had before its weights moved into its graphs, so an adapter of it
+    still fits)."""
+    from safetensors.torch import save
+
+    from ..diffusion.checkpoint import EMA, MODEL, graphs_of, read_config, resolve, weights_from_graphs
 
     folder = resolve(folder)
     path = folder / EMA if (folder / EMA).is_file() else folder / MODEL
+    graphs = None if path.is_file() else graphs_of(folder)
+    if graphs is not None:
+        export = read_config(folder).export
+        dtype = getattr(torch, export.dtype) if export is not None else torch.float32
+        data = save({k: v.to(dtype).contiguous() for k, v in weights_from_graphs(*graphs).items()})
+        return hashlib.sha256(data).hexdigest()
     if not path.is_file():
         raise SMFError(f"{folder}: no weights file {MODEL}")
     h = hashlib.sha256()

@@ -35,6 +35,14 @@ def test_exported_graphs_denoise_as_the_torch_models_for_any_batch_text_and_leng
     student = save_tiny_student(tmp_path / "student", tiny_checkpoint)
     graphs = export_onnx(student, tmp_path / "onnx", text_encoder_from=default_graphs_path())
     rt = PortablePipeline.from_pretrained(graphs, threads=1)
+    # where a graph holds every weight as such (the teacher here; the student's exporter folds one), the manifest
+    # says where each lies, and reading them back gives the checkpoint's weights exactly
+    from stablemofusion.diffusion.checkpoint import load_weights, weights_from_graphs
+
+    assert "weights" in rt.graphs.teacher.entry
+    back = weights_from_graphs(graphs / "teacher", rt.graphs.teacher.entry)
+    want = load_weights(tiny_checkpoint)
+    assert set(back) == set(want) and all(torch.equal(back[k], want[k]) for k in want)
     for teacher in (False, True):
         pipe = MotionPipeline.from_pretrained(student, teacher=teacher, device="cpu")
         model = rt.graphs.teacher if teacher else rt.graphs.model

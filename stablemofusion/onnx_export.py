@@ -346,3 +346,75 @@ __all__ = ["MANIFEST", "export_onnx", "export_model_graphs", "export_text_encode
 def _pad_multiple(model) -> int:
     """The frame count the denoiser's input must be a multiple of (a UNet's levels halve it), else 1."""
     return int(getattr(model.config, "pad_multiple", 1))
+
+
+class _ContactsGraph(nn.Module):
+    def __init__(self, fps: float, config):
+        super().__init__()
+        self.fps, self.config = fps, config
+
+    def forward(self, joints):
+        from .footskate.contacts import HML_FOOT_JOINTS, contacts_of_feet
+
+        return contacts_of_feet(joints[:, :, list(HML_FOOT_JOINTS)], self.fps, self.config)
+
+
+class _CleanupGraph(nn.Module):
+    def __init__(self, fps: float, config):
+        super().__init__()
+        self.fps, self.config = fps, config
+
+    def forward(self, joints, bone_lengths):
+        from .footskate.cleanup import clean_joints, detect_contacts
+
+        contacts = detect_contacts(joints, self.fps, self.config)
+        cleaned, held = clean_joints(joints, contacts, bone_lengths, self.fps, self.config)
+        return cleaned, held
+
+
+FINAL_STAGE_GRAPHS = ("contacts.onnx", "cleanup.onnx")
+MIN_GRAPH_FRAMES = 4  # the graphs' shortest motion (the lean needs 3 frames; a model's shortest is 40)
+
+
+def export_final_stage(out: Path, fps: float = 20.0) -> list[Path]:
+    """Export the final stage's cleanup, as the Python runtimes run it, as two float64 graphs in ``out``:
+
+    - ``contacts.onnx``: ``joints`` (B, T, 22, 3) metres -> ``contacts`` (B, T, 4) bool, the cleanup's kinematic
+      contacts (:func:`~stablemofusion.footskate.contacts.contacts_of_feet`, what bending a path pivots on);
+    - ``cleanup.onnx``: ``joints`` (B, T, 22, 3) rigid, ``bone_lengths`` (B, 22) metres -> ``joints`` cleaned and
+      ``held`` (B, T, 4) bool (:func:`~stablemofusion.footskate.cleanup.clean_joints` with the default settings).
+
+    Both are the Python functions themselves, traced (they are written against the array API, loop-free)."""
+    import onnx
+
+    from .footskate.cleanup import CleanupConfig
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    config = CleanupConfig()
+    T = 60
+    joints = torch.zeros(2, T, 22, 3, dtype=torch.float64)
+    joints[..., 1] = torch.linspace(0.0, 1.6, 22, dtype=torch.float64)
+    lengths = torch.full((2, 22), 0.1, dtype=torch.float64)
+    batch = torch.export.Dim("batch", min=1, max=4096)
+    frames = torch.export.Dim("frames", min=MIN_GRAPH_FRAMES, max=100_000)
+    paths = []
+    for name, module, args, inputs, outputs in (
+            ("contacts.onnx", _ContactsGraph(fps, config.kinematic), (joints,), ["joints"], ["contacts"]),
+            ("cleanup.onnx", _CleanupGraph(fps, config), (joints, lengths), ["joints", "bone_lengths"],
+             ["joints_out", "held"])):
+        shapes = ({0: batch, 1: frames},) if len(args) == 1 else ({0: batch, 1: frames}, {0: batch})
+        import warnings
+
+        with torch.no_grad(), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            torch.onnx.export(module.eval(), args, str(out / name), input_names=inputs, output_names=outputs,
+                              dynamic_shapes=shapes, opset_version=OPSET, dynamo=True, optimize=True, verbose=False,
+                              external_data=False)
+        model = onnx.load(str(out / name))
+        for node in model.graph.node:  # the exporter's notes on where each node came from: 90% of the file
+            del node.metadata_props[:]
+            node.doc_string = ""
+        onnx.save(model, str(out / name))
+        paths.append(out / name)
+    return paths

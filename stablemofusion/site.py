@@ -19,12 +19,14 @@ from pathlib import Path
 import numpy as np
 
 from .errors import SMFError
+from .footskate.contacts import HML_FOOT_JOINTS
 from .limits import LENGTH_MULTIPLE, MAX_PROMPT_CHARS
 from .motion.rigid import DEFAULT_FIT
 from .motion.rigid_batch import tree
 from .motion.skeleton import get_skeleton
 
 SITE_GRAPHS = ("text_encoder", "condition", "denoise", "length", "ood")  # what the page runs: the student's path
+FINAL_STAGE = ("contacts", "cleanup")  # and the final stage's graphs (the package's, any model: final_stage_graph)
 # ONNX Runtime Web's WebGPU build (?backend=webgpu, 26.9 MB): not in the package; `smf site --webgpu DIR` copies it
 # from the dist/ folder of the npm package onnxruntime-web of the version the package vendors (vendored_ort_web_version)
 WEBGPU_FILES = ("ort.webgpu.min.mjs", "ort-wasm-simd-threaded.asyncify.mjs", "ort-wasm-simd-threaded.asyncify.wasm")
@@ -62,41 +64,16 @@ def web_description(graphs) -> dict:
                      "levels": [[free.tolist(), list(ids)] for free, ids in t.levels], "rest": t.rest.tolist(),
                      "bone_lengths": list(sk.bone_lengths)},
         "rigid_sweeps": DEFAULT_FIT.iterations,
-        "cleanup": cleanup_settings(m.fps),
+        "foot_joints": list(HML_FOOT_JOINTS),
         "paths": path_lexicon(),
         "actions": {"names": [name for name, _ in groups], "threshold": actions["threshold"], "top": int(actions["top"]),
                     "owner": [i for i, (_, examples) in enumerate(groups) for _ in examples],
                     "embeddings": "actions.bin", "taught_from": len(actions["actions"]),
                     "taught_similarity": actions.get("taught_similarity", 1.0)},
         "tokenizer": "tokenizer.json",
-        "files": {name: f"{name}.onnx" for name in SITE_GRAPHS},
+        "files": {name: f"{name}.onnx" for name in SITE_GRAPHS + FINAL_STAGE},
         "licence": MODEL_LICENCE,
     }
-
-
-def cleanup_settings(fps: float) -> dict:
-    """The footskate cleanup's settings for the JavaScript runtime (``assets/runtime/cleanup.js``): the Python
-    defaults (:class:`~stablemofusion.footskate.cleanup.CleanupConfig`, its contact thresholds, the lean's and the
-    legs' IK constants) and the joints they name; contact durations in frames at ``fps``, rounded as the Python
-    rounds them."""
-    from dataclasses import asdict
-
-    from .footskate.cleanup import CleanupConfig
-    from .footskate.contacts import HML_FOOT_JOINTS
-    from .motion import ik, lean
-
-    config = CleanupConfig()
-    if config.contacts != "kinematic":
-        raise SMFError("the site's cleanup finds contacts kinematically")
-    out = {k: v for k, v in asdict(config).items() if k not in ("kinematic", "contacts")}
-    k = config.kinematic
-    out.update(height_on=k.height_on, height_off=k.height_off, speed_on=k.speed_on, speed_off=k.speed_off,
-               floor_percentile=k.floor_percentile, min_contact_frames=max(1, round(k.min_contact * fps)),
-               min_gap_frames=max(1, round(k.min_gap * fps)), foot_joints=list(HML_FOOT_JOINTS),
-               legs=[list(leg) for leg in ik.LEGS], leg_chain_joints=list(ik.LEG_CHAIN_JOINTS), straight=ik.STRAIGHT,
-               lean_smooth=lean.SMOOTH_S, gravity=lean.G, max_lean_deg=lean.MAX_LEAN_DEG, neck=lean.NECK,
-               moving=list(lean.MOVING))
-    return out
 
 
 def path_lexicon() -> dict:
@@ -104,6 +81,12 @@ def path_lexicon() -> dict:
     its regular expressions in JavaScript's syntax (named groups ``(?<name>``)."""
     text = (resources.files("stablemofusion") / "assets" / "lexicons" / "paths.json").read_text("utf-8")
     return json.loads(text.replace("(?P<", "(?<"))
+
+
+def final_stage_graph(name: str) -> Path:
+    """The package's graph ``name`` (contacts or cleanup) of the final stage (:func:`~stablemofusion.onnx_export.
+    export_final_stage`: the Python functions themselves, exported)."""
+    return Path(str(resources.files("stablemofusion") / "assets" / "final_stage" / f"{name}.onnx"))
 
 
 def _graph_file(graphs, name: str) -> Path:
@@ -120,6 +103,8 @@ def write_model(graphs, out: Path) -> Path:
     info = web_description(graphs)
     for name in SITE_GRAPHS:
         shutil.copyfile(_graph_file(graphs, name), out / info["files"][name])
+    for name in FINAL_STAGE:
+        shutil.copyfile(final_stage_graph(name), out / info["files"][name])
     shutil.copyfile(graphs.folder / graphs.manifest["text_encoder"]["tokenizer"], out / info["tokenizer"])
     actions = graphs.manifest["actions"]
     emb = np.load(graphs.folder / actions["embeddings"]).astype("<f4")
@@ -196,5 +181,5 @@ def folder_size(path: Path) -> int:
     return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
 
 
-__all__ = ["MODEL_LICENCE", "SITE_GRAPHS", "WEBGPU_FILES", "check_webgpu_build", "folder_size",
+__all__ = ["FINAL_STAGE", "MODEL_LICENCE", "SITE_GRAPHS", "final_stage_graph", "WEBGPU_FILES", "check_webgpu_build", "folder_size",
            "ort_web_version", "vendored_ort_web_version", "web_description", "write_model", "write_site"]

@@ -1,7 +1,8 @@
 """`smf export --checkpoint RUN --out DIR [--card MODEL_CARD.md] [--teacher-folder TEACHER] [--text-side MODEL]
 [--guidance G]`: a small release folder (EMA weights, fp16); a distilled student's with its teacher inside; its
 default guidance scale (docs/models.md). `smf export --onnx --checkpoint MODEL --out DIR`: the model's portable
-graphs (docs/runtime.md)."""
+graphs (docs/runtime.md). `smf export --final-stage --out DIR`: the final stage's graphs (the package ships them in
+stablemofusion/assets/final_stage/; docs/game-engines.md)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ from pathlib import Path
 def add_parser(sub, name: str) -> None:
     p = sub.add_parser(name,
                        description="Export a checkpoint for shipping: EMA weights only, float16 by default.")
-    p.add_argument("--checkpoint", type=Path, required=True, help="checkpoint or training run folder")
+    p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint or training run folder (required but "
+                   "with --final-stage)")
     p.add_argument("--out", type=Path, required=True, help="release folder to write (replaced atomically)")
     p.add_argument("--card", type=Path, default=None, help="model card (markdown) copied in as MODEL_CARD.md")
     p.add_argument("--dtype", default="float16", choices=("float16", "bfloat16", "float32"))
@@ -42,10 +44,23 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--adapter", type=Path, action="append", default=None,
                    help="with --onnx: an adapter file from `smf adapt`, merged into the graphs' weights (repeat it to "
                         "merge several): the adapted model for the runtime, the browser page and Blender")
+    p.add_argument("--final-stage", action="store_true",
+                   help="instead: write the final stage's graphs (contacts.onnx, cleanup.onnx: the footskate cleanup "
+                        "as the Python runs it, float64) into --out; any model's, needs no checkpoint")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> None:
+    from ..errors import SMFError
+
+    if args.final_stage:
+        from ..onnx_export import export_final_stage
+
+        for path in export_final_stage(args.out):
+            print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)")
+        return
+    if args.checkpoint is None:
+        raise SMFError("--checkpoint is required (but with --final-stage)")
     if args.onnx:
         from ..onnx_export import export_onnx
 
@@ -57,7 +72,6 @@ def run(args: argparse.Namespace) -> None:
     import torch
 
     from ..diffusion.checkpoint import export_checkpoint
-    from ..errors import SMFError
 
     if args.adapter:
         raise SMFError("--adapter goes with --onnx (the graphs of the adapted model); elsewhere load adapters with "

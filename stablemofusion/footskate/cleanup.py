@@ -15,8 +15,11 @@ The body is a :class:`~stablemofusion.motion.rigid.RigidMotion`, so the cleanup 
    (:mod:`~stablemofusion.motion.ik`).
 
 Back to features (:func:`cleanup_features`): the cleaned body is written in the body frames of the input
-features (:func:`~stablemofusion.motion.rigid.rigid_to_features`), so the features decode to its joints. The
-JavaScript runtime (``assets/runtime/cleanup.js``) runs the same steps; tests hold the two together.
+features (:func:`~stablemofusion.motion.rigid.rigid_to_features`), so the features decode to its joints.
+
+Steps 1-5 are written once, against the array API, vectorised over motions and without loops over frames: numpy
+runs them here; traced in torch they are the ONNX graphs the page, Node.js and game engines run
+(:func:`~stablemofusion.onnx_export.export_final_stage`, shipped in ``assets/final_stage/``).
 """
 
 from __future__ import annotations
@@ -27,13 +30,15 @@ from typing import Callable
 import numpy as np
 
 from ..errors import SMFError
-from ..motion.features import feature_slices, features_from_joints, smoothstep
+from ..motion import timeseries as ts
+from ..motion.arrays import device, namespace
+from ..motion.features import feature_slices, features_from_joints
 from ..motion.ik import LEG_CHAIN_JOINTS, hann_window, place_legs, reach_shift
 from ..motion.lean import LEAN_SHARE, lean_into_turns
 from ..motion import rigid_batch
 from ..motion.rigid import (DEFAULT_FIT, RigidFitConfig, RigidMotion, fit_rigid,
                             rigid_from_features_many, rigid_to_features)
-from .contacts import HML_FOOT_JOINTS, KinematicContactConfig, contacts_from_vgrf, kinematic_contacts, runs
+from .contacts import HML_FOOT_JOINTS, KinematicContactConfig, contacts_from_vgrf, contacts_of_feet
 
 VgrfModel = Callable  # torch: (B, T, 22, 3) metres, Y up, 20 fps -> (B, T, 2, 16); the vGRF route needs torch
 CONTACT_ROUTES = ("kinematic", "vgrf")
@@ -43,6 +48,10 @@ CONTACT_ROUTES = ("kinematic", "vgrf")
 CLEANUP_CONTACTS = KinematicContactConfig(speed_on=1.5, speed_off=1.875, height_on=0.06, height_off=0.08)
 # a joints file keeps its own skeleton: bone lengths are the motion's median
 JOINTS_FIT = RigidFitConfig(bone_lengths="median", start="positions")
+# a contact is cut each time its joint has gone this many max_slide further from where the contact started: a glide
+# of constant speed then has its positions within max_slide of each piece's mean (closest, in held frames, to
+# cutting where a position strays max_slide from the running mean)
+PIECE = 1.5
 
 
 @dataclass(frozen=True)
@@ -71,177 +80,202 @@ class CleanupResult:
     motion: RigidMotion
 
 
-def split_contact(points: np.ndarray, max_shift: float) -> list[tuple[int, int]]:
-    """Split one contact interval of a joint's positions (n, 3) into [(start, stop)) pieces in which no
-    position lies further than ``max_shift`` (m, horizontally) from the piece's mean: a piece grows frame by
-    frame until one of its positions strays, and the next piece starts there."""
-    pieces, a, n = [], 0, len(points)
-    lo, hi = points[:, [0, 2]].min(0), points[:, [0, 2]].max(0)
-    if np.hypot(*(hi - lo)) <= max_shift:  # every mean lies in the box: nothing can stray (the usual case)
-        return [(0, n)]
-    while True:
-        xz = points[a:, [0, 2]]
-        means = np.cumsum(xz, 0) / np.arange(1, len(xz) + 1)[:, None]  # row m: the mean of the first m + 1
-        far = np.linalg.norm(xz[None] - means[:, None], axis=-1)  # (m, i): position i from that mean
-        worst = np.where(np.tri(len(xz), dtype=bool), far, 0.0).max(1)  # over the positions i <= m
-        over = np.flatnonzero(worst > max_shift)
-        if not len(over):
-            pieces.append((a, n))
-            return pieces
-        b = a + max(int(over[0]), 1)
-        pieces.append((a, b))
-        a = b
+def _series(x):
+    """(B, T, K, ...) -> (B * K, T, ...): each foot joint's frames as one series."""
+    xp = namespace(x)
+    B, T, K = x.shape[:3]
+    order = (0, 2, 1, *range(3, x.ndim))
+    return xp.reshape(xp.permute_dims(x, order), (B * K, T, *x.shape[3:]))
 
 
-def holds(points: np.ndarray, contacts: np.ndarray, max_slide: float, cut_gap: int, fps: float = 20.0,
-          catch_up: float = 1.2) -> tuple[np.ndarray, np.ndarray]:
-    """Where each foot joint is held: ``points`` (T, K, 3) metres, ``contacts`` (T, K) bool -> the place (T, K, 3)
-    and a mask (T, K) of the held frames. A contact is cut into pieces that stray at most ``max_slide`` m
-    (:func:`split_contact`), each held at the mean of its positions; ``cut_gap`` frames either side of a cut are
-    left free. Then two holds of a joint are kept apart long enough for the foot to move from one to the next
-    (:func:`bridge`) at most ``catch_up`` m/s faster than the motion moved it: the earlier is released and the
-    later caught a frame later, in turn, until they are."""
-    T, K = contacts.shape
-    place = np.array(points, dtype=np.float64, copy=True)
-    held = np.zeros((T, K), dtype=bool)
-    for k in range(K):
-        spans = runs(contacts[:, k])
-        if not spans:
-            continue
-        # the usual contact needs no cut: its positions' box is within max_slide (then every mean is close to
-        # every position); the box and the mean of every contact at once
-        edges = np.asarray(spans).ravel()
-        xz = np.concatenate([points[:, k, [0, 2]], points[-1:, k, [0, 2]]])
-        box = np.maximum.reduceat(xz, edges)[0::2] - np.minimum.reduceat(xz, edges)[0::2]
-        whole = np.hypot(box[:, 0], box[:, 1]) <= max_slide
-        sums = np.concatenate([np.zeros((1, 3)), np.cumsum(points[:, k], 0)])
-        for (a, b), one in zip(spans, whole):
-            pieces = [(0, b - a)] if one else split_contact(points[a:b, k], max_slide)
-            for i, (a2, b2) in enumerate(pieces):
-                lo = a + a2 + (cut_gap if i > 0 else 0)
-                hi = a + b2 - (cut_gap if i < len(pieces) - 1 else 0)
-                if hi - lo < 1:
-                    continue
-                place[lo:hi, k] = (sums[hi] - sums[lo]) / (hi - lo)
-                held[lo:hi, k] = True
-        _space_holds(points[:, k], place[:, k], held[:, k], 1.5 * fps / catch_up)
-    return place, held
+def _unseries(x, B: int):
+    """(B * K, T, ...) -> (B, T, K, ...), the inverse of :func:`_series`."""
+    xp = namespace(x)
+    K = x.shape[0] // B
+    y = xp.reshape(x, (B, K, *x.shape[1:]))
+    return xp.permute_dims(y, (0, 2, 1, *range(3, y.ndim)))
 
 
-def _space_holds(points: np.ndarray, place: np.ndarray, held: np.ndarray, frames_per_metre: float) -> None:
-    """In place on ``held`` (T,): release the ends of consecutive holds until the frames between the last frame of
-    one and the first of the next are at least ``frames_per_metre`` times the change of the pull (place minus
-    position, horizontally) between them (a smoothstep's peak speed is 1.5x its mean)."""
-    pull = (place - points)[:, [0, 2]]
-    spans = runs(held)
-    for (a1, e1), (s2, b2) in zip(spans[:-1], spans[1:]):
-        last, first, turn = e1 - 1, s2, 0
-        while last >= a1 and first < b2 and first - last < frames_per_metre * np.linalg.norm(pull[first] - pull[last]):
-            if turn % 2 == 0:
-                held[last] = False
-                last -= 1
-            else:
-                held[first] = False
-                first += 1
-            turn += 1
+def _xz(v):
+    xp = namespace(v)
+    return xp.stack([v[..., 0], v[..., 2]], axis=-1)
+
+
+def hold_places(points, contacts, max_slide: float, cut_gap: int):
+    """Each contact of joint series ``points`` (N, T, 3) metres, ``contacts`` (N, T) bool, held at the mean of its
+    positions: the place (N, T, 3) and the held frames (N, T). A contact whose joint travels away from where it
+    started is cut into pieces, one each time it has gone another :data:`PIECE` x ``max_slide`` (m, horizontally)
+    further than ever before, so a piece's positions lie within about ``max_slide`` of its mean; ``cut_gap``
+    frames either side of a cut are left free for the foot to move to its next hold."""
+    xp = namespace(points)
+    c = contacts
+    t = ts.frames(c)[None]
+    start, stop = ts.last_true(~c) + 1, ts.next_true(~c)  # of the contact a frame is in
+    xz = _xz(points)
+    away = xp.where(c, ts.norm(xz - ts.at(xz, start)), xp.zeros_like(xz[..., 0]))
+    first = c & ~ts.shifted(c, 1, False)
+    run = xp.astype(xp.cumulative_sum(xp.astype(first, xp.int64), axis=1), away.dtype)
+    # the furthest the joint has been from its contact's start so far (the run's index keeps contacts apart)
+    furthest = ts.cummax(run * 1e4 + away) - run * 1e4
+    piece = xp.floor(furthest / ts.const(furthest, PIECE * max_slide))
+    begins = c & (first | (piece != ts.shifted(piece, 1, -1.0)))
+    ends = c & (~ts.shifted(c, -1, False) | ts.shifted(begins, -1, False))
+    a, b = ts.last_true(begins), ts.next_true(ends) + 1  # the piece a frame is in
+    zero = xp.zeros_like(a)
+    lo = a + xp.where(a > start, zero + cut_gap, zero)
+    hi = b - xp.where(b < stop, zero + cut_gap, zero)
+    held = c & (t >= lo) & (t < hi)
+    sums = xp.concat([xp.zeros_like(points[:, :1]), xp.cumulative_sum(points, axis=1)], axis=1)  # (N, T + 1, 3)
+    mean = (ts.at(sums, hi) - ts.at(sums, lo)) / xp.astype(xp.maximum(hi - lo, 1), points.dtype)[..., None]
+    return xp.where(held[..., None], mean, points), held
+
+
+def spaced(pull, held, frames_per_metre: float, rounds: int = 3):
+    """``held`` (N, T) with the ends of consecutive holds released until the frames between the last frame of one
+    and the first of the next are at least ``frames_per_metre`` times the change of ``pull`` (N, T, 2) (hold minus
+    position, metres) between them: the earlier hold loses the first, third ... frame missing, the later the
+    second, fourth ...; ``rounds`` times, as the pull at the new ends differs."""
+    xp = namespace(held)
+    T = ts.count(held)
+    t = ts.frames(held)[None]
+    for _ in range(rounds):
+        a, b = ts.last_true(~held) + 1, ts.next_true(~held)  # the hold a frame is in
+        before = ts.at(ts.last_true(held), a - 1)  # the previous hold's last frame
+        before = xp.where(a > 0, before, xp.full_like(before, -1))
+        after = xp.where(b < T, ts.at(ts.next_true(held), b), b * 0 + T)  # the next hold's first frame
+
+        def missing(last, first, exists):  # frames the gap from last to first lacks
+            need = xp.ceil(frames_per_metre * ts.norm(ts.at(pull, first) - ts.at(pull, last)))
+            lack = xp.clip(xp.astype(need, last.dtype) - (first - last), 0, None)
+            return xp.where(exists, lack, xp.zeros_like(lack))
+
+        late = missing(b - 1, after, after < T)  # this hold and the next
+        early = missing(before, a, before >= 0)  # the previous hold and this
+        held = held & (t >= a + early // 2) & (t < b - (late + 1) // 2)
+    return held
+
+
+def holds(points, contacts, max_slide: float, cut_gap: int, fps: float = 20.0, catch_up: float = 1.2):
+    """Where each foot joint is held: ``points`` (B, T, K, 3) metres, ``contacts`` (B, T, K) bool -> the place
+    (B, T, K, 3) and a mask (B, T, K) of the held frames (one motion: without B). Each contact is held at the mean
+    of its positions, cut into pieces where it strays (:func:`hold_places`); then two holds of a joint are kept
+    apart long enough for the foot to move from one to the next (:func:`bridge`) at most ``catch_up`` m/s faster
+    than the motion moved it (:func:`spaced`; a smoothstep's peak speed is 1.5x its mean)."""
+    if points.ndim == 3:
+        place, held = holds(points[None], contacts[None], max_slide, cut_gap, fps, catch_up)
+        return place[0], held[0]
+    B = points.shape[0]
+    pts = _series(points)
+    place, held = hold_places(pts, _series(contacts), max_slide, cut_gap)
+    held = spaced(_xz(place - pts), held, 1.5 * fps / catch_up)
+    return _unseries(place, B), _unseries(held, B)
+
+
+def bridged(offset, held):
+    """``offset`` (N, T, C) known where ``held`` (N, T) -> (N, T, C) everywhere: across each free stretch between two
+    held frames it eases (smoothstep in time) from the offset before to the one after; before the first and after
+    the last held frame it stays at the nearest one; all zeros where nothing is held."""
+    xp = namespace(offset)
+    T = ts.count(held)
+    before, after = ts.last_true(held), ts.next_true(held)
+    b = xp.where(before < 0, after, before)
+    a = xp.where(after >= T, before, after)
+    span = xp.astype(xp.maximum(a - b, 1), offset.dtype)
+    s = ts.smoothstep(xp.astype(ts.frames(held)[None] - b, offset.dtype) / span)[..., None]
+    out = (1 - s) * ts.at(offset, b) + s * ts.at(offset, a)
+    return xp.where((before[:, -1:] >= 0)[..., None], out, xp.zeros_like(out))
 
 
 def bridge(offset: np.ndarray, held: np.ndarray) -> np.ndarray:
-    """``offset`` (T, C) known where ``held`` (T,) -> (T, C) everywhere: across each free stretch between two held
-    frames it eases (smoothstep in time) from the offset before to the one after; before the first and after the
-    last held frame it stays at the nearest one; all zeros where nothing is held."""
-    T = len(held)
-    if not held.any():
-        return np.zeros_like(offset)
-    before = np.maximum.accumulate(np.where(held, np.arange(T), -1))  # last held frame at or before t
-    after = np.minimum.accumulate(np.where(held, np.arange(T), T)[::-1])[::-1]  # first held frame at or after t
-    b = np.where(before < 0, after, before)
-    a = np.where(after >= T, before, after)
-    span = np.maximum(a - b, 1)
-    s = smoothstep((np.arange(T) - b) / span)[:, None]
-    return (1 - s) * offset[b] + s * offset[a]
+    """:func:`bridged` of one series: ``offset`` (T, C), ``held`` (T,) -> (T, C)."""
+    return bridged(np.asarray(offset, dtype=np.float64)[None], np.asarray(held, bool)[None])[0]
 
 
-def foot_shifts(points: np.ndarray, place: np.ndarray, held: np.ndarray, ramp: int) -> np.ndarray:
-    """(T, 2, 3) how far to move each foot (left, right) as one piece so that its held joints stay at their holds
-    (``points``, ``place`` (T, 4, 3), ``held`` (T, 4) in HumanML3D's contact order: left ankle, left toe, right
+def foot_shifts(points, place, held, ramp: int):
+    """(B, T, 2, 3) how far to move each foot (left, right) as one piece so that its held joints stay at their holds
+    (``points``, ``place`` (B, T, 4, 3), ``held`` (B, T, 4) in HumanML3D's contact order: left ankle, left toe, right
     ankle, right toe); horizontal only. Each joint's pull (hold minus position) is known where it is held and eased
-    across the frames between (:func:`bridge`), so a foot travels the whole swing to its next footprint; a foot's
-    shift blends its heel's and toe's pulls by how firmly each is held around that frame (``ramp`` frames either side),
-    so neither a hand-over from heel to toe nor a release ever jumps."""
-    pull = place - points  # (T, 4, 3)
-    pull[..., 1] = 0.0
-    kernel = hann_window(ramp)
-    out = np.zeros((len(points), 2, 3))
-    for f, (ankle, toe) in enumerate(((0, 1), (2, 3))):
-        w = np.stack([np.convolve(held[:, j].astype(float), kernel, mode="same") for j in (ankle, toe)], -1) + 1e-3
-        o = np.stack([bridge(pull[:, j], held[:, j]) for j in (ankle, toe)], 1)  # (T, 2, 3)
-        out[:, f] = (w[..., None] * o).sum(1) / w.sum(-1, keepdims=True)
-    return out
+    across the frames between (:func:`bridged`), so a foot travels the whole swing to its next footprint; a foot's
+    shift blends its heel's and toe's pulls by how firmly each is held around that frame (``ramp`` frames either
+    side), so neither a hand-over from heel to toe nor a release ever jumps."""
+    xp = namespace(points)
+    B = points.shape[0]
+    flat = xp.asarray([1.0, 0.0, 1.0], dtype=points.dtype, device=device(points))
+    h = _series(held)
+    w = _unseries(ts.window(xp.astype(h, points.dtype), hann_window(ramp), edge=False) + ts.const(points, 1e-3), B)
+    o = _unseries(bridged(_series((place - points) * flat), h), B)  # (B, T, 4, 3)
+    feet = [(w[..., j:j + 1] * o[:, :, j] + w[..., j + 1:j + 2] * o[:, :, j + 1])
+            / (w[..., j:j + 1] + w[..., j + 1:j + 2]) for j in (0, 2)]
+    return xp.stack(feet, axis=2)
 
 
-def bridge_lift(shift: np.ndarray, held: np.ndarray, share: float, most: float) -> np.ndarray:
-    """(T,) metres to lift a foot while it travels between two holds further than the motion took it: across each
-    free stretch, an arc (4 s (1 - s), s the stretch's progress) of height ``share`` times the change of its shift
-    ``shift`` (T, 3) over the stretch, at most ``most``; zero elsewhere. A foot carried to its next footprint is
-    stepped there, not slid along the floor."""
-    T = len(held)
-    out = np.zeros(T)
-    spans = runs(held)
-    for (_, e1), (s2, _) in zip(spans[:-1], spans[1:]):
-        last, first = e1 - 1, s2
-        h = min(share * float(np.linalg.norm(shift[first, [0, 2]] - shift[last, [0, 2]])), most)
-        x = (np.arange(last + 1, first) - last) / (first - last)
-        out[last + 1:first] = 4 * x * (1 - x) * h
-    return out
+def bridge_lift(shift, held, share: float, most: float):
+    """(N, T) metres to lift a foot while it travels between two holds further than the motion took it: across
+    each free stretch, an arc (4 s (1 - s), s the stretch's progress) of height ``share`` times the change of its
+    shift ``shift`` (N, T, 3) over the stretch, at most ``most``; zero elsewhere. A foot carried to its next
+    footprint is stepped there, not slid along the floor."""
+    xp = namespace(shift)
+    T = ts.count(held)
+    last, first = ts.last_true(held), ts.next_true(held)
+    free = ~held & (last >= 0) & (first < T)
+    h = xp.clip(ts.const(shift, share) * ts.norm(_xz(ts.at(shift, first) - ts.at(shift, last))), None,
+                ts.const(shift, most))
+    x = xp.astype(ts.frames(held)[None] - last, shift.dtype) / xp.astype(xp.maximum(first - last, 1), shift.dtype)
+    return xp.where(free, 4 * x * (1 - x) * h, xp.zeros_like(h))
 
 
-def detect_contacts(joints: np.ndarray, fps: float, config: CleanupConfig,
-                    vgrf_model: VgrfModel | None = None) -> np.ndarray:
-    """Contacts (T, 4) by the route named in ``config.contacts``."""
+def detect_contacts(joints, fps: float, config: CleanupConfig, vgrf_model: VgrfModel | None = None):
+    """Contacts (B, T, 4) of joints (B, T, 22, 3) by the route named in ``config.contacts`` (one motion: without B)."""
+    if joints.ndim == 3:
+        return detect_contacts(joints[None], fps, config, vgrf_model)[0]
     if config.contacts == "kinematic":
-        return kinematic_contacts(joints, fps, config=config.kinematic)
+        return contacts_of_feet(joints[:, :, list(HML_FOOT_JOINTS)], fps, config.kinematic)
     if config.contacts == "vgrf":
         if vgrf_model is None:
             raise SMFError("contacts='vgrf' needs a vGRF model (a distilled 22-joint model or UnderPressure)")
         import torch
 
         with torch.no_grad():
-            f = vgrf_model(torch.as_tensor(joints, dtype=torch.float32)[None])[0].double().numpy()
-        return contacts_from_vgrf(f, fps)
+            f = vgrf_model(torch.as_tensor(np.asarray(joints), dtype=torch.float32)).double().numpy()
+        return np.stack([contacts_from_vgrf(one, fps) for one in f])
     raise SMFError(f"unknown contact route {config.contacts!r}; choose from {', '.join(CONTACT_ROUTES)}")
 
 
-def clean_joints(joints: np.ndarray, contacts: np.ndarray, bone_lengths: np.ndarray, fps: float,
-                 config: CleanupConfig = CleanupConfig()) -> tuple[np.ndarray, np.ndarray]:
-    """The cleanup of rigid joints (T, 22, 3) metres (Y up, floor y = 0) with ``contacts`` (T, 4): the body leans
-    into its turns, planted feet are held (:func:`holds`, :func:`foot_shifts`), the pelvis moves where a
+def clean_joints(joints, contacts, bone_lengths, fps: float, config: CleanupConfig = CleanupConfig()):
+    """The cleanup of rigid joints (B, T, 22, 3) metres (Y up, floor y = 0) with ``contacts`` (B, T, 4): the body
+    leans into its turns, planted feet are held (:func:`holds`, :func:`foot_shifts`), the pelvis moves where a
     leg could not reach its foot (:func:`~stablemofusion.motion.ik.reach_shift`), and the legs are placed by IK.
-    Bone lengths ``bone_lengths`` (22,) are kept. Returns the joints (T, 22, 3) and the held frames (T, 4)."""
-    x0 = np.asarray(joints, dtype=np.float64)
-    feet = x0[:, list(HML_FOOT_JOINTS)]  # (T, 4, 3)
+    Bone lengths ``bone_lengths`` (B, 22) are kept. Returns the joints (B, T, 22, 3) and the held frames (B, T, 4);
+    one motion: without B. Array API and loop-free: the ONNX graph of the final stage is this function."""
+    xp = namespace(joints)
+    if joints.ndim == 3:
+        x, held = clean_joints(joints[None], contacts[None], bone_lengths[None], fps, config)
+        return x[0], held[0]
+    x0 = joints
+    feet = xp.stack([x0[:, :, j] for j in HML_FOOT_JOINTS], axis=2)  # (B, T, 4, 3)
     ramp = max(1, int(round(config.blend * fps)))  # frames
     place, held = holds(feet, contacts, config.max_slide, ramp, fps, config.catch_up)
-    shift = foot_shifts(feet, place, held, ramp)  # (T, 2, 3)
-    ankles = x0[:, [7, 8]] + shift
-    toes = x0[:, [10, 11]] + shift
+    shift = foot_shifts(feet, place, held, ramp)  # (B, T, 2, 3)
+    ankles = xp.stack([x0[:, :, 7], x0[:, :, 8]], axis=2) + shift
+    toes = xp.stack([x0[:, :, 10], x0[:, :, 11]], axis=2) + shift
     if config.lift > 0:
-        for f, (ankle, toe) in enumerate(((0, 1), (2, 3))):
-            up = bridge_lift(shift[:, f], held[:, ankle] | held[:, toe], config.lift, config.max_lift)
-            ankles[:, f, 1] += up
-            toes[:, f, 1] += up
+        up = xp.stack([bridge_lift(shift[:, :, f], held[:, :, a] | held[:, :, t], config.lift, config.max_lift)
+                       for f, (a, t) in enumerate(((0, 1), (2, 3)))], axis=2)  # (B, T, 2)
+        zero = xp.zeros_like(up)
+        lift = xp.stack([zero, up, zero], axis=-1)
+        ankles, toes = ankles + lift, toes + lift
     if config.toes_on_floor:  # a planted toe goes to the floor, a toe below it comes up: the foot turns
         kernel = hann_window(ramp)
         kernel /= kernel.sum()
-        for f, k in ((0, 1), (1, 3)):
-            down = np.clip(np.convolve(held[:, k].astype(float), kernel, mode="same"), 0.0, 1.0)
-            y = toes[:, f, 1]
-            toes[:, f, 1] = np.maximum(y - down * y, 0.0)
-    x = lean_into_turns(x0, fps, config.lean) if config.lean > 0 else x0.copy()
-    move = reach_shift(x, ankles, bone_lengths, fps, config.reach_smooth)
-    if move.any():
-        body = [j for j in range(x.shape[1]) if j not in LEG_CHAIN_JOINTS]
-        x[:, body] += move[:, None]
+        down = xp.clip(ts.window(xp.astype(xp.stack([held[:, :, 1], held[:, :, 3]], axis=-1), x0.dtype), kernel,
+                                 edge=False), 0.0, 1.0)  # (B, T, 2)
+        y = toes[..., 1]
+        toes = xp.stack([toes[..., 0], xp.clip(y - down * y, 0.0, None), toes[..., 2]], axis=-1)
+    x = lean_into_turns(x0, fps, config.lean) if config.lean > 0 else x0
+    move = reach_shift(x, ankles, bone_lengths, fps, config.reach_smooth)  # (B, T, 3)
+    body = np.ones((x.shape[2], 1), dtype=x0.dtype if xp is np else np.float64)
+    body[list(LEG_CHAIN_JOINTS)] = 0.0
+    x = x + move[:, :, None] * xp.asarray(body, dtype=x0.dtype, device=device(x0))
     return place_legs(x, ankles, toes, bone_lengths), held
 
 
@@ -290,16 +324,22 @@ def cleanup_features_many(features: list[np.ndarray], config: CleanupConfig = Cl
     """HumanML3D features (T_i, 263) in dataset units -> per motion the cleaned features (T_i, 263) and the cleaned
     rigid body they decode to: the rigid fits of all the features together (``rigid``; each motion's fit is the
     one it gets alone), :func:`cleanup_rigid` of each, then each body written in its input's body frames
-    (:func:`~stablemofusion.motion.rigid.rigid_to_features`)."""
+    (:func:`~stablemofusion.motion.rigid.rigid_to_features`). Motions of one length are cleaned together."""
     fs = [np.asarray(f, dtype=np.float64) for f in features]
     for f in fs:
         if f.ndim != 2 or f.shape[1] != 263 or len(f) < 2:
             raise SMFError(f"expected features of shape (T>=2, 263), got {tuple(f.shape)}")
     bodies = rigid_from_features_many(fs, "humanml3d", rigid)
-    cleaned = []
-    for b in bodies:
-        x = b.joints()
-        cleaned.append(clean_joints(x, detect_contacts(x, fps, config, vgrf_model), b.bone_lengths, fps, config))
+    cleaned: list = [None] * len(bodies)
+    by_length: dict[int, list[int]] = {}
+    for i, b in enumerate(bodies):
+        by_length.setdefault(len(b), []).append(i)
+    for group in by_length.values():  # motions of one length are cleaned as one batch
+        x = np.stack([bodies[i].joints() for i in group])
+        lengths = np.stack([bodies[i].bone_lengths for i in group])
+        joints, held = clean_joints(x, detect_contacts(x, fps, config, vgrf_model), lengths, fps, config)
+        for k, i in enumerate(group):
+            cleaned[i] = (joints[k], held[k])
     out = []
     for body, f in zip(bodies_of_joints([x for x, _ in cleaned], [b.bone_lengths for b in bodies],
                                         [held for _, held in cleaned]), fs):

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import SMFError
+from ..motion import timeseries as ts
+from ..motion.arrays import device, namespace
 
 HML_FOOT_JOINTS = (7, 10, 8, 11)  # left ankle, left toe, right ankle, right toe (HumanML3D)
 UP_FOOT_JOINTS = (21, 22, 17, 18)  # the same on UnderPressure's 23-joint skeleton
@@ -39,39 +41,55 @@ def runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(d[::2].tolist(), d[1::2].tolist()))
 
 
+def durations_cleaned(c, min_on: int, min_gap: int):
+    """(N, T) bool: interior gaps shorter than ``min_gap`` frames filled, then runs shorter than ``min_on`` frames
+    dropped (array API, loop-free)."""
+    T = ts.count(c)
+    before, after = ts.last_true(c), ts.next_true(c)  # around a gap: its start - 1 and its end
+    fill = ~c & (before >= 0) & (after < T) & (after - before - 1 < min_gap)
+    c = c | fill
+    start, stop = ts.last_true(~c) + 1, ts.next_true(~c)  # of the run a contact frame is in
+    return c & (stop - start >= min_on)
+
+
 def clean_durations(mask: np.ndarray, min_on: int, min_gap: int) -> np.ndarray:
     """(T, K) bool: fill interior gaps shorter than ``min_gap`` frames, then drop runs shorter than
     ``min_on`` frames."""
-    out = np.array(mask, dtype=bool, copy=True)
-    for k in range(out.shape[1]):
-        col = out[:, k]
-        for a, b in runs(~col):
-            if 0 < a and b < len(col) and b - a < min_gap:
-                col[a:b] = True
-        for a, b in runs(col):
-            if b - a < min_on:
-                col[a:b] = False
-    return out
+    m = np.asarray(mask, dtype=bool)
+    return durations_cleaned(m.T, min_on, min_gap).T.copy()
 
 
-def _hysteresis(enter: np.ndarray, stay: np.ndarray) -> np.ndarray:
-    """(T, K): contact starts where ``enter`` holds and lasts while ``stay`` holds (enter implies stay)."""
-    out = np.zeros_like(enter, dtype=bool)
-    state = enter[0].copy()
-    out[0] = state
-    for t in range(1, len(enter)):
-        state = np.where(state, stay[t], enter[t])
-        out[t] = state
-    return out
+def hysteresis(enter, stay):
+    """(N, T) bool: a contact starts where ``enter`` holds and lasts while ``stay`` holds (enter implies stay): on
+    at t when the last frame that entered comes after the last frame that could not stay."""
+    return ts.last_true(enter) > ts.last_true(~(stay | enter))
 
 
-def _percentile(x: np.ndarray, q: float) -> np.ndarray:
-    """np.percentile(x, q, axis=0) with linear interpolation, without its overhead: (T, K) -> (K,)."""
-    s = np.sort(x, axis=0)
-    pos = q / 100.0 * (len(s) - 1)
-    lo = int(np.floor(pos))
-    hi = min(lo + 1, len(s) - 1)
-    return s[lo] + (s[hi] - s[lo]) * (pos - lo)
+def contacts_of_feet(feet, fps: float, config: KinematicContactConfig, up_axis: int = 1):
+    """Kinematic contacts of foot joints ``feet`` (B, T, 4, 3) metres (left ankle, left toe, right ankle, right toe)
+    at ``fps``: (B, T, 4) bool (array API, loop-free; T >= 2)."""
+    xp = namespace(feet)
+    B, T = feet.shape[0], feet.shape[1]
+    h = feet[..., up_axis]  # (B, T, 4)
+    s = ts.sorted_in_time(h)  # the floor: the lower percentile of each joint's height, linearly interpolated
+    last = ts.count(h) - 1  # (1,) as an array: a traced T is symbolic
+    pos = xp.astype(last, h.dtype) * ts.const(h, config.floor_percentile / 100.0)
+    lo = xp.astype(xp.floor(pos), xp.int64)
+    hi = xp.minimum(lo + 1, last)
+    frac = pos - xp.astype(lo, pos.dtype)
+    at_lo = xp.take(s, lo, axis=1)[:, 0]
+    floor = at_lo + (xp.take(s, hi, axis=1)[:, 0] - at_lo) * frac  # (B, 4)
+    floor = xp.minimum(xp.take(floor, xp.asarray([0, 1, 0, 1], device=device(floor)), axis=1),
+                       xp.take(floor, xp.asarray([2, 3, 2, 3], device=device(floor)), axis=1))
+    h = h - floor[:, None]
+    speed = ts.norm(ts.gradient(feet)) * fps  # (B, T, 4)
+    k = lambda v: ts.const(h, v)  # noqa: E731
+    enter = (h < k(config.height_on)) & (speed < k(config.speed_on))
+    stay = (h < k(config.height_off)) & (speed < k(config.speed_off))
+    series = lambda x: xp.reshape(xp.permute_dims(x, (0, 2, 1)), (B * 4, T))  # noqa: E731
+    c = hysteresis(series(enter), series(stay))
+    c = durations_cleaned(c, max(1, round(config.min_contact * fps)), max(1, round(config.min_gap * fps)))
+    return xp.permute_dims(xp.reshape(c, (B, 4, T)), (0, 2, 1))
 
 
 def kinematic_contacts(joints: np.ndarray, fps: float, *, foot_joints: tuple[int, int, int, int] = HML_FOOT_JOINTS,
@@ -83,16 +101,7 @@ def kinematic_contacts(joints: np.ndarray, fps: float, *, foot_joints: tuple[int
         raise SMFError(f"expected joints of shape (T>=2, J, 3), got {tuple(joints.shape)}")
     if not fps > 0:
         raise SMFError(f"fps must be positive, got {fps}")
-    feet = joints[:, list(foot_joints)]
-    h = feet[..., up_axis]
-    floor = _percentile(h, config.floor_percentile)
-    floor = np.minimum(floor[[0, 1, 0, 1]], floor[[2, 3, 2, 3]])  # ankles share a level, toes share a level
-    h = h - floor
-    speed = np.linalg.norm(np.gradient(feet, axis=0), axis=-1) * fps
-    enter = (h < config.height_on) & (speed < config.speed_on)
-    stay = (h < config.height_off) & (speed < config.speed_off)
-    c = _hysteresis(enter, stay | enter)
-    return clean_durations(c, max(1, round(config.min_contact * fps)), max(1, round(config.min_gap * fps)))
+    return contacts_of_feet(joints[None][:, :, list(foot_joints)], fps, config, up_axis)[0]
 
 
 def contacts_from_vgrf(forces: np.ndarray, fps: float, *, foot_threshold: float = 0.10,

@@ -27,6 +27,8 @@ _NUMPY_IS_ARRAY_API = all(hasattr(np, f) for f in ("concat", "unstack", "cumulat
 
 def namespace(*arrays: Any):
     """The array namespace (numpy's or torch's, array API) of the arrays given (None and numbers ignored)."""
+    if _NUMPY_IS_ARRAY_API and type(arrays[0]) is np.ndarray and all(type(a) is np.ndarray for a in arrays[1:]):
+        return np  # the common case, first: the final stage asks this a few hundred times a motion
     xs = [a for a in arrays if a is not None and not isinstance(a, (int, float, bool))]
     if _NUMPY_IS_ARRAY_API and all(type(a) is np.ndarray for a in xs):
         return np

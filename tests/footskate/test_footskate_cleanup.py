@@ -9,7 +9,7 @@ import torch
 
 from stablemofusion.errors import SMFError
 from stablemofusion.footskate.cleanup import (CleanupConfig, align_yaw_xz, bridge, cleanup_features, cleanup_joints,
-                                              cleanup_rigid, features_from_cleaned, holds, split_contact)
+                                              cleanup_rigid, features_from_cleaned, hold_places, holds)
 from stablemofusion.footskate.metrics import joint_change, pop_frames, skate_ratio
 from stablemofusion.motion.features import bone_lengths, features_from_joints, joints_from_features
 from stablemofusion.motion.rigid import bone_length_deviation, rigid_from_features
@@ -85,17 +85,18 @@ def test_cleanup_keeps_bone_lengths(wave, add_root_slide):
     assert np.allclose(res.motion.joints(), res.joints)
 
 
-def test_split_contact():
-    """A 'contact' in which the foot travels 1 m is split into pieces that stay within the allowed shift."""
-    pts = np.zeros((20, 3))
-    pts[:, 0] = np.linspace(0.0, 1.0, 20)
-    pieces = split_contact(pts, 0.15)
-    assert pieces[0][0] == 0 and pieces[-1][1] == 20 and len(pieces) > 3
-    assert all(b2 == a2 for (_, b2), (a2, _) in zip(pieces[:-1], pieces[1:]))
-    for a, b in pieces:
-        xz = pts[a:b, [0, 2]]
-        assert np.linalg.norm(xz - xz.mean(0), axis=-1).max() <= 0.15
-    assert split_contact(pts[:3], 0.15) == [(0, 3)]
+def test_hold_places_cut_a_glide_into_pieces_and_never_a_still_foot():
+    """A 'contact' in which the foot travels 1 m is cut into pieces, each held within the allowed shift of where
+    the foot was, with free frames between; a planted foot that jitters by 2 cm is held in one piece."""
+    pts = np.zeros((1, 20, 3))
+    pts[0, :, 0] = np.linspace(0.0, 1.0, 20)
+    place, held = hold_places(pts, np.ones((1, 20), bool), 0.15, 1)
+    holds_at = np.unique(place[0, held[0], 0])
+    assert len(holds_at) > 3 and (~held[0]).sum() >= 2 * (len(holds_at) - 1)
+    assert np.abs(place[0, held[0]] - pts[0, held[0]]).max() <= 0.15
+    still = np.random.default_rng(0).uniform(-0.02, 0.02, (1, 40, 3))
+    place, held = hold_places(still, np.ones((1, 40), bool), 0.15, 3)
+    assert held.all() and np.allclose(place, still.mean(1))
 
 
 def test_cleanup_never_drags_a_foot_the_body_has_left():

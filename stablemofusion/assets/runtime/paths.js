@@ -1,8 +1,6 @@
 // Paths from words in JavaScript: the twin of stablemofusion/path_plan.py (parse_path, bend; its docstring explains
 // them), on the same lexicon (assets/lexicons/paths.json, given in the site's web.json as "paths", its patterns in
 // JavaScript's syntax). Features are flat Float64Arrays (T x D, HumanML3D's 263 per frame).
-import { kinematicContacts } from './cleanup.js';
-import { jointsFromFeatures } from './motion.js';
 
 const ZIGZAG_DEGREES = 45, ZIGZAG_LEGS = 4, ZIGZAG_END = 0.85;
 const TURN_SPAN = [0.3, 0.7], BACK_SPAN = [0.42, 0.58];
@@ -102,15 +100,13 @@ function headingOffset(spec, f, T, D) {
   return out;
 }
 
-// Raw features (T x D) whose facing follows `spec`, turned about the planted foot (a copy).
-export function bend(features, T, D, J, spec, cleanupSettings, fps) {
+// Raw features (T x D) whose facing follows `spec`, turned about the planted foot (a copy): `joints` the features'
+// joints (T x J x 3), `planted` their contacts (4 x T, the contacts graph's), `feet` the four foot joints.
+export function bend(features, joints, planted, T, D, J, spec, feet) {
   if (!spec || T < 2) return features;
   const f = Float64Array.from(features);
   const extra = headingOffset(spec, f, T, D);
   // the root's path once turned: each step with its frame, about the foot planted in both frames
-  const joints = jointsFromFeatures(f, T, D, J);
-  const planted = kinematicContacts(joints, T, J, fps, cleanupSettings);
-  const feet = cleanupSettings.foot_joints;
   const at = (t, j) => [joints[(t * J + j) * 3], joints[(t * J + j) * 3 + 2]];
   const turn = (t, v) => [Math.cos(extra[t]) * v[0] + Math.sin(extra[t]) * v[1], -Math.sin(extra[t]) * v[0] + Math.cos(extra[t]) * v[1]];
   const path = [[0, 0]];

@@ -1,10 +1,10 @@
 // Text to motion in JavaScript on the portable graphs (a folder written by `smf site`, model/): the JavaScript twin
-// of stablemofusion/runtime/pipeline.py for one prompt: the same tokenizer, graphs, sampler table, seeded noise,
-// rigid stage and footskate cleanup, so the same prompt, seed and length give the same joints. It runs in a
-// browser and in Node.js; the caller passes ONNX Runtime (onnxruntime-web) and the Tokenizer class
-// (@huggingface/tokenizers) and a function that reads a file of the folder.
+// of stablemofusion/runtime/pipeline.py for one prompt: the same tokenizer, graphs, sampler table, seeded noise and
+// rigid stage, so the same prompt, seed and length give the same joints. The footskate cleanup and the contacts a
+// path pivots on are not written here: they are the Python's own functions exported as graphs (contacts.onnx,
+// cleanup.onnx), run like the model's. It runs in a browser and in Node.js; the caller passes ONNX Runtime
+// (onnxruntime-web) and the Tokenizer class (@huggingface/tokenizers) and a function that reads a file of the folder.
 import { normal } from './noise.js';
-import { cleanupRigid } from './cleanup.js';
 import { bend, followWaypoints, parsePath, placeJoints, readWaypoints, waypointSeconds } from './paths.js';
 import { bvhText, fitRigid, jointsFromFeatures, recentre } from './motion.js';
 
@@ -14,7 +14,7 @@ export class MotionRuntime {
   // (['webgpu', 'wasm'] with its WebGPU build: what WebGPU cannot run falls back to WebAssembly).
   static async load({ ort, Tokenizer, read, onProgress = () => {}, providers = ['wasm'] }) {
     const info = await read('web.json', 'json');
-    const files = ['text_encoder', 'condition', 'denoise', 'length', 'ood'];
+    const files = Object.keys(info.files);
     const total = files.length + 2;
     let loaded = 0;
     const step = () => onProgress(++loaded, total);
@@ -56,6 +56,26 @@ export class MotionRuntime {
   }
 
   mask(n) { return new this.ort.Tensor('bool', new Uint8Array(n).fill(1), [1, n]); }
+
+  // The final stage's graphs on flat joints (T x J x 3 metres): 4 x T arrays of 0/1 (left ankle, left toe, right
+  // ankle, right toe) from a (1, T, 4) bool output.
+  perFoot(out, T) {
+    return [0, 1, 2, 3].map((k) => Uint8Array.from({ length: T }, (_, t) => (out.data[t * 4 + k] ? 1 : 0)));
+  }
+
+  // The feet the cleanup counts as planted (contacts.onnx: footskate/contacts.py's contacts_of_feet).
+  async contactsOf(flat, T, J) {
+    const out = await this.sessions.contacts.run({ joints: new this.ort.Tensor('float64', Float64Array.from(flat), [1, T, J, 3]) });
+    return this.perFoot(out.contacts, T);
+  }
+
+  // The footskate cleanup of rigid joints (cleanup.onnx: footskate/cleanup.py's clean_joints): {joints, held}.
+  async cleanup(flat, T, J, lengths) {
+    const Tn = this.ort.Tensor;
+    const out = await this.sessions.cleanup.run({ joints: new Tn('float64', Float64Array.from(flat), [1, T, J, 3]),
+      bone_lengths: new Tn('float64', Float64Array.from(lengths), [1, J]) });
+    return { joints: Float64Array.from(out.joints_out.data), held: this.perFoot(out.held, T) };
+  }
 
   // The closest known actions, the in-domain score and whether the prompt is out of domain.
   async domain(enc) {
@@ -144,10 +164,14 @@ export class MotionRuntime {
     const J = i.skeleton.parents.length, sk = i.skeleton;
     let placing = null;
     if (wp) ({ features, ...placing } = followWaypoints(features, n, D, wp, i.fps));
-    else features = bend(features, n, D, J, spec, i.cleanup, i.fps);
+    else if (spec) {
+      const raw = jointsFromFeatures(features, n, D, J);
+      features = bend(features, raw, await this.contactsOf(raw, n, J), n, D, J, spec, i.foot_joints);
+    }
     let flat = fitRigid(jointsFromFeatures(features, n, D, J), n, sk, sk.bone_lengths, i.rigid_sweeps);
     let contacts = null;
-    if (footskate === 'post') ({ joints: flat, held: contacts } = cleanupRigid(flat, n, sk.bone_lengths, i.fps, i.cleanup));
+    if (footskate === 'post') ({ joints: flat, held: contacts } = await this.cleanup(flat, n, J, sk.bone_lengths));
+    const planted = contacts ?? await this.contactsOf(flat, n, J);
     recentre(flat, n, J);
     if (placing) placeJoints(flat, n, J, placing.start, placing.origin);
     const joints = [];
@@ -157,8 +181,10 @@ export class MotionRuntime {
       joints.push(frame);
     }
     // contacts: the frames the cleanup held each foot joint (left ankle, left toe, right ankle, right toe), 4 x T 0/1
-    const motion = { joints, frames: n, fps: i.fps, prompt, seed, ...domain, ...(contacts ? { contacts } : {}) };
+    const motion = { joints, frames: n, fps: i.fps, prompt, seed, ...domain,
+      ...(contacts ? { contacts: contacts.map((c) => Array.from(c)) } : {}) };
     Object.defineProperty(motion, 'flat', { value: flat }); // (T x J x 3) as one array, not serialised
+    Object.defineProperty(motion, 'planted', { value: planted }); // the feet the cleanup held or would count planted
     return motion;
   }
 

@@ -5,7 +5,7 @@
 //   window.smf.timings: {loadMs, firstMotionMs, lastMotionMs, threads, backend ('webgpu' or 'wasm')}; await window.smf.file('bvh' | 'glb' | 'json') -> the
 //   last motion's download (a string, or bytes for glb).
 import { OrbitControls } from './vendor/three/OrbitControls.js';
-import { Figure, contactsOf, makeStage } from './figure.js';
+import { Figure, makeStage } from './figure.js';
 import { MotionRuntime } from './runtime/smf.js';
 import { glbBytes } from './glb.js';
 
@@ -108,9 +108,8 @@ function setFrame(t) {
 }
 function show(motion, ms) {
   Object.assign(player, { joints: Float32Array.from(motion.joints.flat(2)), frames: motion.frames, fps: motion.fps });
-  // the feet the cleanup held, else found on the joints (footskate off)
-  player.contacts = motion.contacts ? motion.contacts.map((c) => Uint8Array.from(c))
-    : contactsOf(player.joints, player.frames, player.fps);
+  // the feet the cleanup held, else those its contacts graph counts as planted (footskate off)
+  player.contacts = (motion.contacts ?? motion.planted).map((c) => Uint8Array.from(c));
   figure.visible = true;
   $('scrub').max = String(player.frames - 1);
   for (const id of ['scrub', 'play', ...Object.keys(DOWNLOADS)]) $(id).disabled = false;

@@ -71,7 +71,7 @@ def web_description(graphs) -> dict:
                     "embeddings": "actions.bin", "taught_from": len(actions["actions"]),
                     "taught_similarity": actions.get("taught_similarity", 1.0)},
         "tokenizer": "tokenizer.json",
-        "files": {name: f"{name}.onnx" for name in SITE_GRAPHS + FINAL_STAGE},
+        "files": {name: f"{name}.onnx" for name in SITE_GRAPHS + FINAL_STAGE}, "final_stage": list(FINAL_STAGE),
         "licence": MODEL_LICENCE,
     }
 

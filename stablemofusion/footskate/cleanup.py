@@ -36,8 +36,8 @@ from ..motion.features import feature_slices, features_from_joints
 from ..motion.ik import LEG_CHAIN_JOINTS, hann_window, place_legs, reach_shift
 from ..motion.lean import LEAN_SHARE, lean_into_turns
 from ..motion import rigid_batch
-from ..motion.rigid import (DEFAULT_FIT, RigidFitConfig, RigidMotion, fit_rigid,
-                            rigid_from_features_many, rigid_to_features)
+from ..motion.rigid import (DEFAULT_FIT, RigidFitConfig, RigidMotion, fit_rigid, rigid_joints_of_features,
+                            rigid_to_features)
 from .contacts import HML_FOOT_JOINTS, KinematicContactConfig, contacts_from_vgrf, contacts_of_feet
 
 VgrfModel = Callable  # torch: (B, T, 22, 3) metres, Y up, 20 fps -> (B, T, 2, 16); the vGRF route needs torch
@@ -329,20 +329,19 @@ def cleanup_features_many(features: list[np.ndarray], config: CleanupConfig = Cl
     for f in fs:
         if f.ndim != 2 or f.shape[1] != 263 or len(f) < 2:
             raise SMFError(f"expected features of shape (T>=2, 263), got {tuple(f.shape)}")
-    bodies = rigid_from_features_many(fs, "humanml3d", rigid)
-    cleaned: list = [None] * len(bodies)
+    rigid_joints, bone_lengths = rigid_joints_of_features(fs, "humanml3d", rigid)  # posed once, after the cleanup
+    cleaned: list = [None] * len(fs)
     by_length: dict[int, list[int]] = {}
-    for i, b in enumerate(bodies):
-        by_length.setdefault(len(b), []).append(i)
+    for i, x in enumerate(rigid_joints):
+        by_length.setdefault(len(x), []).append(i)
     for group in by_length.values():  # motions of one length are cleaned as one batch
-        x = np.stack([bodies[i].joints() for i in group])
-        lengths = np.stack([bodies[i].bone_lengths for i in group])
-        joints, held = clean_joints(x, detect_contacts(x, fps, config, vgrf_model), lengths, fps, config)
+        x = np.stack([rigid_joints[i] for i in group])
+        joints, held = clean_joints(x, detect_contacts(x, fps, config, vgrf_model), bone_lengths[group], fps, config)
         for k, i in enumerate(group):
             cleaned[i] = (joints[k], held[k])
     out = []
-    for body, f in zip(bodies_of_joints([x for x, _ in cleaned], [b.bone_lengths for b in bodies],
-                                        [held for _, held in cleaned]), fs):
+    for body, f in zip(bodies_of_joints([x for x, _ in cleaned], list(bone_lengths), [held for _, held in cleaned]),
+                       fs):
         motion, written = rigid_to_features(body, f, rigid)
         out.append((written, motion))
     return out

@@ -301,17 +301,40 @@ def fit_rigid_many(targets: list[np.ndarray], skeleton: str | Skeleton = "humanm
             out.append(optimise_pose(RigidMotion(offsets, rotations, x[:, 0].copy(), sk.name),
                                      _squared_distance(x * CM), config.iterations))
         return out
-    starts_at = np.cumsum([0] + [len(x) for x in xs[:-1]])
-    stacked = np.concatenate(xs)
-    begin = None if all(b is None for b in begins) else \
-        np.concatenate([x if b is None else np.asarray(b, dtype=np.float64) for x, b in zip(xs, begins)])
-    fitted = rigid_batch.fit_bodies(stacked, starts_at, lengths, config.iterations, sk, begin)
+    fitted, starts_at = _swept(xs, begins, lengths, sk, config)
     offsets, rotations = rigid_batch.pose_of_joints(fitted, starts_at, sk, lengths)
     root = fitted[:, 0].copy()
     joints = rigid_batch.positions_of_pose(rigid_batch.per_frame(offsets, starts_at, len(fitted)), rotations, root, sk)
     ends = np.append(starts_at[1:], len(fitted))
     return [RigidMotion(offsets[i], rotations[a:b], root[a:b], sk.name).with_joints(joints[a:b])
             for i, (a, b) in enumerate(zip(starts_at, ends))]
+
+
+def _swept(xs: list[np.ndarray], begins: list, lengths: np.ndarray, sk: Skeleton, config: RigidFitConfig
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """The block-sweep fit of every frame of the motions ``xs`` at once: rigid joints (N, J, 3) of all of them
+    stacked, and each motion's first frame in that stack."""
+    starts_at = np.cumsum([0] + [len(x) for x in xs[:-1]])
+    stacked = np.concatenate(xs)
+    begin = None if all(b is None for b in begins) else \
+        np.concatenate([x if b is None else np.asarray(b, dtype=np.float64) for x, b in zip(xs, begins)])
+    return rigid_batch.fit_bodies(stacked, starts_at, lengths, config.iterations, sk, begin), starts_at
+
+
+def rigid_joints_of_features(features: list[np.ndarray], skeleton: str | Skeleton = "humanml3d",
+                             config: RigidFitConfig = DEFAULT_FIT) -> tuple[list[np.ndarray], np.ndarray]:
+    """The joints (T_i, J, 3) metres of :func:`rigid_from_features_many`'s bodies and their bone lengths (M, J),
+    without the pose (rotations) of each body: for a stage that moves the joints before posing them (the
+    footskate cleanup). Block sweeps only."""
+    if config.method != "sweeps":
+        bodies = rigid_from_features_many(features, skeleton, config)
+        return [b.joints() for b in bodies], np.stack([b.bone_lengths for b in bodies])
+    sk = get_skeleton(skeleton)
+    targets, starts = _feature_targets(features, sk, config)
+    xs = [_checked_targets(x, sk) for x in targets]
+    lengths = np.stack([choose_bone_lengths(x, sk, config.bone_lengths) for x in xs])
+    fitted, starts_at = _swept(xs, [None] * len(xs) if starts is None else starts, lengths, sk, config)
+    return np.split(fitted, starts_at[1:]), lengths
 
 
 def _squared_distance(target: np.ndarray) -> PoseLoss:
@@ -336,13 +359,20 @@ def rigid_from_features_many(features: list[np.ndarray], skeleton: str | Skeleto
     the targets, and the joints their rotation channels describe (with the chosen bone lengths) the start
     (``config.start``)."""
     sk = get_skeleton(skeleton)
+    targets, starts = _feature_targets(features, sk, config)
+    return fit_rigid_many(targets, sk, config, starts=starts)
+
+
+def _feature_targets(features: list[np.ndarray], sk: Skeleton, config: RigidFitConfig) -> tuple[list, list | None]:
+    """The fit's targets (the features' joint positions) and starts (the joints their rotation channels describe,
+    where ``config.start`` says so) of features (T_i, D)."""
     fs = [np.asarray(f, dtype=np.float64) for f in features]
     targets = [joints_from_features(f, sk) for f in fs]
     starts = None
     if config.start == "rotations":
         starts = [joints_from_rotations(f, sk, choose_bone_lengths(x, sk, config.bone_lengths))
                   for f, x in zip(fs, targets)]
-    return fit_rigid_many(targets, sk, config, starts=starts)
+    return targets, starts
 
 
 def rigid_from_features(features: np.ndarray, skeleton: str | Skeleton = "humanml3d",

@@ -44,13 +44,14 @@ def cummax(x):
 
 def sorted_in_time(x):
     """``x`` (N, T, ...) sorted along time, smallest first (values only, so stability does not matter; ONNX has no
-    stable sort)."""
+    stable sort). Tensors are ordered by their float32 values (ONNX Runtime Web's WebGPU build sorts no float64),
+    then read in their own precision: two values closer than float32 tells apart may swap places, nothing else."""
     xp = namespace(x)
     if xp is np:
         return np.sort(x, axis=1)
     import torch
 
-    return torch.sort(x, dim=1).values
+    return torch.gather(x, 1, torch.sort(x.float(), dim=1).indices)
 
 
 def count(x):

@@ -24,8 +24,10 @@ export class MotionRuntime {
     step();
     const sessions = {};
     for (const name of files) {
+      // the final stage's graphs compute in float64 on the CPU (WebAssembly), whatever runs the model
+      const eps = info.final_stage.includes(name) ? ['wasm'] : providers;
       sessions[name] = await ort.InferenceSession.create(await read(info.files[name], 'bytes'),
-        { executionProviders: providers, graphOptimizationLevel: 'all' });
+        { executionProviders: eps, graphOptimizationLevel: 'all' });
       step();
     }
     return new MotionRuntime(ort, tokenizer, sessions, info, actions);

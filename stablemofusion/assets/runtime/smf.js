@@ -11,8 +11,9 @@ import { bvhText, fitRigid, jointsFromFeatures, recentre } from './motion.js';
 export class MotionRuntime {
   // read(name, kind) -> Promise of the file `name` of the model folder: kind 'json' (an object) or 'bytes'
   // (a Uint8Array); onProgress(loaded, total) after each file; providers: ONNX Runtime's execution providers
-  // (['webgpu', 'wasm'] with its WebGPU build: what WebGPU cannot run falls back to WebAssembly).
-  static async load({ ort, Tokenizer, read, onProgress = () => {}, providers = ['wasm'] }) {
+  // (['webgpu', 'wasm'] with its WebGPU build: what WebGPU cannot run falls back to WebAssembly); cpuOrt: the ONNX
+  // Runtime that runs the final stage's float64 graphs (its WebAssembly build; `ort` unless that is the WebGPU build).
+  static async load({ ort, cpuOrt = ort, Tokenizer, read, onProgress = () => {}, providers = ['wasm'] }) {
     const info = await read('web.json', 'json');
     const files = Object.keys(info.files);
     const total = files.length + 2;
@@ -25,16 +26,16 @@ export class MotionRuntime {
     const sessions = {};
     for (const name of files) {
       // the final stage's graphs compute in float64 on the CPU (WebAssembly), whatever runs the model
-      const eps = info.final_stage.includes(name) ? ['wasm'] : providers;
-      sessions[name] = await ort.InferenceSession.create(await read(info.files[name], 'bytes'),
-        { executionProviders: eps, graphOptimizationLevel: 'all' });
+      const final = info.final_stage.includes(name);
+      sessions[name] = await (final ? cpuOrt : ort).InferenceSession.create(await read(info.files[name], 'bytes'),
+        { executionProviders: final ? ['wasm'] : providers, graphOptimizationLevel: 'all' });
       step();
     }
-    return new MotionRuntime(ort, tokenizer, sessions, info, actions);
+    return new MotionRuntime(ort, tokenizer, sessions, info, actions, cpuOrt);
   }
 
-  constructor(ort, tokenizer, sessions, info, actions) {
-    Object.assign(this, { ort, tokenizer, sessions, info, actions });
+  constructor(ort, tokenizer, sessions, info, actions, cpuOrt = ort) {
+    Object.assign(this, { ort, cpuOrt, tokenizer, sessions, info, actions });
     this.cache = new Map(); // prompt -> its encoding (most recent last)
   }
 
@@ -67,13 +68,13 @@ export class MotionRuntime {
 
   // The feet the cleanup counts as planted (contacts.onnx: footskate/contacts.py's contacts_of_feet).
   async contactsOf(flat, T, J) {
-    const out = await this.sessions.contacts.run({ joints: new this.ort.Tensor('float64', Float64Array.from(flat), [1, T, J, 3]) });
+    const out = await this.sessions.contacts.run({ joints: new this.cpuOrt.Tensor('float64', Float64Array.from(flat), [1, T, J, 3]) });
     return this.perFoot(out.contacts, T);
   }
 
   // The footskate cleanup of rigid joints (cleanup.onnx: footskate/cleanup.py's clean_joints): {joints, held}.
   async cleanup(flat, T, J, lengths) {
-    const Tn = this.ort.Tensor;
+    const Tn = this.cpuOrt.Tensor;
     const out = await this.sessions.cleanup.run({ joints: new Tn('float64', Float64Array.from(flat), [1, T, J, 3]),
       bone_lengths: new Tn('float64', Float64Array.from(lengths), [1, J]) });
     return { joints: Float64Array.from(out.joints_out.data), held: this.perFoot(out.held, T) };

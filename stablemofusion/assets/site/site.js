@@ -55,7 +55,15 @@ async function load() {
     for (const p of parts) { out.set(p, o); o += p.length; }
     return out;
   };
-  const runtime = await MotionRuntime.load({ ort, Tokenizer, read, providers: backend === 'webgpu' ? ['webgpu', 'wasm'] : ['wasm'] });
+  // the final stage's float64 graphs run on the WebAssembly build (the WebGPU build carries no float64 kernels)
+  let cpuOrt = ort;
+  if (backend === 'webgpu') {
+    cpuOrt = await import('./vendor/onnxruntime-web/ort.wasm.min.mjs');
+    cpuOrt.env.logLevel = 'error';
+    cpuOrt.env.wasm.wasmPaths = ort.env.wasm.wasmPaths;
+    cpuOrt.env.wasm.numThreads = 1;
+  }
+  const runtime = await MotionRuntime.load({ ort, cpuOrt, Tokenizer, read, providers: backend === 'webgpu' ? ['webgpu', 'wasm'] : ['wasm'] });
   smf.timings.loadMs = performance.now() - started;
   smf.timings.threads = ort.env.wasm.numThreads;
   smf.timings.backend = backend;

@@ -14,6 +14,9 @@ from stablemofusion.runtime.pipeline import PortablePipeline
 from stablemofusion.site import write_site
 
 NODE = shutil.which("node")
+LONG_PROMPT = ("a tired old man in a heavy winter coat walks slowly forward along a quiet street, stops for a moment "
+               "to catch his breath, looks around at the houses and the trees on both sides, then raises his right "
+               "hand to wave at a neighbour across the road and carries on walking with small careful steps home now")
 pytestmark = pytest.mark.skipif(NODE is None, reason="Node.js is not installed (apt-get install nodejs)")
 
 
@@ -35,7 +38,12 @@ def node_generate(folder, *args) -> subprocess.CompletedProcess:
                                                               ("someone bows politely", None, 0, "off"),
                                                               ("a man walks in a circle", None, 3, "post"),
                                                               ("a child runs zigzagging forward", None, 3, "post"),
-                                                              ("an old woman turns 45 degrees to the right", 3, 1, "off")])
+                                                              ("an old woman turns 45 degrees to the right", 3, 1, "off"),
+                                                              ("a person walks forward and comes back", None, 2, "post"),
+                                                              ("a man walks sideways to the left", None, 4, "post"),
+                                                              ("a woman walks and turns left", 4, 5, "post"),
+                                                              ("someone walks along a curve to the right", None, 6, "post"),
+                                                              (LONG_PROMPT, None, 8, "post")])
 def test_node_reproduces_the_python_runtime(site, prompt, seconds, seed, footskate):
     """Text, path words, sampling, decoding, the rigid stage and the final stage (contacts, holds, the lean, the
     legs' IK): the Python runtime's joints."""

@@ -32,6 +32,7 @@ _BACKGROUND = "#ffffff"
 _ELEVATION = math.radians(22.0)
 _AZIMUTH = math.radians(35.0)  # from the +Z front, towards the character's left (+X)
 _FOV = math.radians(34.0)
+NEAR = 0.05  # body heights: the root path is drawn only where it lies further than this in front of the camera
 FOLLOW_EXTENT = 4.0  # root paths longer than this many body heights: the camera follows the character
 FOLLOW_SMOOTH = 1.0  # seconds over which the followed root position is averaged (no camera shake)
 TITLE_CHARS, TITLE_LINES = 52, 4  # a title wraps at TITLE_CHARS characters, up to TITLE_LINES lines
@@ -244,9 +245,17 @@ class _Scene:
         gxy, alpha = self._grid(pose[0, [0, 2]])
         for (a, b), al in zip(self._pixels(gxy), alpha):
             d.line([tuple(a), tuple(b)], fill=_blend((0.55, 0.55, 0.55), al), width=width(0.9 * px))
-        _dashed(d, self._pixels(self._proj(self.root)), _blend("#adb5bd", 1.0), width(1.2 * px), 6 * px * s)
-        done = self._pixels(self._proj(self.root[: t + 1]))
-        _polyline(d, done, _PATH, width(2.0 * px))
+        # the root path on the floor, only what the picture shows of it: a follow camera sees long paths at a
+        # grazing angle, and the whole path projected runs to millions of pixels
+        path_xy, path_depth = self._project(self.root)
+        path = self._pixels(path_xy)
+        near = path_depth > NEAR * self.scale
+        full = self.size * s
+        box = (np.full(2, -0.1 * full), np.full(2, 1.1 * full))
+        _dashed(d, path, _blend("#adb5bd", 1.0), width(1.2 * px), 6 * px * s, near, box)
+        lw = width(2.0 * px)
+        for a, b in _visible_segments(path[: t + 1], near[: t + 1], box):
+            _segment(d, a, b, _PATH, lw)
         seg3 = pose[self.bones]  # (B, 2, 3)
         flat = seg3.copy()
         flat[..., 1] = self.floor
@@ -301,28 +310,53 @@ def _segment(d: ImageDraw.ImageDraw, a, b, color, width: int) -> None:
         d.ellipse([x - r, y - r, x + r, y + r], fill=color)
 
 
-def _polyline(d: ImageDraw.ImageDraw, pts: np.ndarray, color, width: int) -> None:
-    """A polyline with round joints and caps."""
-    if len(pts) < 2:
-        return
-    d.line([tuple(p) for p in pts], fill=color, width=width, joint="curve")
-    r = width / 2
-    for x, y in (pts[0], pts[-1]):
-        d.ellipse([x - r, y - r, x + r, y + r], fill=color)
+def _clipped(a: np.ndarray, b: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, ...]:
+    """Segments from ``a`` to ``b`` (S, 2) pixels clipped to ``box`` (lo, hi) (Liang-Barsky): (S,) whether any of
+    each is inside, and the share (S,) along it where its inside part starts and stops."""
+    lo, hi = box
+    d = b - a
+    t0, t1 = np.zeros(len(a)), np.ones(len(a))
+    keep = np.ones(len(a), dtype=bool)
+    for k in (0, 1):
+        for p, q in ((-d[:, k], a[:, k] - lo[k]), (d[:, k], hi[k] - a[:, k])):
+            flat = np.abs(p) < 1e-12
+            keep &= ~(flat & (q < 0))
+            r = q / np.where(flat, 1.0, p)
+            t0 = np.where(~flat & (p < 0), np.maximum(t0, r), t0)
+            t1 = np.where(~flat & (p > 0), np.minimum(t1, r), t1)
+    return keep & (t0 < t1), t0, t1
 
 
-def _dashed(d: ImageDraw.ImageDraw, pts: np.ndarray, color, width: int, dash: float) -> None:
-    """A dashed polyline: ``dash`` pixels drawn, ``dash`` left out, along its length."""
+def _visible_segments(pts: np.ndarray, near: np.ndarray, box) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The parts inside ``box`` of the segments of polyline ``pts`` (P, 2) whose two ends are in front of the camera
+    (``near`` (P,))."""
+    if len(pts) < 2:
+        return []
+    a, b = pts[:-1], pts[1:]
+    keep, t0, t1 = _clipped(a, b, box)
+    keep &= near[:-1] & near[1:]
+    return [(a[i] + t0[i] * (b[i] - a[i]), a[i] + t1[i] * (b[i] - a[i])) for i in np.flatnonzero(keep)]
+
+
+def _dashed(d: ImageDraw.ImageDraw, pts: np.ndarray, color, width: int, dash: float, near: np.ndarray, box) -> None:
+    """A dashed polyline: ``dash`` pixels drawn, ``dash`` left out, along its length; only the segments in front of
+    the camera (``near`` (P,)), and of them what lies in ``box`` (the dashes keep their places along the whole
+    line), so its cost follows what is seen, not how long the line is."""
     if len(pts) < 2:
         return
-    steps = np.linalg.norm(np.diff(pts, axis=0), axis=-1)
+    a, b = pts[:-1], pts[1:]
+    steps = np.linalg.norm(b - a, axis=-1)
     along = np.concatenate([[0.0], np.cumsum(steps)])
-    total = along[-1]
-    for start in np.arange(0.0, total, 2 * dash):
-        stop = min(start + dash, total)
-        piece = [np.array([np.interp(u, along, pts[:, 0]), np.interp(u, along, pts[:, 1])])
-                 for u in np.concatenate([[start], along[(along > start) & (along < stop)], [stop]])]
-        d.line([tuple(p) for p in piece], fill=color, width=width)
+    keep, t0, t1 = _clipped(a, b, box)
+    keep &= near[:-1] & near[1:]
+    for i in np.flatnonzero(keep & (steps > 0)):
+        lo, hi = along[i] + t0[i] * steps[i], along[i] + t1[i] * steps[i]
+        for start in np.arange(np.floor(lo / (2 * dash)) * 2 * dash, hi, 2 * dash):
+            u0, u1 = max(start, lo), min(start + dash, hi)
+            if u1 > u0:
+                p0 = a[i] + (u0 - along[i]) / steps[i] * (b[i] - a[i])
+                p1 = a[i] + (u1 - along[i]) / steps[i] * (b[i] - a[i])
+                d.line([tuple(p0), tuple(p1)], fill=color, width=width)
 
 
 def _scene(joints: np.ndarray, skeleton: str | Skeleton, title: str | None, size: int,

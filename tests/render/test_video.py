@@ -177,3 +177,30 @@ def test_mp4_without_ffmpeg_is_one_clear_error(tmp_path: Path, monkeypatch) -> N
     with pytest.raises(SMFError, match=r"stablemofusion\[video\]"):
         parse_formats("npy,mp4")
     assert parse_formats("npy,gif") == ["npy", "gif"] and not any(tmp_path.iterdir())
+
+
+class _CountingDraw:
+    def __init__(self):
+        self.lines = []
+
+    def line(self, points, fill=None, width=1):
+        self.lines.append(points)
+
+
+def test_a_dashed_path_costs_what_the_picture_shows():
+    """A root path that projects far outside the picture (a follow camera at a grazing angle): only the dashes inside
+    the picture's box are drawn, at their places along the whole path; segments behind the camera are left out."""
+    from stablemofusion.render.video import _dashed, _visible_segments
+
+    box = (np.zeros(2), np.full(2, 1000.0))
+    pts = np.array([[-1e7, 500.0], [1e7, 500.0], [1e7, 1e7]])  # 3e7 px long, 1000 px of it inside the box
+    d = _CountingDraw()
+    _dashed(d, pts, (0, 0, 0), 1, 10.0, np.ones(3, bool), box)
+    assert 45 <= len(d.lines) <= 51  # 1000 px of 10 px dashes and 10 px gaps
+    xs = np.array([[p[0] for p in line] for line in d.lines])
+    assert xs.min() >= 0.0 and xs.max() <= 1000.0 and np.allclose(np.diff(xs[:, 0]), 20.0)
+    d = _CountingDraw()
+    _dashed(d, pts, (0, 0, 0), 1, 10.0, np.array([True, False, True]), box)  # the middle point behind the camera
+    assert not d.lines
+    seg = _visible_segments(np.array([[-500.0, 200.0], [500.0, 200.0], [600.0, 2000.0]]), np.ones(3, bool), box)
+    assert len(seg) == 2 and np.allclose(seg[0], [[0.0, 200.0], [500.0, 200.0]])

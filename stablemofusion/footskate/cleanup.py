@@ -273,7 +273,7 @@ def clean_joints(joints, contacts, bone_lengths, fps: float, config: CleanupConf
         toes = xp.stack([toes[..., 0], xp.clip(y - down * y, 0.0, None), toes[..., 2]], axis=-1)
     x = lean_into_turns(x0, fps, config.lean) if config.lean > 0 else x0
     move = reach_shift(x, ankles, bone_lengths, fps, config.reach_smooth)  # (B, T, 3)
-    body = np.ones((x.shape[2], 1), dtype=x0.dtype if xp is np else np.float64)
+    body = np.ones((x.shape[2], 1))
     body[list(LEG_CHAIN_JOINTS)] = 0.0
     x = x + move[:, :, None] * xp.asarray(body, dtype=x0.dtype, device=device(x0))
     return place_legs(x, ankles, toes, bone_lengths), held

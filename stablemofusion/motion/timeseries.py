@@ -27,9 +27,9 @@ def frames(x):
 
 def cummax(x):
     """(N, T) running maximum along time (numpy's ``maximum.accumulate``; elsewhere by doubling, ceil(log2 T)
-    steps)."""
-    xp = namespace(x)
-    if xp is np:
+    steps). Here and below a numpy array takes numpy's path whatever numpy's version (1.x gives no array-API
+    namespace of its own); anything else is a tensor."""
+    if isinstance(x, np.ndarray):
         return np.maximum.accumulate(x, axis=1)
     import torch  # the exporter's path: torch is installed wherever a tensor came from
 
@@ -46,8 +46,7 @@ def sorted_in_time(x):
     """``x`` (N, T, ...) sorted along time, smallest first (values only, so stability does not matter; ONNX has no
     stable sort). Tensors are ordered by their float32 values (ONNX Runtime Web's WebGPU build sorts no float64),
     then read in their own precision: two values closer than float32 tells apart may swap places, nothing else."""
-    xp = namespace(x)
-    if xp is np:
+    if isinstance(x, np.ndarray):
         return np.sort(x, axis=1)
     import torch
 
@@ -62,9 +61,8 @@ def count(x):
 def last_true(m):
     """(N, T) int64: the last frame at or before t where ``m`` (N, T) holds, -1 where none does (numpy: a running
     maximum; elsewhere the k-th true frame of a row, k its running count: a scatter and a gather, O(T))."""
-    xp = namespace(m)
     t = frames(m)
-    if xp is np:
+    if isinstance(m, np.ndarray):
         return np.maximum.accumulate(np.where(m, t[None], -1), axis=1)
     import torch
 
@@ -97,8 +95,7 @@ def shifted(x, k: int, fill):
 
 def at(x, idx):
     """``x`` (N, T) or (N, T, C) read at frames ``idx`` (N, S) (clipped into 0 .. T-1): (N, S) or (N, S, C)."""
-    xp = namespace(x)
-    if xp is np:  # the same gather, by fancy indexing (a third of take_along_axis's time)
+    if isinstance(x, np.ndarray):  # the same gather, by fancy indexing (a third of take_along_axis's time)
         return x[np.arange(x.shape[0])[:, None], np.minimum(np.maximum(idx, 0), x.shape[1] - 1)]
     import torch
 
@@ -112,9 +109,8 @@ def at(x, idx):
 def window(x, weights, edge: bool):
     """sum_j weights[j] x[t + j - r] along time of ``x`` (N, T, ...), r = len(weights) // 2: outside the motion
     zero (``edge`` False: numpy's ``convolve(mode="same")`` of a symmetric kernel) or the nearest frame's value."""
-    xp = namespace(x)
     r = len(weights) // 2
-    if xp is np:  # the same sum as one product with a (T, T) matrix of the weights
+    if isinstance(x, np.ndarray):  # the same sum as one product with a (T, T) matrix of the weights
         m = _window_matrix(x.shape[1], tuple(map(float, weights)), edge)
         return x @ m.T if x.ndim == 2 else m @ x
     import torch  # the same matrix, built in the graph for any T: a scatter of the weights
@@ -185,8 +181,7 @@ def norm(v):
 def atan2(y, x):
     """Elementwise atan2 in the arrays' precision (radians). ONNX Runtime has no float64 arctangent: tensors take a
     float32 arctangent refined by two Newton steps on sin/cos (float64 to the last bits)."""
-    xp = namespace(y, x)
-    if xp is np:
+    if isinstance(y, np.ndarray):
         return np.arctan2(y, x)
     import torch
 

@@ -179,3 +179,11 @@ def test_convert_of_joints_no_body_has_is_one_line(array, words, tmp_path, capsy
     assert run("convert", tmp_path / "m.npy", tmp_path / "m.bvh") == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and words in err and not (tmp_path / "m.bvh").exists()
+
+
+def test_export_without_a_checkpoint_names_it_in_one_line(tmp_path, capsys):
+    """`smf export` needs --checkpoint unless it writes the final stage's graphs."""
+    assert main(["export", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "--checkpoint is required (but with --final-stage)" in err and err.count("\n") == 1
+    assert not (tmp_path / "out").exists()

@@ -28,6 +28,8 @@ import torch
 from torch import nn
 
 from .errors import SMFError
+from .footskate.cleanup import CleanupConfig, clean_joints, detect_contacts
+from .footskate.contacts import HML_FOOT_JOINTS, contacts_of_feet
 
 from .runtime.graphs import FORMAT, MANIFEST, TABLE_FIELDS, VERSION
 
@@ -354,8 +356,6 @@ class _ContactsGraph(nn.Module):
         self.fps, self.config = fps, config
 
     def forward(self, joints):
-        from .footskate.contacts import HML_FOOT_JOINTS, contacts_of_feet
-
         return contacts_of_feet(joints[:, :, list(HML_FOOT_JOINTS)], self.fps, self.config)
 
 
@@ -365,8 +365,6 @@ class _CleanupGraph(nn.Module):
         self.fps, self.config = fps, config
 
     def forward(self, joints, bone_lengths):
-        from .footskate.cleanup import clean_joints, detect_contacts
-
         contacts = detect_contacts(joints, self.fps, self.config)
         cleaned, held = clean_joints(joints, contacts, bone_lengths, self.fps, self.config)
         return cleaned, held
@@ -386,8 +384,6 @@ def export_final_stage(out: Path, fps: float = 20.0) -> list[Path]:
 
     Both are the Python functions themselves, traced (they are written against the array API, loop-free)."""
     import onnx
-
-    from .footskate.cleanup import CleanupConfig
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

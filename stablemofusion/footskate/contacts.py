@@ -34,13 +34,6 @@ class KinematicContactConfig:
     floor_percentile: float = 2.0
 
 
-def runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """(T,) bool -> [(start, stop)) of every run of True."""
-    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
-    d = np.flatnonzero(np.diff(m.astype(np.int8)))
-    return list(zip(d[::2].tolist(), d[1::2].tolist()))
-
-
 def durations_cleaned(c, min_on: int, min_gap: int):
     """(N, T) bool: interior gaps shorter than ``min_gap`` frames filled, then runs shorter than ``min_on`` frames
     dropped (array API, loop-free)."""

@@ -4,7 +4,7 @@ import numpy as np
 
 from stablemofusion.footskate.contacts import (KinematicContactConfig, clean_durations, contact_f1,
                                                contacts_from_underpressure_labels, contacts_from_vgrf,
-                                               kinematic_contacts, runs)
+                                               kinematic_contacts)
 
 
 def _feet_motion(heights: np.ndarray, speeds: np.ndarray, fps: float = 20.0) -> np.ndarray:
@@ -19,9 +19,8 @@ def _feet_motion(heights: np.ndarray, speeds: np.ndarray, fps: float = 20.0) -> 
     return j
 
 
-def test_runs_and_durations():
+def test_durations():
     m = np.array([1, 1, 0, 1, 0, 0, 0, 1, 1, 1], bool)
-    assert runs(m) == [(0, 2), (3, 4), (7, 10)]
     out = clean_durations(m[:, None], min_on=3, min_gap=2)[:, 0]
     assert out.tolist() == [1, 1, 1, 1, 0, 0, 0, 1, 1, 1]  # gap of 1 filled, then short runs survive merged
 

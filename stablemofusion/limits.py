@@ -30,6 +30,7 @@ STUDENT_MAX_STEPS = 6
 BATCH_SIZE = 32  # prompts per sampling call
 DEFAULT_SECONDS = 4.0  # length of a motion when none is given and the model has no length estimator
 FOOTSKATE_MODES = ("off", "post", "loop")
+PORTABLE_FOOTSKATE = ("off", "post")  # what the portable runtime runs: 'loop' runs inside the torch sampler
 # footskate cleanup of a generated motion unless a request says otherwise (the rigid stage on): measured on the shipped
 # 1-step student, 96 test captions x 2 seeds, `benchmarks/final_stage_check.py quality` (2-core AMD EPYC): the raw
 # motion's skate ratio is 0.213 against 0.070 for the real clips of those captions; after 'post' 0.049 and no foot

@@ -14,8 +14,8 @@ from types import SimpleNamespace
 import numpy as np
 
 from ..errors import SMFError
-from ..limits import (BATCH_SIZE, FOOTSKATE, PORTABLE_ENGINE, STUDENT_EDIT_STEPS, base_seed, check_batch_size,
-                      check_footskate, check_guidance, check_prompt, check_steps)
+from ..limits import (BATCH_SIZE, FOOTSKATE, PORTABLE_ENGINE, PORTABLE_FOOTSKATE, STUDENT_EDIT_STEPS, base_seed,
+                      check_batch_size, check_footskate, check_guidance, check_prompt, check_steps)
 from ..motion.rigid import DEFAULT_FIT, rigid_to_features
 from ..motion.root import headings, place_rigid_like, root_xz
 from ..motion.skeleton import get_skeleton
@@ -258,7 +258,7 @@ class PortablePipeline:
             raise SMFError(f"steps must be at most {m.max_steps} for this model (a distilled student: more steps drift "
                            f"into motions no human makes), got {steps}")
         footskate = check_footskate(FOOTSKATE if footskate is None else footskate)
-        if footskate == "loop":
+        if footskate not in PORTABLE_FOOTSKATE:
             raise SMFError("footskate 'loop' runs inside the torch sampler; use 'post' or 'off' here")
         return dict(guidance=guidance, sampler=sampler or m.sampler, steps=steps), footskate
 

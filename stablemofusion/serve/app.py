@@ -165,7 +165,8 @@ def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.
         sizes = batcher.batch_sizes
         return JSONResponse(
             {"status": "ok" if ready else state["state"], "worker": state, "fps": cfg.fps,
-             "seconds": [cfg.min_frames / cfg.fps, limits.MAX_SECONDS], "limits": limits.table(),
+             "seconds": [cfg.min_frames / cfg.fps, limits.MAX_SECONDS],
+             "limits": {**limits.table(), "footskate": list(cfg.footskate)},
              "max_batch": max_batch, **made, "waiting": batcher.waiting, "adapters": list(checks.adapters),
              "batches": len(sizes), "largest_batch": max(sizes, default=0), "dropped": batcher.dropped,
              "streams": hub.health() if streams is not None else {"state": "off", "active": 0, "max": 0}},

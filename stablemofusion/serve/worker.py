@@ -20,7 +20,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 from ..errors import SMFError
-from ..limits import FOOTSKATE
+from ..limits import FOOTSKATE, FOOTSKATE_MODES, PORTABLE_FOOTSKATE
 from .http_errors import ServeError, log, log_event
 from .server_limits import (WARM_STEPS, WORKER_BEAT_S, WORKER_BEAT_TIMEOUT_S, WORKER_CALL_BASE_S,
                             WORKER_CALL_PER_WORK_S, WORKER_MAX_FAILED_STARTS, WORKER_POLL_S,
@@ -61,6 +61,7 @@ class ServedModel:
     steps: int
     guidance: float
     version: str | None = None  # the model's version (a release's name), in every answer
+    footskate: tuple[str, ...] = FOOTSKATE_MODES  # the footskate modes its runtime runs (health lists them)
 
     @classmethod
     def from_config(cls, config) -> "ServedModel":
@@ -79,7 +80,7 @@ class ServedModel:
             return cls.from_config(pipe.config)
         m = pipe.model
         return cls(m.fps, m.min_frames, m.max_frames, m.student, m.steps, m.guidance,
-                   pipe.graphs.manifest.get("model_version"))
+                   pipe.graphs.manifest.get("model_version"), PORTABLE_FOOTSKATE)
 
 
 @dataclass(frozen=True)

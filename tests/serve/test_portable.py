@@ -64,6 +64,7 @@ def test_the_http_api_on_the_runtime_answers_as_the_torch_path(portable):
     assert loop.status_code == 422 and "loop" in loop.json()["error"]  # the torch sampler's mode: one clear 4xx
     health = call(app, ("GET", "/v1/health", None))[0].json()
     assert health["fps"] == 20.0 and health["seconds"][0] == portable.min_frames / portable.fps
+    assert health["limits"]["footskate"] == ["off", "post"]  # what this runtime answers, 'loop' not among them
 
 
 def test_a_live_stream_on_the_runtime_is_the_pipelines_stream(portable):

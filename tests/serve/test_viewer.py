@@ -306,3 +306,26 @@ def test_a_path_drawn_on_the_floor_is_followed(page):
     page.uncheck("#draw")
     assert page.evaluate("window.smf.path.points.length") == 0
     assert [m for m in page.logs if "pageerror" in m] == []
+
+
+def test_the_footskate_menu_offers_what_the_server_runs(page, server):
+    """Every mode on a PyTorch server; a server whose health lists only 'off' and 'post' (the portable runtime's)
+    gets a menu without 'loop'."""
+    import json
+
+    shown = "os => os.filter((o) => !o.hidden).map((o) => o.value)"
+    assert page.eval_on_selector_all("#footskate option", shown) == ["post", "off", "loop"]
+    context = page.context.browser.new_context()
+    other = context.new_page()
+
+    def portable_health(route):
+        health = route.fetch().json()
+        health["limits"]["footskate"] = ["off", "post"]
+        route.fulfill(status=200, content_type="application/json", body=json.dumps(health))
+
+    other.route("**/v1/health", portable_health)
+    other.goto(server + "/")
+    other.wait_for_function("[...document.querySelectorAll('#footskate option')].some((o) => o.hidden)",
+                            timeout=30_000)
+    assert other.eval_on_selector_all("#footskate option", shown) == ["post", "off"]
+    context.close()

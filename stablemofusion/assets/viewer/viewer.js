@@ -372,10 +372,13 @@ $('live').addEventListener('change', () => {
   }
 });
 
-// the adapters the server loaded (smf serve --adapter): offered beside the base model
+// the adapters the server loaded (smf serve --adapter): offered beside the base model; the footskate modes its
+// runtime runs (the portable runtime has no 'loop')
 (async () => {
   try {
     const health = await (await fetch('/v1/health')).json();
+    const modes = health.limits && health.limits.footskate;
+    if (modes) for (const option of [...$('footskate').options]) option.hidden = !modes.includes(option.value);
     for (const name of health.adapters || []) {
       const option = document.createElement('option');
       option.value = option.textContent = name;

@@ -7,3 +7,9 @@ class SMFError(Exception):
 
 class MotionFormatError(SMFError, ValueError):
     """A motion array or file has the wrong shape, values or syntax."""
+
+
+def escape(text: object) -> str:
+    """``text`` with every unprintable character (ANSI escapes, NUL, lone surrogates, newlines) as a Python
+    escape, so that text from a user or a file cannot forge or garble a log line or a terminal."""
+    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in str(text))

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..errors import escape
+
 
 def add_parser(sub, name: str) -> None:
     p = sub.add_parser(name)
@@ -25,12 +27,13 @@ def run(args: argparse.Namespace) -> None:
         i, t = a.info, a.info.training
         print(f"{args.adapter}: adapter {i.name!r}, rank {i.lora.rank}, {len(i.clips)} clip captions from "
               f"{t.get('clips', '?')} clips ({t.get('motion_seconds', '?')} s of motion), trained in {t.get('seconds', '?')} s")
-        print(f"licence of the clips: {i.licence}")
+        print(f"licence of the clips: {escape(i.licence)}")
         print(f"base model weights (sha256): student {i.base.get('student', '-')[:12]}, teacher "
               f"{i.base.get('teacher', '-')[:12]}")
         for label, captions in i.actions.items():
-            print(f"action {label!r}: " + "; ".join(captions[:8]) + (f"; ... ({len(captions)} captions)"
-                                                                     if len(captions) > 8 else ""))
+            # a file's captions are printed escaped: an ANSI escape in one cannot drive the terminal
+            print(f"action {escape(label)!r}: " + "; ".join(escape(c) for c in captions[:8])
+                  + (f"; ... ({len(captions)} captions)" if len(captions) > 8 else ""))
         return
     if args.checkpoint is not None:
         from ..diffusion.checkpoint import load_checkpoint

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 
-from ..errors import SMFError
+from ..errors import SMFError, escape
 
 log = logging.getLogger("stablemofusion.serve")
 
@@ -16,12 +16,6 @@ class ServeError(SMFError):
         super().__init__(message)
         self.status = status
         self.message = " ".join(str(message).split("\n"))
-
-
-def escape(text: object) -> str:
-    """``text`` with every unprintable character (ANSI escapes, NUL, lone surrogates, newlines) as a Python
-    escape, so that a client's prompt cannot forge or garble log lines."""
-    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in str(text))
 
 
 def log_event(level: int, message: str, *texts: object) -> None:

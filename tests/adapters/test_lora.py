@@ -122,3 +122,17 @@ def test_crafted_adapters_are_refused_before_any_weight_is_multiplied(tiny_check
     with pytest.raises(SMFError, match="scale"):
         layer_deltas(good.weights[part], 1e9, shapes)
     assert layer_deltas(good.weights[part], good.info.lora.scale, shapes)  # the genuine file still loads
+
+
+def test_info_prints_an_adapters_text_escaped(tiny_checkpoint, save_random_adapter, tmp_path, capsys):
+    """`smf info --adapter`: a caption or licence holding an ANSI escape is printed as text, never as the byte."""
+    from dataclasses import replace
+
+    from stablemofusion.cli.main import main
+
+    good = Adapter.load(save_random_adapter(tmp_path / "kick.safetensors", tiny_checkpoint))
+    info = replace(good.info, actions={"kick": ["a person \x1b[31mkicks"]}, licence="CC BY 4.0\x1b[2J")
+    path = Adapter(info, good.weights).save(tmp_path / "escaped.safetensors")
+    assert main(["info", "--adapter", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "\x1b" not in out and "a person \\x1b[31mkicks" in out and "CC BY 4.0\\x1b[2J" in out

@@ -67,6 +67,11 @@ def test_the_page_generates_the_runtimes_motion_offline(served, tmp_path):
         shot = tmp_path / "site.png"
         page.screenshot(path=str(shot))
         status = page.inner_text("#status")
+        # characters are counted as the server counts them: 300 emoji pass, 301 do not; a lone surrogate is refused
+        text = [page.evaluate(f"window.smf.generate({{prompt: {p}, seconds: 2, seed: 1, footskate: 'off'}})"
+                              ".then(() => '', (e) => e.message)")
+                for p in ("'\\u{1F600}'.repeat(300)", "'\\u{1F600}'.repeat(301)", "'a \\uD800 walks'")]
+        assert text[0] == "" and "at most 300 characters" in text[1] and "lone surrogate" in text[2], text
         browser.close()
     pipe = PortablePipeline.from_pretrained(threads=1)
     want = pipe(PROMPT, seconds=4, seed=SEED, footskate="off")[0].joints

@@ -122,7 +122,9 @@ export class MotionRuntime {
     const i = this.info, T = this.ort.Tensor;
     prompt = String(prompt ?? '').trim();
     if (!prompt) throw new RangeError('the prompt must be a non-empty text');
-    if (prompt.length > i.max_prompt_chars) throw new RangeError(`the prompt must be at most ${i.max_prompt_chars} characters`);
+    if (/[\uD800-\uDFFF]/u.test(prompt)) throw new RangeError('the prompt must be valid text: it holds a lone surrogate');
+    // characters as the Python counts them (code points), not UTF-16 units: an emoji is one
+    if ([...prompt].length > i.max_prompt_chars) throw new RangeError(`the prompt must be at most ${i.max_prompt_chars} characters`);
     if (!Number.isSafeInteger(seed) || seed < 0) throw new RangeError(`seed must be a whole number from 0 to 2**53 - 1, got ${seed}`);
     if (footskate !== 'off' && footskate !== 'post') {
       throw new RangeError(`footskate must be 'post' or 'off' here, got '${footskate}' ('loop' runs in the torch sampler)`);

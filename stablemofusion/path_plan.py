@@ -32,7 +32,8 @@ import numpy as np
 
 from .footskate.cleanup import CLEANUP_CONTACTS
 from .footskate.contacts import HML_FOOT_JOINTS, kinematic_contacts
-from .motion.features import joints_from_features, smoothstep
+from .motion.features import joints_from_features
+from .motion.timeseries import smoothstep
 from .motion.root import follow_path
 from .motion.skeleton import get_skeleton
 

@@ -96,11 +96,6 @@ def _unseries(x, B: int):
     return xp.permute_dims(y, (0, 2, 1, *range(3, y.ndim)))
 
 
-def _xz(v):
-    xp = namespace(v)
-    return xp.stack([v[..., 0], v[..., 2]], axis=-1)
-
-
 def hold_places(points, contacts, max_slide: float, cut_gap: int):
     """Each contact of joint series ``points`` (N, T, 3) metres, ``contacts`` (N, T) bool, held at the mean of its
     positions: the place (N, T, 3) and the held frames (N, T). A contact whose joint travels away from where it
@@ -111,7 +106,7 @@ def hold_places(points, contacts, max_slide: float, cut_gap: int):
     c = contacts
     t = ts.frames(c)[None]
     start, stop = ts.last_true(~c) + 1, ts.next_true(~c)  # of the contact a frame is in
-    xz = _xz(points)
+    xz = ts.xz(points)
     away = xp.where(c, ts.norm(xz - ts.at(xz, start)), xp.zeros_like(xz[..., 0]))
     first = c & ~ts.shifted(c, 1, False)
     run = xp.astype(xp.cumulative_sum(xp.astype(first, xp.int64), axis=1), away.dtype)
@@ -167,7 +162,7 @@ def holds(points, contacts, max_slide: float, cut_gap: int, fps: float = 20.0, c
     B = points.shape[0]
     pts = _series(points)
     place, held = hold_places(pts, _series(contacts), max_slide, cut_gap)
-    held = spaced(_xz(place - pts), held, 1.5 * fps / catch_up)
+    held = spaced(ts.xz(place - pts), held, 1.5 * fps / catch_up)
     return _unseries(place, B), _unseries(held, B)
 
 
@@ -218,7 +213,7 @@ def bridge_lift(shift, held, share: float, most: float):
     T = ts.count(held)
     last, first = ts.last_true(held), ts.next_true(held)
     free = ~held & (last >= 0) & (first < T)
-    h = xp.clip(ts.const(shift, share) * ts.norm(_xz(ts.at(shift, first) - ts.at(shift, last))), None,
+    h = xp.clip(ts.const(shift, share) * ts.norm(ts.xz(ts.at(shift, first) - ts.at(shift, last))), None,
                 ts.const(shift, most))
     x = xp.astype(ts.frames(held)[None] - last, shift.dtype) / xp.astype(xp.maximum(first - last, 1), shift.dtype)
     return xp.where(free, 4 * x * (1 - x) * h, xp.zeros_like(h))

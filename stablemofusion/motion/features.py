@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import MotionFormatError
+from . import timeseries as ts
 from .arrays import device, float64_numpy, namespace
 from .kinematics import forward_kinematics
 from .rotation import cont6d_to_matrix, qbetween, qinv, qmul, qrot, quat_to_cont6d, quat_to_matrix, yaw_quat
@@ -99,23 +100,13 @@ def _across(joints: np.ndarray, sk: Skeleton, official_ik: bool) -> np.ndarray:
     return (joints[:, r_hip] - joints[:, l_hip]) + (joints[:, r_sh] - joints[:, l_sh])
 
 
-def smoothstep(x: np.ndarray) -> np.ndarray:
-    """3x^2 - 2x^3 of ``x`` clipped to [0, 1]: 0 and 1 with zero slope at both ends."""
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
-
-
 def gaussian_smooth(x: np.ndarray, sigma: float, truncate: float = 4.0) -> np.ndarray:
     """Gaussian smoothing along axis 0 of ``x`` (T, ...) with standard deviation ``sigma`` frames, the edges
     extended by their nearest value; the kernel reaches ``truncate`` sigmas (scipy.ndimage.gaussian_filter1d with
-    mode="nearest", in numpy)."""
-    radius = int(truncate * float(sigma) + 0.5)
-    taps = np.arange(-radius, radius + 1)
-    kernel = np.exp(-0.5 * (taps / float(sigma)) ** 2)
-    kernel /= kernel.sum()
+    mode="nearest", in numpy): :func:`~stablemofusion.motion.timeseries.window` of one series."""
     x = np.asarray(x, dtype=np.float64)
-    padded = np.concatenate([np.repeat(x[:1], radius, 0), x, np.repeat(x[-1:], radius, 0)], 0)
-    return sum(w * padded[i:i + len(x)] for i, w in enumerate(kernel))
+    out = ts.window(x.reshape(1, len(x), -1), ts.gaussian(sigma, truncate), edge=True)
+    return out.reshape(x.shape)
 
 
 def facing_quat(joints: np.ndarray, sk: Skeleton, *, official_ik: bool = False, smooth: float = 0.0) -> np.ndarray:

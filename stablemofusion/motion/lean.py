@@ -42,17 +42,12 @@ def smooth(x, sigma: float):
     return ts.window(x, ts.gaussian(sigma, 3.0), edge=True)
 
 
-def _xz(v):
-    xp = namespace(v)
-    return xp.stack([v[..., 0], v[..., 2]], axis=-1)
-
-
 @_batched
 def turn_frame(joints, fps: float):
     """Of joints (B, T, 22, 3) metres: the unit direction of travel (B, T, 2) (x, z), the sideways acceleration of
     the smoothed root path (B, T) m/s^2 (positive: towards the left of travel) and the speed (B, T) m/s."""
     xp = namespace(joints)
-    xz = smooth(_xz(joints[:, :, 0]), SMOOTH_S * fps)
+    xz = smooth(ts.xz(joints[:, :, 0]), SMOOTH_S * fps)
     v = ts.gradient(xz) * fps
     a = ts.gradient(v) * fps
     speed = ts.norm(v)
@@ -71,7 +66,7 @@ def sideways_lean(joints, fps: float, ahead=None):
         ahead, _, _ = turn_frame(joints, fps)
     left = xp.stack([ahead[..., 1], -ahead[..., 0]], axis=-1)
     up = joints[:, :, NECK] - joints[:, :, 0]
-    angle = ts.degrees(ts.atan2(xp.sum(_xz(up) * left, axis=-1), up[..., 1]))
+    angle = ts.degrees(ts.atan2(xp.sum(ts.xz(up) * left, axis=-1), up[..., 1]))
     return smooth(angle, SMOOTH_S * fps)
 
 

@@ -3,8 +3,9 @@
 Every function takes series with time on axis 1: (N, T) or (N, T, C), N any batch (motions, joints). They are
 written once against the array API (:mod:`~stablemofusion.motion.arrays`): numpy in, numpy out for the Python
 runtimes; torch in, torch out when the final stage is exported as an ONNX graph for the page, Node.js and game
-engines. Only :func:`cummax` and :func:`atan2` ask which library they run on: each has one definition and two ways to
-compute it (a running maximum is one numpy call, and ONNX has no double-precision arctangent).
+engines. A few ask which library they run on (:func:`cummax`, :func:`last_true`, :func:`sorted_in_time`, :func:`at`,
+:func:`window`, :func:`atan2`): each has one definition and two ways to compute it, numpy's fastest call and one that
+exports to ONNX (a traced length is symbolic, and ONNX Runtime has no float64 arctangent).
 """
 
 from __future__ import annotations
@@ -172,6 +173,12 @@ def smoothstep(x):
     return x * x * (3.0 - 2.0 * x)
 
 
+def xz(v):
+    """(..., 2) the floor components (x, z) of vectors ``v`` (..., 3), Y up."""
+    xp = namespace(v)
+    return xp.stack([v[..., 0], v[..., 2]], axis=-1)
+
+
 def norm(v):
     """(...) the length of vectors ``v`` (..., C)."""
     xp = namespace(v)
@@ -210,4 +217,4 @@ def radians(x):
 
 
 __all__ = ["at", "atan2", "const", "count", "cummax", "degrees", "frames", "gaussian", "gradient", "last_true", "next_true", "norm",
-           "radians", "shifted", "smoothstep", "sorted_in_time", "window", "windows"]
+           "radians", "shifted", "smoothstep", "sorted_in_time", "window", "windows", "xz"]

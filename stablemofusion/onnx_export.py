@@ -30,6 +30,12 @@ from torch import nn
 from .errors import SMFError
 from .footskate.cleanup import CleanupConfig, clean_joints, detect_contacts
 from .footskate.contacts import HML_FOOT_JOINTS, contacts_of_feet
+from .motion.features import joints_from_features
+from .motion.rigid import DEFAULT_FIT
+from .motion.bvh import BVH_ORDER
+from .motion.rigid_batch import fit_joints, pose_joints
+from .motion.rotation import matrix_to_euler
+from .path_plan import bend_features, follow_features
 
 from .runtime.graphs import FORMAT, MANIFEST, TABLE_FIELDS, VERSION
 
@@ -370,19 +376,67 @@ class _CleanupGraph(nn.Module):
         return cleaned, held
 
 
-FINAL_STAGE_GRAPHS = ("contacts.onnx", "cleanup.onnx")
+class _RigidGraph(nn.Module):
+    def __init__(self, sweeps: int):
+        super().__init__()
+        self.sweeps = sweeps
+
+    def forward(self, features, bone_lengths):
+        return fit_joints(joints_from_features(features, finite_check=False), bone_lengths, self.sweeps)
+
+
+class _BendGraph(nn.Module):
+    def __init__(self, fps: float):
+        super().__init__()
+        self.fps = fps
+
+    def forward(self, features, kind, angle):
+        return bend_features(features, kind, angle, self.fps, finite_check=False)
+
+
+class _FollowGraph(nn.Module):
+    def __init__(self, fps: float):
+        super().__init__()
+        self.fps = fps
+
+    def forward(self, features, points, times, timed):
+        return follow_features(features, points, times, timed, self.fps, finite_check=False)
+
+
+class _PoseGraph(nn.Module):
+    def forward(self, joints, bone_lengths):
+        offsets, local = pose_joints(joints, bone_lengths)
+        return offsets, local, matrix_to_euler(local, BVH_ORDER)
+
+
+FINAL_STAGE_GRAPHS = ("rigid.onnx", "bend.onnx", "follow.onnx", "contacts.onnx", "cleanup.onnx", "pose.onnx")
 MIN_GRAPH_FRAMES = 4  # the graphs' shortest motion (the lean needs 3 frames; a model's shortest is 40)
 
 
 def export_final_stage(out: Path, fps: float = 20.0) -> list[Path]:
-    """Export the final stage's cleanup, as the Python runtimes run it, as two float64 graphs in ``out``:
+    """Export the final stage, as the Python runtimes run it, as float64 graphs in ``out`` (B motions of T frames):
 
+    - ``rigid.onnx``: ``features`` (B, T, 263) raw HumanML3D features (dataset units), ``bone_lengths`` (B, 22)
+      metres -> ``joints`` (B, T, 22, 3) metres: decoded, then one skeleton of those bone lengths fitted to them
+      (:func:`~stablemofusion.motion.rigid_batch.fit_joints`, the default sweeps);
+    - ``bend.onnx``: ``features``, ``kind`` (B,) int64 (an index into :data:`~stablemofusion.path_plan.KINDS`),
+      ``angle`` (B,) radians -> ``features`` bent to the path words' path
+      (:func:`~stablemofusion.path_plan.bend_features`);
+    - ``follow.onnx``: ``features``, ``points`` (B, K, 2) metres, ``times`` (B, K) seconds, ``timed`` (B,) bool ->
+      ``features`` whose root follows the points, the ``start`` facing (B,) radians and ``origin`` (B, 2) metres
+      that place the finished motion on them (:func:`~stablemofusion.path_plan.follow_features`);
     - ``contacts.onnx``: ``joints`` (B, T, 22, 3) metres -> ``contacts`` (B, T, 4) bool, the cleanup's kinematic
-      contacts (:func:`~stablemofusion.footskate.contacts.contacts_of_feet`, what bending a path pivots on);
+      contacts (:func:`~stablemofusion.footskate.contacts.contacts_of_feet`);
     - ``cleanup.onnx``: ``joints`` (B, T, 22, 3) rigid, ``bone_lengths`` (B, 22) metres -> ``joints`` cleaned and
-      ``held`` (B, T, 4) bool (:func:`~stablemofusion.footskate.cleanup.clean_joints` with the default settings).
+      ``held`` (B, T, 4) bool (:func:`~stablemofusion.footskate.cleanup.clean_joints` with the default settings);
+    - ``pose.onnx``: ``joints`` (B, T, 22, 3) rigid, ``bone_lengths`` (B, 22) -> the skeleton's rest ``offsets``
+      (B, 22, 3) metres, each joint's ``rotations`` (B, T, 22, 3, 3) in its parent's frame and the same as BVH
+      channel angles ``euler`` (B, T, 22, 3) degrees, order BVH_ORDER (:func:`~stablemofusion.motion.rigid_batch.
+      pose_joints`, :func:`~stablemofusion.motion.rotation.matrix_to_euler`).
 
-    Both are the Python functions themselves, traced (they are written against the array API, loop-free)."""
+    Each is the Python function itself, traced (they are written against the array API, loop-free)."""
+    import warnings
+
     import onnx
 
     out = Path(out)
@@ -392,16 +446,27 @@ def export_final_stage(out: Path, fps: float = 20.0) -> list[Path]:
     joints = torch.zeros(2, T, 22, 3, dtype=torch.float64)
     joints[..., 1] = torch.linspace(0.0, 1.6, 22, dtype=torch.float64)
     lengths = torch.full((2, 22), 0.1, dtype=torch.float64)
+    features = torch.randn(2, T, 263, generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 0.1
+    kind, angle = torch.tensor([0, 1]), torch.tensor([1.0, -2.0], dtype=torch.float64)
+    points = torch.tensor([[[0.0, 0.0], [0.0, 3.0], [3.0, 3.0]]] * 2, dtype=torch.float64)
+    times, timed = torch.tensor([[0.0, 1.0, 2.5]] * 2, dtype=torch.float64), torch.tensor([False, True])
     batch = torch.export.Dim("batch", min=1, max=4096)
+    knots = torch.export.Dim("points", min=2, max=100_000)
     frames = torch.export.Dim("frames", min=MIN_GRAPH_FRAMES, max=100_000)
+    motion, per = {0: batch, 1: frames}, {0: batch}
     paths = []
-    for name, module, args, inputs, outputs in (
-            ("contacts.onnx", _ContactsGraph(fps, config.kinematic), (joints,), ["joints"], ["contacts"]),
+    for name, module, args, inputs, outputs, shapes in (
+            ("rigid.onnx", _RigidGraph(DEFAULT_FIT.iterations), (features, lengths), ["features", "bone_lengths"],
+             ["joints"], (motion, per)),
+            ("bend.onnx", _BendGraph(fps), (features, kind, angle), ["features", "kind", "angle"], ["features_out"],
+             (motion, per, per)),
+            ("follow.onnx", _FollowGraph(fps), (features, points, times, timed), ["features", "points", "times", "timed"],
+             ["features_out", "start", "origin"], (motion, {0: batch, 1: knots}, {0: batch, 1: knots}, per)),
+            ("contacts.onnx", _ContactsGraph(fps, config.kinematic), (joints,), ["joints"], ["contacts"], (motion,)),
             ("cleanup.onnx", _CleanupGraph(fps, config), (joints, lengths), ["joints", "bone_lengths"],
-             ["joints_out", "held"])):
-        shapes = ({0: batch, 1: frames},) if len(args) == 1 else ({0: batch, 1: frames}, {0: batch})
-        import warnings
-
+             ["joints_out", "held"], (motion, per)),
+            ("pose.onnx", _PoseGraph(), (joints, lengths), ["joints", "bone_lengths"], ["offsets", "rotations", "euler"],
+             (motion, per))):
         with torch.no_grad(), warnings.catch_warnings():
             warnings.simplefilter("ignore")
             torch.onnx.export(module.eval(), args, str(out / name), input_names=inputs, output_names=outputs,

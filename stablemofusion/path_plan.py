@@ -31,10 +31,11 @@ from importlib import resources
 import numpy as np
 
 from .footskate.cleanup import CLEANUP_CONTACTS
-from .footskate.contacts import HML_FOOT_JOINTS, kinematic_contacts
+from .footskate.contacts import HML_FOOT_JOINTS, contacts_of_feet
+from .motion import timeseries as ts
+from .motion.arrays import namespace
 from .motion.features import joints_from_features
-from .motion.timeseries import smoothstep
-from .motion.root import follow_path
+from .motion.root import follow_path, headings
 from .motion.skeleton import get_skeleton
 
 ZIGZAG_DEGREES = 45.0  # heading of a zigzag's legs either side of its direction
@@ -45,6 +46,7 @@ BACK_SPAN = (0.42, 0.58)  # where a there-and-back turns: this part of the dista
 MIN_MODEL_TURN = 30.0  # degrees: a smaller turn of the model's own is not scaled (a turn is added instead)
 MIN_TRAVEL = 0.5  # m: a motion that travels less is bent over time, not distance
 SKELETON = "humanml3d"  # the features bent here are HumanML3D's
+KINDS = ("arc", "turn", "zigzag", "back", "strafe")  # a path's kind as the number the bending graph takes
 
 
 @dataclass(frozen=True)
@@ -96,86 +98,98 @@ def parse_path(prompt: str) -> PathSpec | None:
     return None
 
 
-def _progress(features: np.ndarray) -> np.ndarray:
-    """(T,) how far along the motion each frame is, 0 .. 1: by the root's travelled distance, or by time for a
-    motion that hardly travels."""
-    speed = np.linalg.norm(features[:, 1:3], axis=-1)
-    travelled = np.concatenate([[0.0], np.cumsum(speed[:-1])])
-    if travelled[-1] < MIN_TRAVEL:
-        return np.linspace(0.0, 1.0, len(features))
-    return travelled / travelled[-1]
+def progress(features):
+    """(B, T) how far along its motion each frame is, 0 .. 1, of raw features (B, T, D): by the root's travelled
+    distance, or by time for a motion that travels less than MIN_TRAVEL."""
+    xp = namespace(features)
+    speed = ts.norm(features[..., 1:3])
+    travelled = xp.concat([xp.zeros_like(speed[:, :1]), xp.cumulative_sum(speed[:, :-1], axis=1)], axis=1)
+    total = travelled[:, -1:]
+    by_time = xp.astype(ts.frames(features), features.dtype) / xp.astype(ts.count(features) - 1, features.dtype)
+    return xp.where(total < ts.const(total, MIN_TRAVEL), by_time[None],
+                    travelled / xp.where(total > 0, total, xp.ones_like(total)))
 
 
-def heading_offset(spec: PathSpec, features: np.ndarray) -> np.ndarray:
-    """(T,) radians (positive: to the left) added to the root heading of each frame of raw features (T, D), so that
-    the body's facing (:func:`facing`) changes as ``spec`` says."""
-    u = _progress(features)
-    a = math.radians(spec.angle)
+def facing(features):
+    """(B, T) the body's facing in radians (positive: to the left, unwrapped) of raw HumanML3D features (B, T, D):
+    the root's heading (the yaw channel integrates half-angles of turns to the right) plus the facing of the hips in
+    the root's frame (their root-relative positions)."""
+    across = features[..., 4:7] - features[..., 7:10]  # left hip - right hip, root-relative, in the root's frame
+    local = ts.unwrap(ts.atan2(-across[..., 2], across[..., 0]))  # the facing (across x up) of the hips, about +Y
+    return -2.0 * headings(features) + local
+
+
+def heading_offset(kind, angle, features):
+    """(B, T) radians (positive: to the left) added to the root heading of each frame of raw features (B, T, D) so
+    that the body's facing (:func:`facing`) changes as a path of ``kind`` (B,) (an index into KINDS) and ``angle``
+    (B,) radians says. Every kind is computed and each motion takes its own: no branch, so it runs as a graph."""
+    xp = namespace(features)
+    u = progress(features)
+    a = angle[:, None]
     face = facing(features)
-    face = face - face[0]
-    if spec.kind == "turn":
-        if abs(math.degrees(face[-1])) >= MIN_MODEL_TURN:  # the model's own turn, scaled to the angle
-            return face * (a / face[-1] - 1.0)
-        t = np.linspace(0.0, 1.0, len(features))
-        return a * smoothstep((t - TURN_SPAN[0]) / (TURN_SPAN[1] - TURN_SPAN[0])) - face
-    if spec.kind == "strafe":  # keep facing ahead
-        return -face
-    if spec.kind == "arc":
-        target = a * u
-    elif spec.kind == "back":
-        target = a * smoothstep((u - BACK_SPAN[0]) / (BACK_SPAN[1] - BACK_SPAN[0]))
-    elif spec.kind == "zigzag":
-        legs = np.clip(1.5 * np.sin(math.pi * ZIGZAG_LEGS * np.minimum(u / ZIGZAG_END, 1.0)), -1.0, 1.0)
-        target = math.radians(ZIGZAG_DEGREES) * legs
-    else:
-        raise ValueError(f"unknown path kind {spec.kind!r}")
-    return target - face[-1] * u  # the path's turning, less the model's own drift (its sway kept)
+    face = face - face[:, :1]
+    own = face[:, -1:]  # the model's own turn
+    t = xp.astype(ts.frames(features), features.dtype)[None] / xp.astype(ts.count(features) - 1, features.dtype)
+    scaled = face * (a / xp.where(own == 0, xp.ones_like(own), own) - 1.0)  # the model's own turn, scaled
+    added = a * ts.smoothstep((t - ts.const(t, TURN_SPAN[0])) / ts.const(t, TURN_SPAN[1] - TURN_SPAN[0])) - face
+    turn = xp.where(xp.abs(ts.degrees(own)) >= ts.const(own, MIN_MODEL_TURN), scaled, added)
+    back = a * ts.smoothstep((u - ts.const(u, BACK_SPAN[0])) / ts.const(u, BACK_SPAN[1] - BACK_SPAN[0]))
+    legs = xp.clip(1.5 * xp.sin(ts.const(u, math.pi * ZIGZAG_LEGS) * xp.minimum(u / ts.const(u, ZIGZAG_END), 1.0)),
+                   -1.0, 1.0)
+    zigzag = ts.const(u, math.radians(ZIGZAG_DEGREES)) * legs
+    k = kind[:, None]
+    target = xp.where(k == KINDS.index("back"), back, xp.where(k == KINDS.index("zigzag"), zigzag, a * u))
+    drift = target - own * u  # the path's turning, less the model's own drift (its sway kept)
+    return xp.where(k == KINDS.index("turn"), turn, xp.where(k == KINDS.index("strafe"), -face, drift))
 
 
-def facing(features: np.ndarray) -> np.ndarray:
-    """(T,) the body's facing in radians (positive: to the left, unwrapped) of raw HumanML3D features (T, D): the
-    root's heading (the yaw channel integrates half-angles of turns to the right) plus the facing of the hips in the
-    root's frame (their root-relative positions)."""
-    yaw = features[:, 0]
-    heading = -2.0 * np.concatenate([[0.0], np.cumsum(yaw[:-1])])
-    across = features[:, 4:7] - features[:, 7:10]  # left hip - right hip, root-relative, in the root's frame
-    local = np.unwrap(np.arctan2(-across[:, 2], across[:, 0]))  # the facing (across x up) of the hips, about +Y
-    return heading + local
+def bend_features(features, kind, angle, fps: float, *, finite_check: bool = True):
+    """Raw features (B, T, D) whose facing follows paths of ``kind`` (B,) (indices into KINDS) and ``angle`` (B,)
+    radians: the heading offset of :func:`heading_offset`, the root's path pivoted about the planted foot
+    (:func:`pivoted_path`). Array API, loop-free: the graph ``bend.onnx`` is this function (``finite_check``
+    False: its caller checks the values)."""
+    xp = namespace(features)
+    extra = heading_offset(kind, angle, features)
+    path = pivoted_path(features, extra, fps, finite_check=finite_check)
+    turn = xp.concat([(extra[:, 1:] - extra[:, :-1]) / 2.0, xp.zeros_like(extra[:, :1])], axis=1)
+    f = xp.concat([features[..., :1] - turn[..., None], features[..., 1:]], axis=-1)  # half-angles per frame
+    return follow_path(f, path)
 
 
 def bend(features: np.ndarray, spec: PathSpec | None) -> np.ndarray:
     """Raw features (T, D) whose facing follows ``spec`` (a copy; ``features`` itself when ``spec`` is None). The
     body turns about its planted foot where one is planted (the root's path moved so that the foot stays where it
-    stands), else about the root."""
+    stands), else about the root (:func:`bend_features` of one motion)."""
     if spec is None or len(features) < 2:
         return features
-    f = np.array(features, dtype=np.float64)
-    extra = heading_offset(spec, f)
-    path = _pivoted_path(f, extra)
-    f[:-1, 0] -= np.diff(extra) / 2.0  # frame t's yaw velocity carries it to frame t + 1 (half-angles)
-    f = follow_path(f, path)
-    return f.astype(np.asarray(features).dtype, copy=False)
+    f = np.asarray(features, dtype=np.float64)[None]
+    out = bend_features(f, np.array([KINDS.index(spec.kind)]), np.array([math.radians(spec.angle)]),
+                        get_skeleton(SKELETON).fps)[0]
+    return out.astype(np.asarray(features).dtype, copy=False)
 
 
-def _pivoted_path(features: np.ndarray, extra: np.ndarray) -> np.ndarray:
-    """(T, 2) the root's XZ path once the body is turned by ``extra`` (T,) radians more at each frame: each step
-    turned with its frame, and while a foot is planted in the original motion, the root moved about that foot so
-    that the foot stays put (its position: the mean of the planted foot joints)."""
-    joints = joints_from_features(features, SKELETON)
-    root = joints[:, 0, [0, 2]]
-    feet = joints[:, list(HML_FOOT_JOINTS)][..., [0, 2]]  # (T, 4, 2)
-    planted = kinematic_contacts(joints, get_skeleton(SKELETON).fps, config=CLEANUP_CONTACTS)  # (T, 4)
-    c, s = np.cos(extra), np.sin(extra)
+def pivoted_path(features, extra, fps: float, *, finite_check: bool = True):
+    """(B, T, 2) the root's XZ path of raw features (B, T, D) once the body is turned by ``extra`` (B, T) radians
+    more at each frame: each step turned with its frame, and while a foot is planted in the original motion, the
+    root moved about that foot so that the foot stays put (its position: the mean of the planted foot joints)."""
+    xp = namespace(features)
+    joints = joints_from_features(features, SKELETON, finite_check=finite_check)
+    root = ts.xz(joints[:, :, 0])  # (B, T, 2)
+    feet = xp.stack([joints[:, :, j] for j in HML_FOOT_JOINTS], axis=2)  # (B, T, 4, 3)
+    planted = contacts_of_feet(feet, fps, CLEANUP_CONTACTS)  # (B, T, 4)
+    c, s = xp.cos(extra), xp.sin(extra)
 
-    def turn(k: slice, v: np.ndarray) -> np.ndarray:  # v (n, 2) turned about +Y by extra[k] (n,)
-        return np.stack([c[k] * v[:, 0] + s[k] * v[:, 1], -s[k] * v[:, 0] + c[k] * v[:, 1]], -1)
+    def turn(k: slice, v):  # v (B, n, 2) turned about +Y by extra[:, k] (B, n)
+        return xp.stack([c[:, k] * v[..., 0] + s[:, k] * v[..., 1], -s[:, k] * v[..., 0] + c[:, k] * v[..., 1]], -1)
 
-    now, nxt = slice(0, len(root) - 1), slice(1, len(root))
-    both = planted[:-1] & planted[1:]  # (T-1, 4): feet planted in frames t and t + 1
-    count = both.sum(-1, keepdims=True)
-    arm = (feet[:-1] * both[..., None]).sum(1) / np.maximum(count, 1) - root[:-1]  # (T-1, 2): root to that foot
-    step = turn(nxt, root[1:] - root[:-1]) + np.where(count > 0, turn(now, arm) - turn(nxt, arm), 0.0)
-    return np.concatenate([np.zeros((1, 2)), np.cumsum(step, axis=0)])
+    now, nxt = slice(0, -1), slice(1, None)
+    both = planted[:, :-1] & planted[:, 1:]  # (B, T-1, 4): feet planted in frames t and t + 1
+    count = xp.sum(xp.astype(both, features.dtype), axis=-1)[..., None]
+    arm = xp.sum(ts.xz(feet[:, :-1]) * xp.astype(both, features.dtype)[..., None], axis=2) \
+        / xp.maximum(count, xp.ones_like(count)) - root[:, :-1]  # (B, T-1, 2): root to that foot
+    step = turn(nxt, root[:, 1:] - root[:, :-1]) + xp.where(count > 0, turn(now, arm) - turn(nxt, arm),
+                                                            xp.zeros_like(arm))
+    return xp.concat([xp.zeros_like(root[:, :1]), xp.cumulative_sum(step, axis=1)], axis=1)
 
 
 MAX_WAYPOINTS = 256  # an explicit path's most points
@@ -260,37 +274,63 @@ class Waypoints:
         return max(1, round(seconds * fps / LENGTH_MULTIPLE)) * LENGTH_MULTIPLE / fps  # whole multiples of frames
 
 
-def _along(points: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """(N, 2) positions at arc lengths ``s`` (N,) metres along polyline ``points`` (K, 2)."""
-    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=-1))])
-    s = np.clip(s, 0.0, cum[-1])
-    return np.stack([np.interp(s, cum, points[:, 0]), np.interp(s, cum, points[:, 1])], -1)
+def interp(x, xs, ys):
+    """(B, S) values at ``x`` (B, S) of the piecewise-linear functions through (``xs``, ``ys``) (B, K), ``xs``
+    increasing; the end values outside (numpy's ``interp``, per row, as array-API calls)."""
+    xp = namespace(x)
+    K = xs.shape[1]
+    below = xp.sum(xp.astype(xs[:, None, :] <= x[:, :, None], xp.int64), axis=-1)  # (B, S) knots at or before x
+    i = xp.clip(below - 1, 0, K - 2)
+    x0, x1, y0, y1 = ts.at(xs, i), ts.at(xs, i + 1), ts.at(ys, i), ts.at(ys, i + 1)
+    span = x1 - x0  # > 0 where xs increase; a row that does not is not read (follow_features' untimed rows)
+    w = xp.clip((x - x0) / xp.where(span > 0, span, xp.ones_like(span)), 0.0, 1.0)
+    return y0 + w * (y1 - y0)
+
+
+def along(points, cum, s):
+    """(B, S, 2) positions at arc lengths ``s`` (B, S) metres along polylines ``points`` (B, K, 2) whose arc lengths
+    at the points are ``cum`` (B, K)."""
+    xp = namespace(points)
+    return xp.stack([interp(s, cum, points[..., 0]), interp(s, cum, points[..., 1])], axis=-1)
+
+
+def follow_features(features, points, times, timed, fps: float, *, finite_check: bool = True):
+    """Raw features (B, T, D) whose root runs along the polylines ``points`` (B, K, 2) metres (at the motion's own
+    pace, or where ``timed`` (B,) at the ``times`` (B, K) seconds given) facing their direction, in the features'
+    frame (the path turned so that it starts along the body's first facing); and how to place the result in the
+    path's frame: the facing (B,) radians (positive to the left) and floor position (B, 2) of its first frame.
+    Array API, loop-free: the graph ``follow.onnx`` is this function."""
+    xp = namespace(features)
+    step = ts.norm(points[:, 1:] - points[:, :-1])
+    cum = xp.concat([xp.zeros_like(step[:, :1]), xp.cumulative_sum(step, axis=1)], axis=1)  # (B, K)
+    clock = xp.astype(ts.frames(features), features.dtype)[None] / ts.const(features, fps)  # (1, T) seconds
+    by_time = interp(clock + xp.zeros_like(features[..., 0]), times, cum)
+    s = xp.where(timed[:, None], by_time, progress(features) * cum[:, -1:])
+    p = along(points, cum, s)
+    span = ts.const(s, TANGENT_SPAN)
+    d = along(points, cum, s + span) - along(points, cum, s - span)
+    heading = ts.unwrap(ts.atan2(d[..., 0], d[..., 1]))  # facing of +Z is 0, of +X (left) is +pi/2
+    face = facing(features)
+    start = heading[:, :1] - face[:, :1]  # the path turned by -start starts along the body's first facing
+    c, sn = xp.cos(start), xp.sin(start)
+    rel = p - p[:, :1]
+    local = xp.stack([c * rel[..., 0] - sn * rel[..., 1], sn * rel[..., 0] + c * rel[..., 1]], axis=-1)
+    extra = (heading - start) - face
+    extra = extra - extra[:, :1]
+    turn = xp.concat([(extra[:, 1:] - extra[:, :-1]) / 2.0, xp.zeros_like(extra[:, :1])], axis=1)
+    f = xp.concat([features[..., :1] - turn[..., None], features[..., 1:]], axis=-1)
+    return follow_path(f, local), start[:, 0], p[:, 0]
 
 
 def follow_waypoints(features: np.ndarray, path: Waypoints, fps: float) -> tuple[np.ndarray, float, np.ndarray]:
-    """Raw features (T, D) whose root runs along ``path`` (at the motion's own pace, or at the path's times) facing
-    its direction, in the features' frame (the path turned so that it starts along the body's first facing); and
-    how to place the result in the path's frame: the facing (radians, positive to the left) and the floor position
-    (2,) of its first frame."""
-    f = np.array(features, dtype=np.float64)
-    T = len(f)
-    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path.points, axis=0), axis=-1))])
-    if path.times is not None:  # arc length at each frame from the times (constant speed between points)
-        s = np.interp(np.arange(T) / fps, path.times, cum)
-    else:
-        s = _progress(f) * cum[-1]
-    p = _along(path.points, s)
-    d = _along(path.points, s + TANGENT_SPAN) - _along(path.points, s - TANGENT_SPAN)
-    heading = np.unwrap(np.arctan2(d[:, 0], d[:, 1]))  # facing of +Z is 0, of +X (left) is +pi/2
-    face = facing(f)
-    start = heading[0] - face[0]  # the path turned by -start starts along the body's first facing
-    c, sn = math.cos(-start), math.sin(-start)
-    rel = p - p[0]
-    local = np.stack([c * rel[:, 0] + sn * rel[:, 1], -sn * rel[:, 0] + c * rel[:, 1]], -1)
-    extra = (heading - start) - face
-    extra -= extra[0]
-    f[:-1, 0] -= np.diff(extra) / 2.0
-    return follow_path(f, local), float(start), p[0].copy()
+    """Raw features (T, D) whose root runs along ``path`` (:func:`follow_features` of one motion); and how to place
+    the result in the path's frame: the facing (radians, positive to the left) and the floor position (2,) of its
+    first frame."""
+    f = np.asarray(features, dtype=np.float64)[None]
+    timed = path.times is not None
+    times = path.times if timed else np.zeros(len(path.points))
+    out, start, origin = follow_features(f, path.points[None], times[None], np.array([timed]), fps)
+    return out[0], float(start[0]), origin[0].copy()
 
 
 def waypoints_for(path, n: int) -> list["Waypoints | None"]:
@@ -392,4 +432,4 @@ def bend_segments(features: np.ndarray, frames: list[int], specs: list[PathSpec 
     return f
 
 
-__all__ = ["PathSpec", "PromptPaths", "Waypoints", "bend", "follow", "follow_waypoints", "place", "placed", "waypoints_for", "bend_segments", "heading_offset", "parse_path", "path_segments", "read_paths"]
+__all__ = ["PathSpec", "PromptPaths", "Waypoints", "KINDS", "bend", "bend_features", "follow", "follow_features", "facing", "interp", "along", "progress", "pivoted_path", "follow_waypoints", "place", "placed", "waypoints_for", "bend_segments", "heading_offset", "parse_path", "path_segments", "read_paths"]

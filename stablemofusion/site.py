@@ -1,6 +1,6 @@
 """The static site (`smf site --out DIR`): a page that generates motions in the browser with no server, on a model's
-portable graphs (ONNX Runtime Web, WebAssembly), with the JavaScript twin of the runtime
-(``assets/runtime/smf.js``: tokenizer, sampler table, seeded noise, rigid stage).
+portable graphs (ONNX Runtime Web, WebAssembly), with the JavaScript runtime (``assets/runtime/smf.js``: tokenizer,
+sampler table, seeded noise; the final stage runs as the package's graphs, ``assets/final_stage/``).
 
 The folder holds the page (``index.html``, ``site.js``, ``site.css``), the JavaScript runtime (``runtime/``), the
 vendored npm assets (``vendor/``: onnxruntime-web, @huggingface/tokenizers, three.js) and the model (``model/``: the
@@ -19,14 +19,14 @@ from pathlib import Path
 import numpy as np
 
 from .errors import SMFError
-from .footskate.contacts import HML_FOOT_JOINTS
+from .motion.bvh import BVH_ORDER
+from .path_plan import KINDS, MAX_PATH_METRES, MAX_PATH_SPEED, MAX_WAYPOINTS, MIN_TRAVEL
 from .limits import LENGTH_MULTIPLE, MAX_PROMPT_CHARS
 from .motion.rigid import DEFAULT_FIT
-from .motion.rigid_batch import tree
 from .motion.skeleton import get_skeleton
 
 SITE_GRAPHS = ("text_encoder", "condition", "denoise", "length", "ood")  # what the page runs: the student's path
-FINAL_STAGE = ("contacts", "cleanup")  # and the final stage's graphs (the package's, any model: final_stage_graph)
+FINAL_STAGE = ("rigid", "bend", "follow", "contacts", "cleanup", "pose")  # and the final stage's graphs (the package's, any model: final_stage_graph)
 # ONNX Runtime Web's WebGPU build (?backend=webgpu, 26.9 MB): not in the package; `smf site --webgpu DIR` copies it
 # from the dist/ folder of the npm package onnxruntime-web of the version the package vendors (vendored_ort_web_version)
 WEBGPU_FILES = ("ort.webgpu.min.mjs", "ort-wasm-simd-threaded.asyncify.mjs", "ort-wasm-simd-threaded.asyncify.wasm")
@@ -39,15 +39,14 @@ MODEL_LICENCE = ("The model's weights were trained on Bandai-Namco motion captur
 def web_description(graphs) -> dict:
     """``web.json``: what the JavaScript runtime needs of a model's graphs (:class:`~stablemofusion.runtime.graphs.
     PortableGraphs`): file names, frame rate and lengths, the default sampler's table, the normalisation, the
-    skeleton's tree and bone lengths for the rigid stage, the known actions."""
+    skeleton's names, tree and bone lengths, the path words and the limits of a path, the known actions."""
     m, manifest = graphs.model, graphs.manifest
     if graphs.manifest.get("actions") is None or not graphs.has_length_model:
         raise SMFError("the site needs a model with a length model and known actions (the shipped model has both)")
     table = m.table(m.sampler, m.steps)
     sk = get_skeleton(m.entry["skeleton"])
-    t = tree(sk)
     if sk.bone_lengths is None or DEFAULT_FIT.bone_lengths != "dataset" or DEFAULT_FIT.method != "sweeps":
-        raise SMFError("the site's rigid stage fits the skeleton's dataset bone lengths by block sweeps")
+        raise SMFError("the site's rigid stage (rigid.onnx) fits the skeleton's dataset bone lengths by block sweeps")
     actions = manifest["actions"]
     # an adapted model's actions ("taught") come after the base's, in the same arrays
     groups = list(actions["actions"].items()) + list((actions.get("taught") or {}).items())
@@ -59,13 +58,11 @@ def web_description(graphs) -> dict:
                   "c": table.c.tolist(), "d": table.d.tolist(), "init_sigma": table.init_sigma,
                   "stochastic": table.stochastic},
         "mean": m.mean.astype(np.float64).tolist(), "std": m.std.astype(np.float64).tolist(),
-        "skeleton": {"name": sk.name, "names": list(sk.joint_names), "parents": [int(p) for p in t.parents], "branches": list(t.branches),
-                     "branch_children": [c.tolist() for c in t.branch_children],
-                     "levels": [[free.tolist(), list(ids)] for free, ids in t.levels], "rest": t.rest.tolist(),
+        "skeleton": {"name": sk.name, "names": list(sk.joint_names), "parents": [int(p) for p in sk.parents],
                      "bone_lengths": list(sk.bone_lengths)},
-        "rigid_sweeps": DEFAULT_FIT.iterations,
-        "foot_joints": list(HML_FOOT_JOINTS),
-        "paths": path_lexicon(),
+        "paths": path_lexicon(), "path_kinds": list(KINDS), "bvh_order": BVH_ORDER,
+        "path_limits": {"max_points": MAX_WAYPOINTS, "max_metres": MAX_PATH_METRES, "max_speed": MAX_PATH_SPEED,
+                        "min_travel": MIN_TRAVEL},
         "actions": {"names": [name for name, _ in groups], "threshold": actions["threshold"], "top": int(actions["top"]),
                     "owner": [i for i, (_, examples) in enumerate(groups) for _ in examples],
                     "embeddings": "actions.bin", "taught_from": len(actions["actions"]),
@@ -84,7 +81,7 @@ def path_lexicon() -> dict:
 
 
 def final_stage_graph(name: str) -> Path:
-    """The package's graph ``name`` (contacts or cleanup) of the final stage (:func:`~stablemofusion.onnx_export.
+    """The package's graph ``name`` (one of FINAL_STAGE) of the final stage (:func:`~stablemofusion.onnx_export.
     export_final_stage`: the Python functions themselves, exported)."""
     return Path(str(resources.files("stablemofusion") / "assets" / "final_stage" / f"{name}.onnx"))
 

@@ -45,8 +45,8 @@ def add_parser(sub, name: str) -> None:
                    help="with --onnx: an adapter file from `smf adapt`, merged into the graphs' weights (repeat it to "
                         "merge several): the adapted model for the runtime, the browser page and Blender")
     p.add_argument("--final-stage", action="store_true",
-                   help="instead: write the final stage's graphs (contacts.onnx, cleanup.onnx: the footskate cleanup "
-                        "as the Python runs it, float64) into --out; any model's, needs no checkpoint")
+                   help="instead: write the final stage's graphs (bend, follow, rigid, contacts, cleanup, pose .onnx: "
+                        "the Python's functions, float64) into --out; any model's, needs no checkpoint")
     p.set_defaults(func=run)
 
 

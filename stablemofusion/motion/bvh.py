@@ -328,8 +328,11 @@ def forward_kinematics(bvh: BVH, frames: slice | None = None) -> np.ndarray:
     return forward_kinematics_of_tree(trans, bvh.rotations(frames), trans[:, 0], bvh.parents)
 
 
+BVH_ORDER = "ZXY"  # the rotation channels of the BVH files we write: R = Rz Rx Ry
+
+
 def write_bvh(path: str | os.PathLike, *, names: list[str], parents, offsets, rotations, root_positions,
-              frame_time: float, end_sites: dict[int, np.ndarray] | None = None, order: str = "ZXY",
+              frame_time: float, end_sites: dict[int, np.ndarray] | None = None, order: str = BVH_ORDER,
               precision: int = 6) -> None:
     """Write a BVH file in metres, atomically; the arguments are those of :func:`format_bvh`."""
     text = format_bvh(names=names, parents=parents, offsets=offsets, rotations=rotations,
@@ -340,7 +343,7 @@ def write_bvh(path: str | os.PathLike, *, names: list[str], parents, offsets, ro
 
 
 def format_bvh(*, names: list[str], parents, offsets, rotations, root_positions, frame_time: float,
-               end_sites: dict[int, np.ndarray] | None = None, order: str = "ZXY", precision: int = 6) -> str:
+               end_sites: dict[int, np.ndarray] | None = None, order: str = BVH_ORDER, precision: int = 6) -> str:
     """The text of a BVH file in metres.
 
     ``parents`` (J,) with -1 for the single root and parents before children; ``offsets`` (J, 3) metres;

@@ -218,10 +218,12 @@ def features_from_joints(joints: np.ndarray, skeleton: str | Skeleton = "humanml
     ], axis=-1)
 
 
-def _check_features(features, sk: Skeleton) -> None:
+def _check_features(features, sk: Skeleton, values: bool = True) -> None:
     shape = tuple(features.shape)
     if len(shape) < 2 or shape[-1] != sk.feature_dim:
         raise MotionFormatError(f"expected features of shape (..., T, {sk.feature_dim}), got {shape}")
+    if not values:
+        return
     # A finite sum means every value is finite (NaN and inf propagate); only a non-finite sum (or an overflow)
     # needs the element-wise look. Written with operators so that it reads numpy arrays and tensors alike.
     if not bool(abs(features.sum()) < float("inf")) and not bool((abs(features) < float("inf")).all()):
@@ -247,15 +249,16 @@ def root_from_features(features):
 
 
 @float64_numpy
-def joints_from_features(features, skeleton: str | Skeleton = "humanml3d"):
+def joints_from_features(features, skeleton: str | Skeleton = "humanml3d", *, finite_check: bool = True):
     """Features (..., T, D) -> joint positions (..., T, J, 3) in metres, through the root-relative positions.
 
     Accepts numpy arrays (returns numpy, float64 math) or torch tensors (returns torch, same dtype/device,
-    differentiable).
+    differentiable). ``finite_check`` False skips the look at every value (a graph being traced cannot branch on
+    values; its caller checks).
     """
     sk = get_skeleton(skeleton)
     x = features
-    _check_features(x, sk)
+    _check_features(x, sk, finite_check)
     quat, root = root_from_features(x)
     J = sk.num_joints
     local = x[..., 4:4 + 3 * (J - 1)].reshape(x.shape[:-1] + (J - 1, 3))

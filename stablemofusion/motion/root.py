@@ -21,10 +21,10 @@ from .rotation import qinv, qmul, qrot, quat_to_matrix, yaw_quat
 
 
 def headings(features):
-    """(T, D) features -> (T,) integrated yaw half-angles (0 at frame 0)."""
+    """(..., T, D) features -> (..., T) integrated yaw half-angles (0 at frame 0)."""
     xp = namespace(features)
-    yaw = features[:, 0]
-    return xp.concat([xp.zeros_like(yaw[:1]), xp.cumulative_sum(yaw[:-1], axis=0)])
+    yaw = features[..., 0]
+    return xp.concat([xp.zeros_like(yaw[..., :1]), xp.cumulative_sum(yaw[..., :-1], axis=-1)], axis=-1)
 
 
 def root_xz(features):
@@ -34,23 +34,21 @@ def root_xz(features):
 
 
 def _to_body(angle, xz):
-    """World XZ vectors (N, 2) into the body frames of half-angles ``angle`` (N,): (N, 2)."""
+    """World XZ vectors (..., 2) into the body frames of half-angles ``angle`` (...): (..., 2)."""
     xp = namespace(angle, xz)
-    v = xp.stack([xz[:, 0], xp.zeros_like(xz[:, 0]), xz[:, 1]], axis=-1)
+    v = xp.stack([xz[..., 0], xp.zeros_like(xz[..., 0]), xz[..., 1]], axis=-1)
     out = qrot(yaw_quat(2.0 * angle), v)
-    return xp.stack([out[:, 0], out[:, 2]], axis=-1)
+    return xp.stack([out[..., 0], out[..., 2]], axis=-1)
 
 
 def follow_path(features, path):
-    """Set the root XZ velocities so the root follows ``path`` (T, 2) metres (``path[0]`` is frame 0's
-    position: the origin) under the features' own headings; the last frame repeats the one before."""
+    """Features (..., T, D) whose root XZ velocities make the root follow ``path`` (..., T, 2) metres (``path[0]``
+    is frame 0's position: the origin) under the features' own headings; the last frame repeats the one before."""
     xp = namespace(features)
-    f = features + 0  # a copy
-    ang = headings(f)
-    steps = path[1:] - path[:-1]  # world step into frame i, i = 1..T-1, taken by frame i-1's velocity
-    f[:-1, 1:3] = _to_body(ang[1:], xp.astype(steps, f.dtype))
-    f[-1, 1:3] = f[-2, 1:3]
-    return f
+    steps = xp.astype(path[..., 1:, :] - path[..., :-1, :], features.dtype)  # into frame i, by frame i-1's velocity
+    vel = _to_body(headings(features)[..., 1:], steps)
+    vel = xp.concat([vel, vel[..., -1:, :]], axis=-2)
+    return xp.concat([features[..., :1], vel, features[..., 3:]], axis=-1)
 
 
 def land_at(features, start: int, frame: int, angle, xz):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import timeseries as ts
 from .arrays import Array, namespace
 
 __all__ = ["Array", "cont6d_to_matrix", "matrix_to_euler", "matrix_to_quat", "qbetween", "qinv", "qmul", "qnormalize",
@@ -101,10 +102,11 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     return q.reshape(shape + (4,))
 
 
-def matrix_to_euler(m: np.ndarray, order: str) -> np.ndarray:
+def matrix_to_euler(m, order: str):
     """Rotation matrices (..., 3, 3) -> intrinsic Euler angles (..., 3) in degrees about the three distinct axes of
-    ``order`` (e.g. "ZXY": R = Rz(a) Rx(b) Ry(c), as BVH channels are written); numpy, float64. With the middle
-    angle at +-90 degrees (gimbal lock) the third is 0 and the first carries the rest: the angles still give R."""
+    ``order`` (e.g. "ZXY": R = Rz(a) Rx(b) Ry(c), as BVH channels are written); numpy (float64) or a tensor. With the
+    middle angle at +-90 degrees (gimbal lock) the third is 0 and the first carries the rest: the angles still give
+    R."""
     from ..errors import SMFError
 
     axes = ["XYZ".index(a) for a in order.upper()] if len(order) == 3 and set(order.upper()) <= set("XYZ") else []
@@ -112,23 +114,25 @@ def matrix_to_euler(m: np.ndarray, order: str) -> np.ndarray:
         raise SMFError(f"Euler order must name the three axes X, Y, Z once each, got {order!r}")
     i, j, k = axes
     s = 1.0 if (j - i) % 3 == 1 else -1.0  # +1 for the cyclic orders XYZ, YZX, ZXY
-    r = np.asarray(m, dtype=np.float64)
-    cos_b = np.hypot(r[..., i, i], r[..., i, j])  # |cos b| from the row that holds it (arcsin is ill-conditioned)
-    b = np.arctan2(s * r[..., i, k], cos_b)
-    a = np.arctan2(-s * r[..., j, k], r[..., k, k])
-    c = np.arctan2(-s * r[..., i, j], r[..., i, i])
-    locked = cos_b < GIMBAL_COS
-    if np.any(locked):  # c = 0: R_i(a) = R R_j(b)^T, whose angle about axis i is read off its (i+1, i+2) block
-        rj = np.zeros(b.shape + (3, 3))
-        p, q = (j + 1) % 3, (j + 2) % 3
-        rj[..., j, j] = 1.0
-        rj[..., p, p] = rj[..., q, q] = np.cos(b)
-        rj[..., q, p], rj[..., p, q] = np.sin(b), -np.sin(b)
-        ri = r @ np.swapaxes(rj, -1, -2)
-        p, q = (i + 1) % 3, (i + 2) % 3
-        a = np.where(locked, np.arctan2(ri[..., q, p], ri[..., p, p]), a)
-        c = np.where(locked, 0.0, c)
-    return np.degrees(np.stack([a, b, c], -1))
+    r = np.asarray(m, dtype=np.float64) if isinstance(m, (np.ndarray, list, tuple)) else m
+    xp = namespace(r)
+    cos_b = xp.sqrt(r[..., i, i] ** 2 + r[..., i, j] ** 2)  # |cos b| from the row that holds it (not arcsin)
+    b = ts.atan2(s * r[..., i, k], cos_b)
+    a = ts.atan2(-s * r[..., j, k], r[..., k, k])
+    c = ts.atan2(-s * r[..., i, j], r[..., i, i])
+    # gimbal lock, c = 0: R_i(a) = R R_j(b)^T, whose angle about axis i is read off its (i+1, i+2) block
+    p, q = (i + 1) % 3, (i + 2) % 3
+    e = [(j + 1) % 3, (j + 2) % 3]  # R_j(b)'s plane: cos b on its diagonal, sin b off it
+    cb, sb = xp.cos(b), xp.sin(b)
+    rj = {(j, j): 1.0, (e[0], e[0]): cb, (e[1], e[1]): cb, (e[1], e[0]): sb, (e[0], e[1]): -sb}
+
+    def ri(u: int, v: int):  # (R R_j(b)^T)[u, v] = sum_w R[u, w] R_j(b)[v, w]
+        return sum(r[..., u, w] * rj[(v, w)] for w in range(3) if (v, w) in rj)
+
+    locked = cos_b < ts.const(cos_b, GIMBAL_COS)
+    a = xp.where(locked, ts.atan2(ri(q, p), ri(p, p)), a)
+    c = xp.where(locked, xp.zeros_like(c), c)
+    return ts.degrees(xp.stack([a, b, c], axis=-1))
 
 
 def quat_to_cont6d(q: Array) -> Array:

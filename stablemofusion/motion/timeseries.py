@@ -200,6 +200,18 @@ def atan2(y, x):
     return theta
 
 
+def unwrap(x):
+    """``x`` (N, T) angles in radians with every jump between frames larger than pi made smaller by whole turns
+    (numpy's ``unwrap``, written with array-API calls)."""
+    xp = namespace(x)
+    d = x[:, 1:] - x[:, :-1]
+    pi = const(x, math.pi)
+    wrapped = xp.remainder(d + pi, 2.0 * pi) - pi
+    wrapped = xp.where((wrapped == -pi) & (d > 0), pi + xp.zeros_like(d), wrapped)
+    fix = xp.where(xp.abs(d) < pi, xp.zeros_like(d), wrapped - d)
+    return x + xp.concat([xp.zeros_like(x[:, :1]), xp.cumulative_sum(fix, axis=1)], axis=1)
+
+
 def const(like, value: float):
     """``value`` as a number of ``like``'s precision: the float itself for numpy; for a tensor a 0-d tensor of its
     dtype (a graph exporter stores a bare Python number as float32, which would round 0.1, 9.81, 180 / pi ...)."""
@@ -217,4 +229,4 @@ def radians(x):
 
 
 __all__ = ["at", "atan2", "const", "count", "cummax", "degrees", "frames", "gaussian", "gradient", "last_true", "next_true", "norm",
-           "radians", "shifted", "smoothstep", "sorted_in_time", "window", "windows", "xz"]
+           "radians", "shifted", "smoothstep", "sorted_in_time", "unwrap", "window", "windows", "xz"]

@@ -1,12 +1,14 @@
-"""The final stage's graphs (assets/final_stage/: the cleanup and its contacts, exported from the Python functions)
-against the Python functions themselves, on the same rigid joints: every path kind and explicit waypoints, walks,
-runs and standing motions; run by ONNX Runtime in Python and by ONNX Runtime Web in Node.js, as the page and Node
-run them. Everything computes in float64, so they agree to rounding (goal: 1e-3 mm; asserted 1e-9 m). A change to
-the Python cleanup that is not exported again (`smf export --final-stage`) fails here."""
+"""The final stage's graphs (assets/final_stage/: the path words' bend, following explicit points, decoding and the
+rigid fit, the cleanup and its contacts, the pose; exported from the Python functions) against the Python functions
+themselves, on the same inputs: every path kind and explicit waypoints (timed and not), walks, runs and standing
+motions; run by ONNX Runtime in Python and by ONNX Runtime Web in Node.js, as the page and Node run them. Everything
+computes in float64, so they agree to rounding (goal: 1e-3 mm; asserted 1e-9 m, 1e-9 rad, 1e-6 degrees). A change to
+the Python final stage that is not exported again (`smf export --final-stage`) fails here."""
 
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import subprocess
 from pathlib import Path
@@ -16,28 +18,34 @@ import onnxruntime as ort
 import pytest
 
 from stablemofusion.footskate.cleanup import CleanupConfig, clean_joints, detect_contacts
+from stablemofusion.motion.bvh import BVH_ORDER
+from stablemofusion.motion.features import joints_from_features
+from stablemofusion.motion.rigid import DEFAULT_FIT
+from stablemofusion.motion.rigid_batch import fit_joints, pose_joints
+from stablemofusion.motion.rotation import matrix_to_euler
+from stablemofusion.path_plan import KINDS, Waypoints, bend, follow_waypoints, parse_path
 from stablemofusion.runtime.pipeline import PortablePipeline
-from stablemofusion.site import final_stage_graph
+from stablemofusion.site import FINAL_STAGE, final_stage_graph
 
 NODE = shutil.which("node")
 ORT_WEB = Path(__file__).resolve().parents[2] / "stablemofusion" / "assets" / "site" / "vendor" / "onnxruntime-web"
 DRIVER = """
 import { readFileSync } from 'node:fs';
 import { pathToFileURL } from 'node:url';
-const [ortDir, contactsFile, cleanupFile] = process.argv.slice(2);
+const [ortDir, folder] = process.argv.slice(2);
 const ort = await import(pathToFileURL(ortDir + '/ort.wasm.min.mjs').href);
 ort.env.wasm.numThreads = 1;
 ort.env.wasm.wasmPaths = pathToFileURL(ortDir + '/').href;
-const contacts = await ort.InferenceSession.create(readFileSync(contactsFile));
-const cleanup = await ort.InferenceSession.create(readFileSync(cleanupFile));
+const sessions = {};
 const jobs = JSON.parse(readFileSync(0, 'utf8'));
+const make = { float64: Float64Array, int64: (v) => BigInt64Array.from(v.map(BigInt)), bool: Uint8Array };
 const out = [];
-for (const m of jobs) {
-  const joints = new ort.Tensor('float64', Float64Array.from(m.x), [1, m.T, 22, 3]);
-  const c = await contacts.run({ joints });
-  const r = await cleanup.run({ joints, bone_lengths: new ort.Tensor('float64', Float64Array.from(m.lengths), [1, 22]) });
-  out.push({ joints: Array.from(r.joints_out.data), held: Array.from(r.held.data, Number),
-             contacts: Array.from(c.contacts.data, Number) });
+for (const { graph, feeds } of jobs) {
+  sessions[graph] ??= await ort.InferenceSession.create(readFileSync(`${folder}/${graph}.onnx`));
+  const tensors = Object.fromEntries(Object.entries(feeds).map(([k, { type, data, dims }]) =>
+    [k, new ort.Tensor(type, type === 'int64' ? make.int64(data) : make[type].from(data), dims)]));
+  const got = await sessions[graph].run(tensors);
+  out.push(Object.fromEntries(Object.entries(got).map(([k, t]) => [k, Array.from(t.data, Number)])));
 }
 process.stdout.write(JSON.stringify(out));
 """
@@ -49,54 +57,98 @@ CASES = [  # (prompt, path) covering every path kind of the lexicon and explicit
     ("a person waves both hands happily", None), ("an old man walks forward slowly", None),
     ("a person walks", {"points": [[0, 0], [0, 3], [3, 3], [3, 0], [0, 0]]}),
     ("a person runs", {"points": [[0, 0], [1, 1.5], [-1, 3], [1, 4.5]]}),
+    ("a person walks", {"points": [[0, 0], [2, 0], [2, 2]], "times": [0, 1.5, 4]}),
 ]
+FPS = 20.0
+
+
+def feed(**arrays) -> dict:
+    """Graph inputs as numpy arrays of the graph's types (float64, int64, bool)."""
+    return {k: np.asarray(v) for k, v in arrays.items()}
 
 
 @pytest.fixture(scope="module")
-def cases():
-    """Rigid joints, bone lengths, and the Python cleanup's joints, held frames and contacts of each case."""
+def jobs():
+    """(case, graph, inputs, the Python function's outputs) for every graph on every case it applies to."""
     pipe = PortablePipeline.from_pretrained(threads=1)
+    lengths = np.asarray(pipe.skeleton.bone_lengths)[None]
     config = CleanupConfig()
     out = []
     for k, (prompt, path) in enumerate(CASES):
-        body = pipe(prompt, seed=k, footskate="off", path=path)[0].motion
-        x = body.joints()
-        c = detect_contacts(x, pipe.fps, config)
-        joints, held = clean_joints(x, c, body.bone_lengths, pipe.fps, config)
-        out.append((x, body.bone_lengths, joints, held, c))
-    assert any(np.abs(w - x).max() > 0.05 for x, _, w, _, _ in out)  # the cleanup moved something
+        spec = parse_path(prompt)
+        raw = pipe(prompt if spec is None else spec.prompt, seconds=4, seed=k, footskate="off")[0].features
+        if path is not None:
+            wp = Waypoints.read(path)
+            timed = wp.times is not None
+            f, start, origin = follow_waypoints(raw, wp, FPS)
+            out.append((prompt, "follow", feed(features=raw[None], points=wp.points[None],
+                                               times=(wp.times if timed else np.zeros(len(wp.points)))[None],
+                                               timed=np.array([timed])),
+                        [f[None], np.array([start]), origin[None]]))
+        elif spec is not None:
+            f = bend(raw, spec)
+            out.append((prompt, "bend", feed(features=raw[None], kind=np.array([KINDS.index(spec.kind)]),
+                                             angle=np.array([math.radians(spec.angle)])), [f[None]]))
+        else:
+            f = raw
+        x = fit_joints(joints_from_features(f)[None], lengths, DEFAULT_FIT.iterations)
+        out.append((prompt, "rigid", feed(features=f[None], bone_lengths=lengths), [x]))
+        c = detect_contacts(x[0], FPS, config)
+        cleaned, held = clean_joints(x[0], c, lengths[0], FPS, config)
+        out.append((prompt, "contacts", feed(joints=x), [c[None]]))
+        out.append((prompt, "cleanup", feed(joints=x, bone_lengths=lengths), [cleaned[None], held[None]]))
+        offsets, local = pose_joints(cleaned[None], lengths)
+        out.append((prompt, "pose", feed(joints=cleaned[None], bone_lengths=lengths),
+                    [offsets, local, matrix_to_euler(local, BVH_ORDER)]))
+    assert {g for _, g, _, _ in out} == set(FINAL_STAGE)  # every graph is checked
+    assert any(np.abs(w[0] - i["joints"]).max() > 0.05 for _, g, i, w in out if g == "cleanup")  # it moved feet
     return out
 
 
-def test_the_graphs_are_the_python_final_stage(cases):
+def assert_equal(prompt: str, graph: str, got: list, want: list) -> None:
+    """Outputs equal: bool exactly; joints (m), features, rotations, radians to 1e-9; the pose's BVH angles (its
+    last output, degrees) to 1e-6."""
+    for k, (g, w) in enumerate(zip(got, want)):
+        g = np.asarray(g).reshape(w.shape)
+        if w.dtype == bool:
+            assert np.array_equal(g.astype(bool), w), (prompt, graph)
+        else:
+            tol = 1e-6 if graph == "pose" and k == 2 else 1e-9
+            assert np.abs(g - w).max() < tol, (prompt, graph, np.abs(g - w).max())
+
+
+def test_the_graphs_are_the_python_final_stage(jobs):
     options = ort.SessionOptions()
     options.intra_op_num_threads = 1
-    cleanup = ort.InferenceSession(str(final_stage_graph("cleanup")), options, providers=["CPUExecutionProvider"])
-    contacts = ort.InferenceSession(str(final_stage_graph("contacts")), options, providers=["CPUExecutionProvider"])
-    for (prompt, _), (x, lengths, want, held, c) in zip(CASES, cases):
-        got, got_held = cleanup.run(None, {"joints": x[None], "bone_lengths": lengths[None]})
-        assert np.abs(got[0] - want).max() < 1e-9, prompt
-        assert np.array_equal(got_held[0], held), prompt
-        assert np.array_equal(contacts.run(None, {"joints": x[None]})[0][0], c), prompt
+    sessions = {name: ort.InferenceSession(str(final_stage_graph(name)), options, providers=["CPUExecutionProvider"])
+                for name in FINAL_STAGE}
+    for prompt, graph, inputs, want in jobs:
+        assert_equal(prompt, graph, sessions[graph].run(None, inputs), want)
     # a batch of motions of one length: each one's result is the one it gets alone
-    n = min(len(cases[0][0]), len(cases[1][0]))
-    x = np.stack([cases[0][0][:n], cases[1][0][:n]])
-    lengths = np.stack([cases[0][1], cases[1][1]])
-    got, _ = cleanup.run(None, {"joints": x, "bone_lengths": lengths})
-    alone = [clean_joints(x[i], detect_contacts(x[i], 20.0, CleanupConfig()), lengths[i], 20.0)[0] for i in range(2)]
+    rigid = [(i, w) for _, g, i, w in jobs if g == "rigid"][:2]
+    n = min(i["features"].shape[1] for i, _ in rigid)
+    got = sessions["rigid"].run(None, {"features": np.concatenate([i["features"][:, :n] for i, _ in rigid]),
+                                       "bone_lengths": np.concatenate([i["bone_lengths"] for i, _ in rigid])})[0]
+    alone = [sessions["rigid"].run(None, {"features": i["features"][:, :n], "bone_lengths": i["bone_lengths"]})[0]
+             for i, _ in rigid]
+    assert np.abs(got - np.concatenate(alone)).max() < 1e-9
+    x = np.concatenate([w[0][:, :n] for _, w in rigid])
+    lengths = np.concatenate([i["bone_lengths"] for i, _ in rigid])
+    got, _ = sessions["cleanup"].run(None, {"joints": x, "bone_lengths": lengths})
+    alone = [clean_joints(x[i], detect_contacts(x[i], FPS, CleanupConfig()), lengths[i], FPS)[0] for i in range(2)]
     assert np.abs(got - np.stack(alone)).max() < 1e-9
 
 
 @pytest.mark.skipif(NODE is None, reason="Node.js is not installed (apt-get install nodejs)")
-def test_node_runs_the_same_final_stage(tmp_path, cases):
+def test_node_runs_the_same_final_stage(tmp_path, jobs):
     driver = tmp_path / "driver.mjs"
     driver.write_text(DRIVER)
-    jobs = [{"x": x.ravel().tolist(), "T": len(x), "lengths": lengths.tolist()} for x, lengths, _, _, _ in cases]
-    run = subprocess.run([NODE, str(driver), str(ORT_WEB), str(final_stage_graph("contacts")),
-                          str(final_stage_graph("cleanup"))], input=json.dumps(jobs), capture_output=True, text=True,
-                         timeout=300)
+    sent = [{"graph": graph, "feeds": {k: {"type": {"f": "float64", "i": "int64", "b": "bool"}[v.dtype.kind],
+                                           "data": v.ravel().tolist(), "dims": list(v.shape)}
+                                       for k, v in inputs.items()}} for _, graph, inputs, _ in jobs]
+    folder = final_stage_graph("rigid").parent
+    run = subprocess.run([NODE, str(driver), str(ORT_WEB), str(folder)], input=json.dumps(sent), capture_output=True,
+                         text=True, timeout=600)
     assert run.returncode == 0, run.stderr
-    for (prompt, _), g, (x, _, want, held, c) in zip(CASES, json.loads(run.stdout), cases):
-        assert np.abs(np.asarray(g["joints"]).reshape(want.shape) - want).max() < 1e-9, prompt
-        assert np.array_equal(np.asarray(g["held"], bool).reshape(held.shape), held), prompt
-        assert np.array_equal(np.asarray(g["contacts"], bool).reshape(c.shape), c), prompt
+    for (prompt, graph, _, want), got in zip(jobs, json.loads(run.stdout)):
+        assert_equal(prompt, graph, list(got.values()), want)

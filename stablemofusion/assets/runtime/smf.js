@@ -1,12 +1,13 @@
 // Text to motion in JavaScript on the portable graphs (a folder written by `smf site`, model/): the JavaScript twin
-// of stablemofusion/runtime/pipeline.py for one prompt: the same tokenizer, graphs, sampler table, seeded noise and
-// rigid stage, so the same prompt, seed and length give the same joints. The footskate cleanup and the contacts a
-// path pivots on are not written here: they are the Python's own functions exported as graphs (contacts.onnx,
-// cleanup.onnx), run like the model's. It runs in a browser and in Node.js; the caller passes ONNX Runtime
-// (onnxruntime-web) and the Tokenizer class (@huggingface/tokenizers) and a function that reads a file of the folder.
+// of stablemofusion/runtime/pipeline.py for one prompt: the same tokenizer, graphs, sampler table and seeded noise,
+// so the same prompt, seed and length give the same joints. The final stage is not written here: following a path
+// (bend.onnx, follow.onnx), decoding and the rigid fit (rigid.onnx), the cleanup (cleanup.onnx) and the contacts
+// (contacts.onnx) are the Python's own functions exported as graphs, run like the model's. It runs in a browser and
+// in Node.js; the caller passes ONNX Runtime (onnxruntime-web) and the Tokenizer class (@huggingface/tokenizers) and
+// a function that reads a file of the folder.
 import { normal } from './noise.js';
-import { bend, followWaypoints, parsePath, placeJoints, readWaypoints, waypointSeconds } from './paths.js';
-import { bvhText, fitRigid, jointsFromFeatures, recentre } from './motion.js';
+import { parsePath, placeJoints, readWaypoints, waypointSeconds } from './paths.js';
+import { bvhText, recentre } from './motion.js';
 
 export class MotionRuntime {
   // read(name, kind) -> Promise of the file `name` of the model folder: kind 'json' (an object) or 'bytes'
@@ -59,6 +60,12 @@ export class MotionRuntime {
   }
 
   mask(n) { return new this.ort.Tensor('bool', new Uint8Array(n).fill(1), [1, n]); }
+
+  // A graph of the final stage (float64, on the CPU): feeds {name: [type, values, dims]} -> its outputs.
+  stage(name, feeds) {
+    const T = this.cpuOrt.Tensor;
+    return this.sessions[name].run(Object.fromEntries(Object.entries(feeds).map(([k, [type, v, dims]]) => [k, new T(type, v, dims)])));
+  }
 
   // The final stage's graphs on flat joints (T x J x 3 metres): 4 x T arrays of 0/1 (left ankle, left toe, right
   // ankle, right toe) from a (1, T, 4) bool output.
@@ -135,7 +142,7 @@ export class MotionRuntime {
     const enc = await this.encode(spec ? spec.prompt : prompt);
     const domain = await this.domain(enc);
     const unset = seconds === undefined || seconds === null || seconds === '';
-    const wp = path === null || path === undefined ? null : readWaypoints(path);
+    const wp = path === null || path === undefined ? null : readWaypoints(path, i.path_limits);
     const own = wp ? waypointSeconds(wp, prompt, i.paths, i.fps, i.length_multiple) : spec && spec.seconds;
     const n = await this.frames(spec ? await this.encode(prompt) : enc, unset && own ? own : seconds);
     const cond = await this.sessions.condition.run({ tokens: enc.tokens, mask: this.mask(enc.L),
@@ -163,17 +170,26 @@ export class MotionRuntime {
       x = next;
     }
     let features = new Float64Array(n * D);
-    for (let e = 0; e < n * D; e++) features[e] = x[e] * i.std[e % D] + i.mean[e % D];
-    // 3. the final stage: the path bent, decoded, the rigid fit (one skeleton of fixed bone lengths), the cleanup,
-    // recentred
+    // in float32, as the Python runtime computes it (its sampler works in float32 throughout)
+    for (let e = 0; e < n * D; e++) features[e] = Math.fround(Math.fround(x[e] * i.std[e % D]) + i.mean[e % D]);
+    // 3. the final stage, each step a graph: the path followed (explicit points, else the path words'), decoded and
+    // fitted with one skeleton of fixed bone lengths, the cleanup; then the first root at the origin
     const J = i.skeleton.parents.length, sk = i.skeleton;
+    const f64 = (v, dims) => ['float64', Float64Array.from(v), dims];
     let placing = null;
-    if (wp) ({ features, ...placing } = followWaypoints(features, n, D, wp, i.fps));
-    else if (spec) {
-      const raw = jointsFromFeatures(features, n, D, J);
-      features = bend(features, raw, await this.contactsOf(raw, n, J), n, D, J, spec, i.foot_joints);
+    if (wp) {
+      const K = wp.points.length;
+      const out = await this.stage('follow', { features: f64(features, [1, n, D]), points: f64(wp.points.flat(), [1, K, 2]),
+        times: f64(wp.times ?? new Array(K).fill(0), [1, K]), timed: ['bool', Uint8Array.of(wp.times ? 1 : 0), [1]] });
+      features = out.features_out.data;
+      placing = { start: out.start.data[0], origin: Array.from(out.origin.data) };
+    } else if (spec) {
+      const kind = ['int64', BigInt64Array.of(BigInt(i.path_kinds.indexOf(spec.kind))), [1]];
+      features = (await this.stage('bend', { features: f64(features, [1, n, D]), kind,
+        angle: f64([spec.angle * (Math.PI / 180)], [1]) })).features_out.data;
     }
-    let flat = fitRigid(jointsFromFeatures(features, n, D, J), n, sk, sk.bone_lengths, i.rigid_sweeps);
+    let flat = Float64Array.from((await this.stage('rigid', { features: f64(features, [1, n, D]),
+      bone_lengths: f64(sk.bone_lengths, [1, J]) })).joints.data);
     let contacts = null;
     if (footskate === 'post') ({ joints: flat, held: contacts } = await this.cleanup(flat, n, J, sk.bone_lengths));
     const planted = contacts ?? await this.contactsOf(flat, n, J);
@@ -193,9 +209,21 @@ export class MotionRuntime {
     return motion;
   }
 
+  // The pose of a motion made by `generate` (pose.onnx): {offsets: J x [x, y, z] metres, rotations: (T x J x 3 x 3,
+  // flat) each joint's rotation in its parent's frame (rows), euler: the same as BVH channel angles (T x J x 3, flat,
+  // degrees, order web.json's bvh_order)}.
+  async pose(motion) {
+    const J = this.info.skeleton.parents.length, T = motion.frames;
+    const out = await this.stage('pose', { joints: ['float64', motion.flat, [1, T, J, 3]],
+      bone_lengths: ['float64', Float64Array.from(this.info.skeleton.bone_lengths), [1, J]] });
+    const o = out.offsets.data;
+    return { offsets: Array.from({ length: J }, (_, j) => [o[j * 3], o[j * 3 + 1], o[j * 3 + 2]]),
+      rotations: out.rotations.data, euler: out.euler.data };
+  }
+
   // The BVH text of a motion made by `generate`, as `smf generate --format bvh` writes it.
-  bvh(motion) {
-    const sk = this.info.skeleton;
-    return bvhText(motion.flat, motion.frames, sk, sk.bone_lengths, motion.fps);
+  async bvh(motion) {
+    const { offsets, euler } = await this.pose(motion);
+    return bvhText(motion.flat, motion.frames, this.info.skeleton, offsets, euler, this.info.bvh_order, motion.fps);
   }
 }

@@ -3,7 +3,6 @@
 // Y up. Written with three.js's GLTFExporter.
 import * as THREE from 'three';
 import { GLTFExporter } from './vendor/three/exporters/GLTFExporter.js';
-import { poseOfJoints } from './runtime/motion.js';
 
 // bone radii (m) of the body's capsules by the joint a bone ends at; the values of motion/gltf.py
 const BONE_RADIUS = {
@@ -45,8 +44,8 @@ function capsule(a, b, radius, joint, out, rings = 4, sides = 10) {
   }
 }
 
-export async function glbBytes(joints, T, tree, lengths, fps) {
-  const { offsets, local } = poseOfJoints(joints, T, tree, lengths);
+export async function glbBytes(joints, T, tree, pose, fps) {
+  const { offsets, rotations } = pose;
   const J = tree.parents.length, names = tree.names, parents = tree.parents;
   // the skeleton at rest (identity rotations), its root at its first position
   const bones = names.map((name) => Object.assign(new THREE.Bone(), { name }));
@@ -91,8 +90,8 @@ export async function glbBytes(joints, T, tree, lengths, fps) {
     const values = new Float32Array(T * 4);
     let prev = null;
     for (let n = 0; n < T; n++) {
-      const r = local[n][j];
-      m4.set(r[0][0], r[0][1], r[0][2], 0, r[1][0], r[1][1], r[1][2], 0, r[2][0], r[2][1], r[2][2], 0, 0, 0, 0, 1);
+      const r = rotations.subarray((n * J + j) * 9, (n * J + j + 1) * 9); // rows
+      m4.set(r[0], r[1], r[2], 0, r[3], r[4], r[5], 0, r[6], r[7], r[8], 0, 0, 0, 0, 1);
       q.setFromRotationMatrix(m4);
       if (prev && prev.dot(q) < 0) q.set(-q.x, -q.y, -q.z, -q.w);
       prev = q.clone();

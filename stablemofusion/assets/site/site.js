@@ -90,9 +90,8 @@ const DOWNLOADS = { bvh: ['motion.bvh', 'text/plain'], glb: ['motion.glb', 'mode
 smf.file = async (format) => {
   const runtime = await smf.ready;
   if (!made) throw new Error('no motion yet: generate one first');
-  const sk = runtime.info.skeleton;
   if (format === 'bvh') return runtime.bvh(made);
-  if (format === 'glb') return glbBytes(made.flat, made.frames, sk, sk.bone_lengths, made.fps);
+  if (format === 'glb') return glbBytes(made.flat, made.frames, runtime.info.skeleton, await runtime.pose(made), made.fps);
   if (format === 'json') return JSON.stringify(smf.lastMotion);
   throw new Error(`no download '${format}': choose bvh, glb or json`);
 };

@@ -29,10 +29,13 @@ import numpy as np
 
 from .edit_plan import blend_seams
 from .errors import SMFError
+from .footskate.cleanup import CLEANUP_CONTACTS
+from .footskate.contacts import kinematic_contacts
 from .limits import check_prompt
 from .motion.features import joints_from_features, root_from_features
 from .motion.root import headings
 from .motion.rotation import qinv, qrot, yaw_quat
+from .motion.skeleton import get_skeleton
 from .timeline_plan import TAIL
 
 STREAM_KEEP = 20  # frames of the motion so far each window keeps as its start (1 s at 20 fps)
@@ -62,13 +65,15 @@ class WindowSampler(Protocol):
 class Chunk:
     """Frames ``start`` .. ``start + len(joints) - 1`` of a stream, made from its prompt number ``prompt_index``
     (counted from 0): ``joints`` (n, J, 3) metres in the stream's world frame, ``features`` (n, D) dataset
-    units (body-relative, as the model makes them)."""
+    units (body-relative, as the model makes them), ``contacts`` (n, 4) bool the feet the footskate cleanup's
+    detector counts as planted (left ankle, left toe, right ankle, right toe; found on the whole window)."""
 
     start: int
     prompt_index: int
     prompt: str
     joints: np.ndarray
     features: np.ndarray
+    contacts: np.ndarray
 
     @property
     def frames(self) -> int:
@@ -206,8 +211,9 @@ def _emit(s: MotionStream, f: np.ndarray, keep: int) -> Chunk:
     root = root_from_features(f)[1]
     xz = qrot(np.broadcast_to(turn, root.shape[:-1] + (4,)), root)[:, [0, 2]] + p0
     angle = a0 + headings(f)
+    planted = kinematic_contacts(local, get_skeleton(s.sampler.skeleton).fps, config=CLEANUP_CONTACTS)  # whole window
     chunk = Chunk(s.frames, s.prompt_index, s.prompt, world[keep:].astype(np.float32),
-                  f[keep:].astype(np.float32))
+                  f[keep:].astype(np.float32), planted[keep:])
     remember = s.keep + s.rewind
     s._features = np.concatenate([s._features, f[keep:]])[-remember:]
     s._angle = np.concatenate([s._angle, angle[keep:]])[-remember:]

@@ -21,6 +21,8 @@ import orjson
 
 from . import __version__
 from .errors import SMFError
+from .footskate.cleanup import CLEANUP_CONTACTS
+from .footskate.contacts import kinematic_contacts
 from .io import write_bytes
 from .limits import OUTPUT_FORMATS
 from .motion.files import rigid_bvh_text, rigid_pose
@@ -102,12 +104,21 @@ def rig_bvh_text(result: MotionResult, rig: Rig) -> str:
     return rig_text(rig.bvh, retarget_onto_bvh(result.joints, rig.bvh, rig.joint_map), result.fps)
 
 
+def planted_feet(joints: np.ndarray, fps: float) -> np.ndarray | None:
+    """(T, 4) bool the feet (left ankle, left toe, right ankle, right toe) that the footskate cleanup's detector
+    counts as planted in joints (T, 22, 3) metres; None for another skeleton or a single frame."""
+    if joints.ndim != 3 or joints.shape[1:] != (22, 3) or len(joints) < 2:
+        return None
+    return kinematic_contacts(joints, fps, config=CLEANUP_CONTACTS)
+
+
 def json_payload(result: MotionResult, **meta) -> dict:
     """The JSON object of a result: prompt, fps, frames, seed, ``meta``, the closest known action (models
-    with actions.json), the joints (T, J, 3) rounded to :data:`JSON_DECIMALS` and, where the footskate cleanup
-    ran, ``contacts``: the frames it held each foot joint, 4 lists (left ankle, left toe, right ankle, right toe) of
-    T 0/1; the HTTP response body."""
-    held = result.contacts
+    with actions.json), the joints (T, J, 3) rounded to :data:`JSON_DECIMALS` and ``contacts``: the frames the
+    footskate cleanup held each foot joint, or without a cleanup those its detector counts as planted
+    (:func:`planted_feet`), 4 lists (left ankle, left toe, right ankle, right toe) of T 0/1; the HTTP response
+    body."""
+    held = result.contacts if result.contacts is not None else planted_feet(result.joints, result.fps)
     return {"prompt": result.prompt, "fps": result.fps, "frames": result.frames, "seed": result.seed, **meta,
             **(result.domain.to_dict(result.prompt) if result.domain else {}),
             **({} if held is None else {"contacts": np.asarray(held, int).T.tolist()}),
@@ -119,8 +130,11 @@ def json_bytes(result: MotionResult, **meta) -> bytes:
 
 
 def joints_json_bytes(joints: np.ndarray, fps: float) -> bytes:
-    """Joints (T, J, 3) of a motion read from a file, as the viewer reads them: fps, frames, joints."""
-    return _dumps({"fps": fps, "frames": len(joints), "joints": _rounded(joints)})
+    """Joints (T, J, 3) of a motion read from a file, as the viewer reads them: fps, frames, joints and, for our
+    skeleton, the planted feet (``contacts`` as in :func:`json_payload`)."""
+    planted = planted_feet(np.asarray(joints, dtype=np.float64), fps)
+    return _dumps({"fps": fps, "frames": len(joints), "joints": _rounded(joints),
+                   **({} if planted is None else {"contacts": planted.astype(int).T.tolist()})})
 
 
 def _rounded(joints: np.ndarray) -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import timeseries as ts
-from .arrays import Array, namespace
+from .arrays import Array, float64_numpy, namespace
 
 __all__ = ["Array", "cont6d_to_matrix", "matrix_to_euler", "matrix_to_quat", "qbetween", "qinv", "qmul", "qnormalize",
            "qrot", "quat_to_cont6d", "quat_to_matrix", "yaw_quat"]
@@ -102,6 +102,7 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     return q.reshape(shape + (4,))
 
 
+@float64_numpy
 def matrix_to_euler(m, order: str):
     """Rotation matrices (..., 3, 3) -> intrinsic Euler angles (..., 3) in degrees about the three distinct axes of
     ``order`` (e.g. "ZXY": R = Rz(a) Rx(b) Ry(c), as BVH channels are written); numpy (float64) or a tensor. With the
@@ -114,7 +115,7 @@ def matrix_to_euler(m, order: str):
         raise SMFError(f"Euler order must name the three axes X, Y, Z once each, got {order!r}")
     i, j, k = axes
     s = 1.0 if (j - i) % 3 == 1 else -1.0  # +1 for the cyclic orders XYZ, YZX, ZXY
-    r = np.asarray(m, dtype=np.float64) if isinstance(m, (np.ndarray, list, tuple)) else m
+    r = m
     xp = namespace(r)
     cos_b = xp.sqrt(r[..., i, i] ** 2 + r[..., i, j] ** 2)  # |cos b| from the row that holds it (not arcsin)
     b = ts.atan2(s * r[..., i, k], cos_b)

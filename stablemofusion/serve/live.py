@@ -4,7 +4,8 @@ the client sends (:mod:`stablemofusion.pipelines.stream`).
     client -> server  {"prompt": "...", "seed"?: N, "guidance"?: G}   the first starts the stream, later ones
                                                                       change the prompt from the next window
                       {"stop": true}                                  ends the stream (the server closes)
-    server -> client  {"type": "frames", "start": N, "fps": 20, "prompt_index": K, "joints": [n][22][3]}
+    server -> client  {"type": "frames", "start": N, "fps": 20, "prompt_index": K, "joints": [n][22][3],
+                       "contacts": [4][n] (0/1: the planted feet, left ankle, left toe, right ankle, right toe)}
                       {"type": "error", "error": "<one line>"}        a bad message: the stream goes on
 
 Where it runs: windows are made by a stream worker of their own (not the batched HTTP worker, whose queue
@@ -81,10 +82,12 @@ class StreamJob:
 
 @dataclass(frozen=True)
 class StreamFrames:
-    """The outcome of a window: frames ``start`` .. of the stream, ``joints`` (n, 22, 3) float32 metres."""
+    """The outcome of a window: frames ``start`` .. of the stream, ``joints`` (n, 22, 3) float32 metres,
+    ``contacts`` (n, 4) bool the planted feet (:class:`~stablemofusion.motion_stream.Chunk`; None: not known)."""
 
     start: int
     joints: np.ndarray
+    contacts: np.ndarray | None = None
 
 
 def run_stream_jobs(pipe, streams: dict, jobs: list[StreamJob]) -> list:
@@ -128,7 +131,7 @@ def _advance_isolated(pipe, streams: dict, jobs: list[StreamJob], live: list[int
                 streams.pop(jobs[group[0]].sid, None)
             continue
         for i, chunk in zip(group, chunks):
-            out[i] = StreamFrames(chunk.start, chunk.joints)
+            out[i] = StreamFrames(chunk.start, chunk.joints, chunk.contacts)
         if group is live:
             return
 
@@ -197,17 +200,20 @@ class FrameBuffer:
         self.sent = 0
         self.made = 0
         self._joints: list[np.ndarray] = []  # one (J, 3) array per frame not sent
+        self._contacts: list[np.ndarray] = []  # and its planted feet (4,)
         self._index: list[int] = []
 
     def __len__(self) -> int:
         return self.made - self.sent
 
-    def add(self, start: int, joints: np.ndarray, index: int) -> None:
-        """Frames ``start`` .. of a window (``start`` must be the next frame: ``made``)."""
+    def add(self, start: int, joints: np.ndarray, index: int, contacts: np.ndarray | None = None) -> None:
+        """Frames ``start`` .. of a window (``start`` must be the next frame: ``made``), with their planted feet
+        ``contacts`` (n, 4) (None: none planted)."""
         if start != self.made:
             raise ServeError(500, f"the stream went out of step (frame {start} came, {self.made} was next); "
                                   "start a new one")
         self._joints.extend(joints)
+        self._contacts.extend(np.zeros((len(joints), 4), bool) if contacts is None else contacts)
         self._index.extend([index] * len(joints))
         self.made += len(joints)
 
@@ -216,21 +222,21 @@ class FrameBuffer:
         if not self.sent <= frame <= self.made:
             raise ValueError(f"frames {self.sent} .. {self.made} can be cut, not {frame}")
         drop = self.made - frame
-        del self._joints[frame - self.sent:], self._index[frame - self.sent:]
+        del self._joints[frame - self.sent:], self._contacts[frame - self.sent:], self._index[frame - self.sent:]
         self.made = frame
         return drop
 
-    def take(self, upto: int) -> list[tuple[int, int, np.ndarray]]:
-        """Frames ``sent`` .. ``upto - 1`` (those made), now sent: (start, prompt index, joints (n, J, 3)), one
-        per run of frames of one prompt index."""
+    def take(self, upto: int) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+        """Frames ``sent`` .. ``upto - 1`` (those made), now sent: (start, prompt index, joints (n, J, 3), contacts
+        (n, 4)), one per run of frames of one prompt index."""
         n = max(0, min(upto, self.made) - self.sent)
         out = []
         while n:
             k = 1
             while k < n and self._index[k] == self._index[0]:
                 k += 1
-            out.append((self.sent, self._index[0], np.stack(self._joints[:k])))
-            del self._joints[:k], self._index[:k]
+            out.append((self.sent, self._index[0], np.stack(self._joints[:k]), np.stack(self._contacts[:k])))
+            del self._joints[:k], self._contacts[:k], self._index[:k]
             self.sent += k
             n -= k
         return out
@@ -464,7 +470,7 @@ class StreamSession:
                     if not isinstance(outcome, Failure):
                         self._window_s.append(now - asked)
                         try:
-                            buf.add(outcome.start, outcome.joints, index)
+                            buf.add(outcome.start, outcome.joints, index, outcome.contacts)
                         except ServeError as e:
                             outcome = Failure(e.status, e.message)
                     if isinstance(outcome, Failure):
@@ -474,9 +480,10 @@ class StreamSession:
                     if self.start is None:
                         self.start = now
                 if self.start is not None:  # 2. send the frames due: at most STREAM_SEND_LEAD_S ahead
-                    for first, index, joints in buf.take(due_frames(now - self.start, fps)):
+                    for first, index, joints, planted in buf.take(due_frames(now - self.start, fps)):
                         await self.send({"type": "frames", "start": first, "fps": fps, "prompt_index": index,
-                                         "joints": np.round(joints.astype(np.float64), STREAM_DECIMALS).tolist()})
+                                         "joints": np.round(joints.astype(np.float64), STREAM_DECIMALS).tolist(),
+                                         "contacts": planted.T.astype(int).tolist()})
                     if buf.sent >= MAX_STREAM_SECONDS * fps:
                         await self.error(f"a stream lasts at most {MAX_STREAM_SECONDS:g} s; start a new one")
                         return

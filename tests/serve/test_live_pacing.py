@@ -39,7 +39,7 @@ def test_the_frame_buffer_sends_in_order_cuts_what_is_not_sent_and_splits_by_pro
     assert buf.cut(9) == 15 and buf.made == 9
     buf.add(9, chunk(9, 12, 0.5), 1)
     out = buf.take(100)
-    assert [(s, i, len(j)) for s, i, j in out] == [(5, 0, 4), (9, 1, 12)]
+    assert [(s, i, len(j), len(c)) for s, i, j, c in out] == [(5, 0, 4, 4), (9, 1, 12, 12)]
     assert np.array_equal(out[0][2][:, 0, 0], [5, 6, 7, 8]) and out[1][2][0, 0, 0] == 9.5
     assert buf.sent == buf.made == 21 and buf.take(100) == []
 

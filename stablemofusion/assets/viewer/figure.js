@@ -6,8 +6,6 @@ export const PARENTS = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14
 const LEFT = new Set([1, 4, 7, 10, 13, 16, 18, 20]);
 const RIGHT = new Set([2, 5, 8, 11, 14, 17, 19, 21]);
 const FEET = [7, 10, 8, 11]; // left ankle, left toe, right ankle, right toe
-const CONTACT_HEIGHT = 0.05; // m above the joint's lowest point in the motion
-const CONTACT_SPEED = 0.5; // m/s
 const COLORS = { left: 0x1f77b4, right: 0xd62728, spine: 0x333333, contact: 0x2ca02c };
 
 // A floor grid of short segments (every line cut at each crossing): software WebGL (SwiftShader) drops a
@@ -26,23 +24,6 @@ export function floorGrid(half, step) {
   g.setAttribute('position', new THREE.Float32BufferAttribute(pts, 3));
   g.setAttribute('color', new THREE.Float32BufferAttribute(cols, 3));
   return new THREE.LineSegments(g, new THREE.LineBasicMaterial({ vertexColors: true }));
-}
-
-// Foot contacts (4 x frames, 0/1) of flat joints (frames x 22 x 3): low and slow.
-export function contactsOf(joints, frames, fps) {
-  const out = FEET.map(() => new Uint8Array(frames));
-  FEET.forEach((j, k) => {
-    let low = Infinity;
-    for (let t = 0; t < frames; t++) low = Math.min(low, joints[(t * 22 + j) * 3 + 1]);
-    for (let t = 0; t < frames; t++) {
-      const a = Math.max(0, t - 1), b = Math.min(frames - 1, t + 1);
-      let d = 0;
-      for (let c = 0; c < 3; c++) d += (joints[(b * 22 + j) * 3 + c] - joints[(a * 22 + j) * 3 + c]) ** 2;
-      const speed = b > a ? Math.sqrt(d) * fps / (b - a) : 0;
-      out[k][t] = joints[(t * 22 + j) * 3 + 1] - low < CONTACT_HEIGHT && speed < CONTACT_SPEED ? 1 : 0;
-    }
-  });
-  return out;
 }
 
 // The scene both pages draw in, inside element `view`: renderer, scene (floor grid, lights), camera and orbit

@@ -3,7 +3,7 @@
 import * as THREE from 'three';
 import { OrbitControls } from '/viewer/vendor/OrbitControls.js';
 import { loadGlb, glbJoints } from '/viewer/glb.js';
-import { Figure, contactsOf, makeStage } from '/viewer/figure.js';
+import { Figure, makeStage } from '/viewer/figure.js';
 
 const JOINT_NAMES = ['pelvis', 'left_hip', 'right_hip', 'spine1', 'left_knee', 'right_knee', 'spine2', 'left_ankle',
   'right_ankle', 'spine3', 'left_foot', 'right_foot', 'neck', 'left_collar', 'right_collar', 'head', 'left_shoulder',
@@ -61,12 +61,13 @@ window.smf.path = drawn;
 
 
 // motion
-// `contacts`: the feet the server's footskate cleanup held (4 x frames of 0/1), else found here
+// `contacts`: the feet the server's footskate cleanup held, or its detector counts as planted (4 x frames of 0/1);
+// none for a .glb read in the page
 function setMotion(joints, frames, fps, label, contacts = null) {
   state.joints = Float32Array.from(joints.flat(2));
   state.frames = frames;
   state.fps = fps;
-  state.contacts = contacts ? contacts.map((c) => Uint8Array.from(c)) : contactsOf(state.joints, frames, fps);
+  state.contacts = contacts ? contacts.map((c) => Uint8Array.from(c)) : null;
   $('scrub').max = String(frames - 1);
   $('scrub').disabled = false;
   $('play').disabled = false;
@@ -262,7 +263,7 @@ window.addEventListener('drop', async (ev) => {
     const m = await res.json();
     state.request = null;
     for (const f of Object.keys(DOWNLOADS)) $(f).disabled = true;
-    setMotion(m.joints, m.frames, m.fps, `${file.name}: ${m.frames} frames`);
+    setMotion(m.joints, m.frames, m.fps, `${file.name}: ${m.frames} frames`, m.contacts);
   } catch (e) {
     status(e.message, true);
   }
@@ -277,17 +278,20 @@ function liveAppend(m) {
   let joints = new Float32Array(keep.length + flat.length);
   joints.set(keep);
   joints.set(flat, keep.length);
+  // the planted feet the server found for these frames, after those kept
+  let contacts = m.contacts.map((c, k) => Uint8Array.from([...(state.contacts ? state.contacts[k].subarray(0, state.frames) : []), ...c]));
   let frames = state.frames + m.joints.length;
   if (frames > LIVE_KEEP) {  // drop the oldest frames (the clock keeps counting from the stream's start)
     const drop = frames - LIVE_KEEP;
     joints = joints.slice(drop * 66);
+    contacts = contacts.map((c) => c.slice(drop));
     frames -= drop;
     L.offset += drop;
   }
   state.joints = joints;
   state.frames = frames;
   state.fps = m.fps;
-  state.contacts = contactsOf(joints, frames, m.fps);
+  state.contacts = contacts;
   L.received = m.start + m.joints.length;
   L.index = m.prompt_index;
   if (L.start === null) {

@@ -9,17 +9,43 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
+import time
+
 import numpy as np
+
+STALE_TEMP_S = 3600.0  # a temporary of ours this old is a leftover of a killed writer (no writer takes an hour)
+
+
+def remove_stale_temporaries(target: Path) -> list[Path]:
+    """Remove the temporaries that writers of ``target`` killed without a chance to clean up (kill -9, power loss)
+    left beside it: hidden ``.NAME.*`` files older than STALE_TEMP_S. Returns what was removed."""
+    gone = []
+    now = time.time()
+    for f in target.parent.glob(f".{glob_escape(target.name)}.*"):
+        try:
+            if f.is_file() and not f.is_symlink() and now - f.stat().st_mtime > STALE_TEMP_S:
+                f.unlink()
+                gone.append(f)
+        except OSError:  # gone meanwhile, or not ours to remove
+            continue
+    return gone
+
+
+def glob_escape(name: str) -> str:
+    """``name`` with glob's special characters taken literally."""
+    return "".join(f"[{c}]" if c in "*?[" else c for c in name)
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success it replaces ``path``, on error it is removed.
+    """Yield a temporary path beside ``path``; on success it replaces ``path``, on error it is removed (and a
+    killed writer's leftovers of the same target go on the next write: :func:`remove_stale_temporaries`).
 
     ``suffix`` defaults to the target's own suffix so writers that pick a format by extension work.
     """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(target)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=suffix if suffix is not None else target.suffix,
                                dir=target.parent)
     os.close(fd)

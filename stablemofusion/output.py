@@ -239,11 +239,11 @@ def write_result(result: MotionResult, stem: Path, formats: list[str], meta: dic
 
 
 def write_results(results: list[MotionResult], out: Path, formats: list[str], meta: dict | None = None, *,
-                  overwrite: bool = False, rig: Rig | None = None) -> list[Path]:
-    """Write each result named from its prompt (``out/000_prompt.*``, a free name unless ``overwrite``);
-    prints one line per motion; returns the stems."""
+                  overwrite: bool = False, rig: Rig | None = None, first: int = 0) -> list[Path]:
+    """Write each result named from its prompt and number (``out/000_prompt.*``, counted from ``first``; a free
+    name unless ``overwrite``); prints one line per motion; returns the stems."""
     stems = []
-    for i, r in enumerate(results):
+    for i, r in enumerate(results, first):
         stem = free_stem(Path(out) / slug(r.prompt, i), formats, overwrite, rig is not None)
         write_result(r, stem, formats, meta, rig)
         print(f"wrote {stem}.* ({r.frames} frames, {r.seconds:.1f} s, seed {r.seed})")

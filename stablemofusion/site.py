@@ -20,6 +20,7 @@ import numpy as np
 
 from .errors import SMFError
 from .motion.bvh import BVH_ORDER
+from .motion.gltf import BODY_COLOUR, BONE_RADIUS, DEFAULT_RADIUS, HAND_LENGTH, HEAD_RADIUS
 from .path_plan import KINDS, MAX_PATH_METRES, MAX_PATH_SPEED, MAX_WAYPOINTS, MIN_TRAVEL
 from .limits import LENGTH_MULTIPLE, MAX_PROMPT_CHARS
 from .motion.rigid import DEFAULT_FIT
@@ -61,6 +62,8 @@ def web_description(graphs) -> dict:
         "skeleton": {"name": sk.name, "names": list(sk.joint_names), "parents": [int(p) for p in sk.parents],
                      "bone_lengths": list(sk.bone_lengths)},
         "paths": path_lexicon(), "path_kinds": list(KINDS), "bvh_order": BVH_ORDER,
+        "glb_body": {"bone_radius": dict(BONE_RADIUS), "default_radius": DEFAULT_RADIUS, "head_radius": HEAD_RADIUS,
+                     "hand_length": HAND_LENGTH, "colour": list(BODY_COLOUR[:3])},
         "path_limits": {"max_points": MAX_WAYPOINTS, "max_metres": MAX_PATH_METRES, "max_speed": MAX_PATH_SPEED,
                         "min_travel": MIN_TRAVEL},
         "actions": {"names": [name for name, _ in groups], "threshold": actions["threshold"], "top": int(actions["top"]),
@@ -159,18 +162,29 @@ def write_site(out: Path, graphs, webgpu: Path | None = None) -> Path:
     build = [] if webgpu is None else check_webgpu_build(Path(webgpu))
     tmp = out.with_name(out.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
-    shutil.copytree(assets / "site", tmp, ignore=shutil.ignore_patterns("__pycache__"))
-    shutil.copytree(assets / "runtime", tmp / "runtime")
-    shutil.copytree(assets / "viewer" / "vendor", tmp / "vendor" / "three")
-    for name in ("figure.js", "viewer.css"):  # the viewer's stick figure and style
-        shutil.copyfile(assets / "viewer" / name, tmp / name)
-    write_model(graphs, tmp / "model")
-    for f in build:
-        shutil.copyfile(f, tmp.joinpath(*ORT_VENDOR[1:]) / f.name)
+    try:
+        shutil.copytree(assets / "site", tmp, ignore=shutil.ignore_patterns("__pycache__"))
+        shutil.copytree(assets / "runtime", tmp / "runtime")
+        shutil.copytree(assets / "viewer" / "vendor", tmp / "vendor" / "three")
+        for name in ("figure.js", "viewer.css"):  # the viewer's stick figure and style
+            shutil.copyfile(assets / "viewer" / name, tmp / name)
+        write_model(graphs, tmp / "model")
+        for f in build:
+            shutil.copyfile(f, tmp.joinpath(*ORT_VENDOR[1:]) / f.name)
+    except OSError as e:  # a full disk, no permission: nothing half-written is left
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise SMFError(f"could not write the site to {out}: {_first_reason(e)}") from None
     if out.exists():
         shutil.rmtree(out)
     tmp.rename(out)
     return out
+
+
+def _first_reason(e: OSError) -> str:
+    """One line for a failed copy: copytree's error lists every file that failed; its first reason is enough."""
+    if isinstance(e, shutil.Error) and e.args and isinstance(e.args[0], list) and e.args[0]:
+        return str(e.args[0][0][-1]).splitlines()[0]
+    return e.strerror or str(e).splitlines()[0]
 
 
 def folder_size(path: Path) -> int:

@@ -169,3 +169,19 @@ def test_a_site_without_the_webgpu_build_says_how_to_add_it(served):
         refused = page.evaluate("window.smf.ready.then(() => '', (e) => e.message)")
         browser.close()
     assert "without ONNX Runtime Web's WebGPU build" in refused and "smf site --webgpu" in refused
+
+
+def test_a_site_that_cannot_be_written_is_one_line_and_leaves_nothing(tmp_path, monkeypatch, capsys):
+    """A full disk while the model is copied: one line naming the reason, exit 2, no half-written folder."""
+    import errno
+
+    import stablemofusion.site as site
+
+    def full(*_a, **_k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(site, "write_model", full)
+    assert main(["site", "--out", str(tmp_path / "site")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("No space left on device") and len(err.splitlines()) == 1 and len(err) < 200, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

@@ -56,8 +56,15 @@ def read_caption_csv(path: Path) -> dict[str, list[str]]:
         raise SMFError(f"no such captions file: {path}")
     if path.stat().st_size > MAX_CSV_BYTES:
         raise SMFError(f"{path}: larger than {MAX_CSV_BYTES // 2**20} MB; a captions file is one line per clip")
-    text = path.read_text(encoding="utf-8-sig")
-    rows = list(csv.reader(io.StringIO(text)))
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise SMFError(f"{path}: not UTF-8 text (byte {e.start}); save the captions file as UTF-8") from None
+    try:
+        rows = list(csv.reader(io.StringIO(text)))
+    except csv.Error as e:  # a field past the csv module's limit (131,072 characters), a NUL byte
+        raise SMFError(f"{path}: not a readable CSV file ({e}); captions are at most {MAX_CAPTION_CHARS} "
+                       "characters") from None
     if not rows or [c.strip().lower() for c in rows[0][:2]] != ["file", "caption"]:
         raise SMFError(f"{path}: the first line must be the header 'file,caption'")
     out: dict[str, list[str]] = {}

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
+from ..limits import MAX_PROMPT_CHARS
+
 MAX_PATH_FILE_BYTES = 256 * 1024  # the most a --path file may hold
+MAX_PROMPTS_FILE_BYTES = 64 * 2**20  # the most a --prompts file may hold (about 200,000 long prompts)
 
 
 def add_parser(sub, name: str) -> None:
@@ -45,6 +49,9 @@ def read_prompts(args) -> list[str]:
     if args.prompts is not None:
         if not args.prompts.is_file():
             raise SMFError(f"no such file: {args.prompts}")
+        if args.prompts.stat().st_size > MAX_PROMPTS_FILE_BYTES:
+            raise SMFError(f"{args.prompts}: a prompts file is at most {MAX_PROMPTS_FILE_BYTES // 2**20} MB "
+                           f"(one prompt of at most {MAX_PROMPT_CHARS} characters a line)")
         try:
             text = args.prompts.read_text(encoding="utf-8")
         except UnicodeDecodeError as e:
@@ -104,12 +111,26 @@ def run(args: argparse.Namespace) -> None:
         raise SMFError("--path does not apply to --timeline: give the path to a prompt")
     kwargs = sampling_kwargs(args)
     pipe = load_pipeline(args)
-    with user_warnings():
-        if args.timeline is not None:
-            from ..timeline_plan import parse_timeline
+    meta = output_meta(args, pipe)
+    if args.timeline is not None:
+        from ..timeline_plan import parse_timeline
 
+        with user_warnings():
             results = [pipe.timeline(parse_timeline(args.timeline), progress=None, **kwargs)]
-        else:
-            results = pipe(prompts, seconds=args.seconds, batch_size=args.batch_size, progress=len(prompts) > 1,
-                           path=path, **kwargs)
-    write_results(results, args.out, formats, output_meta(args, pipe), overwrite=args.overwrite, rig=rig)
+        write_results(results, args.out, formats, meta, overwrite=args.overwrite, rig=rig)
+        return
+    # one batch at a time, each written before the next is made: memory stays that of one batch, files appear as it
+    # goes (batch k uses seed + k, as one call of all the prompts does)
+    from tqdm import tqdm
+
+    n = len(prompts)
+    seed = kwargs.pop("seed")
+    bar = tqdm(total=n, unit="motion", desc="generate", disable=n <= args.batch_size, file=sys.stderr)
+    for k, start in enumerate(range(0, n, args.batch_size)):
+        batch = prompts[start:start + args.batch_size]
+        with user_warnings():
+            results = pipe(batch, seconds=args.seconds, batch_size=args.batch_size, progress=1 < n <= args.batch_size,
+                           path=path, seed=None if seed is None else seed + k, **kwargs)
+        write_results(results, args.out, formats, meta, overwrite=args.overwrite, rig=rig, first=start)
+        bar.update(len(batch))
+    bar.close()

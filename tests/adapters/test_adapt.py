@@ -78,6 +78,12 @@ def test_bad_clip_folders_are_one_line_errors(clip_folder, bandai_mini_source, t
     (folder / "captions.csv").write_text("file,caption\nmissing.bvh,a person runs\n")
     with pytest.raises(SMFError, match="not .bvh files under"):
         read_clips(folder, "bandai-namco")
+    (folder / "captions.csv").write_bytes(b"file,caption\n" + f"{CLIPS[0]}.bvh,".encode() + b"\xff\xfe runs\n")
+    with pytest.raises(SMFError, match="not UTF-8 text"):
+        read_clips(folder, "bandai-namco")
+    (folder / "captions.csv").write_text("file,caption\n" + f"{CLIPS[0]}.bvh,\"{'a' * 131_073}\"\n")
+    with pytest.raises(SMFError, match="not a readable CSV file"):  # past the csv module's field limit
+        read_clips(folder, "bandai-namco")
     (folder / "captions.csv").unlink()
     with pytest.raises(SMFError, match="no captions for"):
         read_clips(folder, "bandai-namco")

@@ -139,3 +139,22 @@ def test_threads_default_to_the_idle_cores(monkeypatch):
             set_threads(argparse.Namespace(threads=0))
     finally:
         torch.set_num_threads(before)
+
+
+def test_a_prompts_file_is_written_batch_by_batch_as_one_call_makes_it(tmp_path, capsys):
+    """Each batch's files are written before the next batch is made, numbered in file order, with the motions one
+    library call of all the prompts makes (batch k: seed + k)."""
+    from stablemofusion.runtime.pipeline import PortablePipeline
+
+    prompts = ["a person walks forward", "someone waves", "a man bows", "a person runs", "a woman jumps"]
+    (tmp_path / "p.txt").write_text("\n".join(prompts) + "\n")
+    out = tmp_path / "out"
+    assert main(["generate", "--prompts", str(tmp_path / "p.txt"), "--batch-size", "2", "--seconds", "2",
+                 "--seed", "5", "--format", "npy", "--out", str(out), "--engine", "onnx"]) == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("wrote")]
+    assert [ln.split(" (")[-1].split("seed ")[-1].rstrip(")") for ln in lines] == ["5", "5", "6", "6", "7"]
+    files = sorted(out.glob("*_joints.npy"))
+    assert [f.name[:3] for f in files] == ["000", "001", "002", "003", "004"]
+    want = PortablePipeline.from_pretrained(threads=1)(prompts, seconds=2, seed=5, batch_size=2)
+    for f, w in zip(files, want):
+        assert np.abs(np.load(f) - w.joints).max() < 1e-4  # the .npy holds float32 joints

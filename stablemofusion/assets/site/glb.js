@@ -4,15 +4,6 @@
 import * as THREE from 'three';
 import { GLTFExporter } from './vendor/three/exporters/GLTFExporter.js';
 
-// bone radii (m) of the body's capsules by the joint a bone ends at; the values of motion/gltf.py
-const BONE_RADIUS = {
-  left_hip: 0.075, right_hip: 0.075, spine1: 0.10, spine2: 0.105, spine3: 0.11, left_knee: 0.065, right_knee: 0.065,
-  left_ankle: 0.048, right_ankle: 0.048, left_foot: 0.038, right_foot: 0.038, neck: 0.05, head: 0.05,
-  left_collar: 0.055, right_collar: 0.055, left_shoulder: 0.055, right_shoulder: 0.055, left_elbow: 0.045,
-  right_elbow: 0.045, left_wrist: 0.038, right_wrist: 0.038,
-};
-const DEFAULT_RADIUS = 0.04, HEAD_RADIUS = 0.1, HAND_LENGTH = 0.09, BODY_COLOUR = [0.55, 0.62, 0.75];
-
 function capsule(a, b, radius, joint, out, rings = 4, sides = 10) {
   const axis = b.clone().sub(a);
   const y = axis.length() > 1e-9 ? axis.clone().normalize() : new THREE.Vector3(0, 1, 0);
@@ -44,8 +35,11 @@ function capsule(a, b, radius, joint, out, rings = 4, sides = 10) {
   }
 }
 
-export async function glbBytes(joints, T, tree, pose, fps) {
+// `body`: the capsule body's sizes (m) and colour, motion/gltf.py's, from web.json ("glb_body")
+export async function glbBytes(joints, T, tree, pose, fps, body) {
   const { offsets, rotations } = pose;
+  const { bone_radius: BONE_RADIUS, default_radius: DEFAULT_RADIUS, head_radius: HEAD_RADIUS, hand_length: HAND_LENGTH,
+    colour: BODY_COLOUR } = body;
   const J = tree.parents.length, names = tree.names, parents = tree.parents;
   // the skeleton at rest (identity rotations), its root at its first position
   const bones = names.map((name) => Object.assign(new THREE.Bone(), { name }));

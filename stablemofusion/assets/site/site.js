@@ -91,7 +91,9 @@ smf.file = async (format) => {
   const runtime = await smf.ready;
   if (!made) throw new Error('no motion yet: generate one first');
   if (format === 'bvh') return runtime.bvh(made);
-  if (format === 'glb') return glbBytes(made.flat, made.frames, runtime.info.skeleton, await runtime.pose(made), made.fps);
+  if (format === 'glb') {
+    return glbBytes(made.flat, made.frames, runtime.info.skeleton, await runtime.pose(made), made.fps, runtime.info.glb_body);
+  }
   if (format === 'json') return JSON.stringify(smf.lastMotion);
   throw new Error(`no download '${format}': choose bvh, glb or json`);
 };

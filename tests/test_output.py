@@ -38,8 +38,9 @@ def test_json_bytes_are_the_compact_json_of_the_rounded_joints(result):
     the standard library writes 9e-05: the same values)."""
     data = json_bytes(result, steps=10, note="pas à pas")
     rounded = np.round(result.joints, JSON_DECIMALS).tolist()
+    planted = kinematic_contacts(result.joints, result.fps, config=CLEANUP_CONTACTS).astype(int).T.tolist()
     expected = {"prompt": result.prompt, "fps": result.fps, "frames": result.frames, "seed": result.seed,
-                "steps": 10, "note": "pas à pas", "joints": rounded}
+                "steps": 10, "note": "pas à pas", "contacts": planted, "joints": rounded}
     assert json.loads(data) == expected and list(json.loads(data)) == list(expected)
     assert data.endswith(b"\n") and data.count(b"\n") == 1 and b", " not in data and "à".encode() in data
     bad = dataclasses.replace(result, joints=np.full_like(result.joints, np.nan))

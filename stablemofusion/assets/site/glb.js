@@ -35,11 +35,11 @@ function capsule(a, b, radius, joint, out, rings = 4, sides = 10) {
   }
 }
 
-// `body`: the capsule body's sizes (m) and colour, motion/gltf.py's, from web.json ("glb_body")
-export async function glbBytes(joints, T, tree, pose, fps, body) {
+// `sizes`: the capsule body's sizes (m) and colour, motion/gltf.py's, from web.json ("glb_body")
+export async function glbBytes(joints, T, tree, pose, fps, sizes) {
   const { offsets, rotations } = pose;
   const { bone_radius: BONE_RADIUS, default_radius: DEFAULT_RADIUS, head_radius: HEAD_RADIUS, hand_length: HAND_LENGTH,
-    colour: BODY_COLOUR } = body;
+    colour: BODY_COLOUR } = sizes;
   const J = tree.parents.length, names = tree.names, parents = tree.parents;
   // the skeleton at rest (identity rotations), its root at its first position
   const bones = names.map((name) => Object.assign(new THREE.Bone(), { name }));

@@ -93,9 +93,9 @@ def footskate_hook(c: Components, lengths: list[int], options) -> X0Hook:
         feats = c.denormalise(x0)
         clean = feats.clone()
         for i, n in enumerate(lengths):
-            f, _ = cleanup_features(feats[i, :n].double().numpy(), options.config, vgrf_model=options.vgrf_model,
-                                    fps=c.fps, rigid=c.rigid)
-            clean[i, :n] = torch.from_numpy(f).float()
+            f, _ = cleanup_features(feats[i, :n].detach().cpu().double().numpy(), options.config,
+                                    vgrf_model=options.vgrf_model, fps=c.fps, rigid=c.rigid)
+            clean[i, :n] = torch.from_numpy(f).to(clean.device, clean.dtype)
         return ((clean - c.mean) / c.std).to(x0.device, x0.dtype)
 
     return hook

@@ -24,19 +24,20 @@ export class MotionRuntime {
     step();
     const actions = new Float32Array((await read(info.actions.embeddings, 'bytes')).slice().buffer);
     step();
-    const sessions = {};
+    const sessions = {}, later = {};
     for (const name of files) {
-      // the final stage's graphs compute in float64 on the CPU (WebAssembly), whatever runs the model
-      const final = info.final_stage.includes(name);
-      sessions[name] = await (final ? cpuOrt : ort).InferenceSession.create(await read(info.files[name], 'bytes'),
-        { executionProviders: final ? ['wasm'] : providers, graphOptimizationLevel: 'all' });
+      const bytes = await read(info.files[name], 'bytes');
+      // the final stage's graphs compute in float64 on the CPU (WebAssembly), whatever runs the model; each is made
+      // ready when first used (a path's and the pose's only for a path or a download)
+      if (info.final_stage.includes(name)) later[name] = bytes;
+      else sessions[name] = await ort.InferenceSession.create(bytes, { executionProviders: providers, graphOptimizationLevel: 'all' });
       step();
     }
-    return new MotionRuntime(ort, tokenizer, sessions, info, actions, cpuOrt);
+    return new MotionRuntime(ort, tokenizer, sessions, info, actions, cpuOrt, later);
   }
 
-  constructor(ort, tokenizer, sessions, info, actions, cpuOrt = ort) {
-    Object.assign(this, { ort, cpuOrt, tokenizer, sessions, info, actions });
+  constructor(ort, tokenizer, sessions, info, actions, cpuOrt = ort, later = {}) {
+    Object.assign(this, { ort, cpuOrt, tokenizer, sessions, info, actions, later });
     this.cache = new Map(); // prompt -> its encoding (most recent last)
   }
 
@@ -62,9 +63,11 @@ export class MotionRuntime {
   mask(n) { return new this.ort.Tensor('bool', new Uint8Array(n).fill(1), [1, n]); }
 
   // A graph of the final stage (float64, on the CPU): feeds {name: [type, values, dims]} -> its outputs.
-  stage(name, feeds) {
+  async stage(name, feeds) {
+    this.sessions[name] ??= this.cpuOrt.InferenceSession.create(this.later[name], // a promise: made once
+      { executionProviders: ['wasm'], graphOptimizationLevel: 'all' });
     const T = this.cpuOrt.Tensor;
-    return this.sessions[name].run(Object.fromEntries(Object.entries(feeds).map(([k, [type, v, dims]]) => [k, new T(type, v, dims)])));
+    return (await this.sessions[name]).run(Object.fromEntries(Object.entries(feeds).map(([k, [type, v, dims]]) => [k, new T(type, v, dims)])));
   }
 
   // The final stage's graphs on flat joints (T x J x 3 metres): 4 x T arrays of 0/1 (left ankle, left toe, right
@@ -75,15 +78,14 @@ export class MotionRuntime {
 
   // The feet the cleanup counts as planted (contacts.onnx: footskate/contacts.py's contacts_of_feet).
   async contactsOf(flat, T, J) {
-    const out = await this.sessions.contacts.run({ joints: new this.cpuOrt.Tensor('float64', Float64Array.from(flat), [1, T, J, 3]) });
+    const out = await this.stage('contacts', { joints: ['float64', Float64Array.from(flat), [1, T, J, 3]] });
     return this.perFoot(out.contacts, T);
   }
 
   // The footskate cleanup of rigid joints (cleanup.onnx: footskate/cleanup.py's clean_joints): {joints, held}.
   async cleanup(flat, T, J, lengths) {
-    const Tn = this.cpuOrt.Tensor;
-    const out = await this.sessions.cleanup.run({ joints: new Tn('float64', Float64Array.from(flat), [1, T, J, 3]),
-      bone_lengths: new Tn('float64', Float64Array.from(lengths), [1, J]) });
+    const out = await this.stage('cleanup', { joints: ['float64', Float64Array.from(flat), [1, T, J, 3]],
+      bone_lengths: ['float64', Float64Array.from(lengths), [1, J]] });
     return { joints: Float64Array.from(out.joints_out.data), held: this.perFoot(out.held, T) };
   }
 

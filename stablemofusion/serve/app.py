@@ -33,7 +33,8 @@ from .http_errors import ServeError, log_event
 from .guard import Guard
 from .. import limits
 from ..output import made_by
-from .server_limits import MAX_BODY_BYTES, MAX_REQUEST_COST, MAX_STREAMS, RECENT_RESULTS, UPLOAD_BUDGET_BYTES
+from .server_limits import (MAX_BODY_BYTES, MAX_QUEUED_COST, MAX_REQUEST_COST, MAX_STREAMS, RECENT_RESULTS,
+                            UPLOAD_BUDGET_BYTES)
 from .responses import motion_response
 from .live import StreamHub, ThreadStreamWorker, serve_stream
 from .worker import Job, ThreadWorker
@@ -41,8 +42,9 @@ from .worker import Job, ThreadWorker
 VIEWER = Path(__file__).resolve().parents[1] / "assets" / "viewer"
 
 
-def error(status: int, message: str) -> JSONResponse:
-    return JSONResponse({"error": message}, status_code=status)
+def error(status: int, message: str, retry_after: int | None = None) -> JSONResponse:
+    return JSONResponse({"error": message}, status_code=status,
+                        headers=None if retry_after is None else {"Retry-After": str(int(retry_after))})
 
 
 async def _until_disconnected(request: Request) -> None:
@@ -100,7 +102,7 @@ async def answer(request: Request, batcher: DynamicBatcher, job: Job, format: st
 def _install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(ServeError)
     async def serve_error(request: Request, exc: ServeError):
-        return error(exc.status, exc.message)
+        return error(exc.status, exc.message, exc.retry_after)
 
     @app.exception_handler(RequestValidationError)
     async def bad_request(request: Request, exc: RequestValidationError):
@@ -123,16 +125,18 @@ def _install_error_handlers(app: FastAPI) -> None:
 def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.0, max_queue: int = 256,
                max_body_bytes: int = MAX_BODY_BYTES, allowed_hosts: tuple[str, ...] = (), streams=None,
                max_streams: int = MAX_STREAMS, upload_budget: int = UPLOAD_BUDGET_BYTES,
-               max_request_cost: float = MAX_REQUEST_COST) -> FastAPI:
+               max_request_cost: float = MAX_REQUEST_COST, max_queued_cost: float = MAX_QUEUED_COST) -> FastAPI:
     """The ASGI app; ``model`` is a worker (serve/worker.py: `smf serve` gives a supervised
     :class:`~stablemofusion.serve.worker.ProcessWorker`) or a pipeline (generated on a thread). ``streams``
     the live streams' worker (serve/live.py; default: a thread with ``model`` when it is a pipeline, else
-    none); ``max_streams`` live streams at once (0: none)."""
+    none); ``max_streams`` live streams at once (0: none); ``max_request_cost`` the most work one request may ask for
+    (422 beyond), ``max_queued_cost`` the most work waiting (503 with Retry-After beyond)."""
     worker = model if hasattr(model, "submit") else ThreadWorker(model)
     if streams is None and not hasattr(model, "submit") and max_streams > 0:
         streams = ThreadStreamWorker(model, worker.executor)
     hub = StreamHub(streams, max_streams if streams is not None else 0)
-    batcher = DynamicBatcher(worker, max_batch=max_batch, wait_ms=wait_ms, max_queue=max_queue)
+    batcher = DynamicBatcher(worker, max_batch=max_batch, wait_ms=wait_ms, max_queue=max_queue,
+                             max_queued_cost=max_queued_cost, max_batch_cost=max_request_cost)
     cfg = worker.model
     checks = RequestChecks(cfg, max_request_cost, getattr(worker, "adapters", ()))
     recent = RecentResults()
@@ -167,7 +171,8 @@ def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.
             {"status": "ok" if ready else state["state"], "worker": state, "fps": cfg.fps,
              "seconds": [cfg.min_frames / cfg.fps, limits.MAX_SECONDS],
              "limits": {**limits.table(), "footskate": list(cfg.footskate)},
-             "max_batch": max_batch, **made, "waiting": batcher.waiting, "adapters": list(checks.adapters),
+             "max_batch": max_batch, **made, "waiting": batcher.waiting, "queue": batcher.queue_state(),
+             "adapters": list(checks.adapters),
              "batches": len(sizes), "largest_batch": max(sizes, default=0), "dropped": batcher.dropped,
              "streams": hub.health() if streams is not None else {"state": "off", "active": 0, "max": 0}},
             status_code=200 if ready else 503)

@@ -126,8 +126,8 @@ class RequestChecks:
         self.default_steps, self.default_guidance = model.steps, model.guidance
         self.student = model.student
 
-    def _check_cost(self, seconds: float | None, body) -> None:
-        """422 for a request whose work (limits.request_cost) is more than MAX_REQUEST_COST."""
+    def _check_cost(self, seconds: float | None, body) -> float:
+        """A request's work (limits.request_cost); 422 where it is more than MAX_REQUEST_COST."""
         steps = body.steps or self.default_steps
         guidance = self.default_guidance if body.guidance is None else body.guidance
         cost = limits.request_cost(seconds or self.window_s, steps, not self.student and guidance != 1.0,
@@ -136,6 +136,7 @@ class RequestChecks:
             raise ServeError(422, f"this request asks for {cost:.0f} units of work, the server takes at most "
                                   f"{self.max_cost:.0f} (seconds x steps, more with guidance and footskate "
                                   "cleanup): ask for fewer seconds or steps, or footskate 'post'")
+        return cost
 
     def _adapter(self, body) -> str | None:
         if body.adapter is not None and body.adapter not in self.adapters:
@@ -159,8 +160,9 @@ class RequestChecks:
             data = body.path.model_dump() if isinstance(body.path, PathBody) else body.path
             path = checked(Waypoints.read, data)
             checked(limits.check_seconds, body.seconds or path.seconds(prompt), "the path's seconds")
-        self._check_cost(body.seconds or (path.seconds(prompt) if path is not None else None), body)
-        return Job(prompt, body.seconds, seed, guidance, steps, body.footskate, adapter=self._adapter(body), path=path)
+        cost = self._check_cost(body.seconds or (path.seconds(prompt) if path is not None else None), body)
+        return Job(prompt, body.seconds, seed, guidance, steps, body.footskate, adapter=self._adapter(body), path=path,
+                   cost=cost)
 
     def timeline(self, body: TimelineRequest) -> Job:
         segments = tuple((check_prompt(s.prompt, f"segments.{i}.prompt"), s.seconds)
@@ -171,6 +173,6 @@ class RequestChecks:
                                       f"got {seconds:g}")
         checked(limits.check_seconds, sum(sec for _, sec in segments), "a timeline's total seconds")
         seed, guidance, steps = self._common(body)
-        self._check_cost(sum(sec for _, sec in segments), body)
+        cost = self._check_cost(sum(sec for _, sec in segments), body)
         return Job("; ".join(p for p, _ in segments), None, seed, guidance, steps, body.footskate, segments,
-                   adapter=self._adapter(body))
+                   adapter=self._adapter(body), cost=cost)

@@ -12,10 +12,11 @@ log = logging.getLogger("stablemofusion.serve")
 class ServeError(SMFError):
     """A request answered with ``status`` and ``{"error": message}`` (one line)."""
 
-    def __init__(self, status: int, message: str):
+    def __init__(self, status: int, message: str, retry_after: int | None = None):
         super().__init__(message)
         self.status = status
         self.message = " ".join(str(message).split("\n"))
+        self.retry_after = retry_after  # seconds, sent as the Retry-After header (503: when to come back)
 
 
 def log_event(level: int, message: str, *texts: object) -> None:

@@ -41,6 +41,7 @@ class Job:
     segments: tuple[tuple[str, float], ...] | None = None
     adapter: str | None = None  # None: the base model; else a loaded adapter's name
     path: object = None  # a root path to follow (stablemofusion.path_plan.Waypoints), or None
+    cost: float = 0.0  # its work before it runs (stablemofusion.limits.request_cost): what the queue admits by
 
     @property
     def sampling(self) -> tuple:

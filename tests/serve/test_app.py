@@ -94,8 +94,12 @@ def test_body_size_limit_and_full_queue(pipe):
     assert r.status_code == 413 and "larger than 100 bytes" in r.json()["error"]
     app = create_app(pipe, max_queue=1, wait_ms=50)
     reqs = [("POST", "/v1/generate", {"prompt": "walk", "seconds": 2, "seed": i, "steps": 1}) for i in range(4)]
-    codes = sorted(r.status_code for r in call(app, *reqs))
-    assert codes[0] == 200 and codes[-1] == 503
+    answers = sorted(call(app, *reqs), key=lambda r: r.status_code)
+    assert answers[0].status_code == 200 and answers[-1].status_code == 503
+    assert int(answers[-1].headers["retry-after"]) >= 1 and "busy" in answers[-1].json()["error"]
+    (health,) = call(app, ("GET", "/v1/health", None))
+    queue = health.json()["queue"]
+    assert queue["refused"] >= 1 and queue["max_queued_cost"] > 0 and not queue["saturated"]
 
 
 def batched_equals_alone(app, pipe, reqs, steps=2):

@@ -238,7 +238,7 @@ def test_a_job_whose_client_left_is_dropped_before_it_runs(pipe):
         batcher = app.state.batcher
 
         def all_cancelled() -> bool:  # the three jobs queued behind the blocked call, each cancelled by its client
-            queued = list(batcher._queue._queue)
+            queued = [item for lane in batcher._lanes for item in lane]
             return len(queued) == 3 and all(f.cancelled() for _, f in queued)
         deadline = time.monotonic() + 30  # events and states, not a guess of how long a busy machine takes
         while not all_cancelled() and time.monotonic() < deadline:

@@ -33,7 +33,8 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--max-batch", type=int, default=BATCH_SIZE, help="most requests in one sampling call")
     p.add_argument("--max-request-cost", type=float, default=None,
                    help="most work one request may ask for, in seconds x steps (default 2000: a 120 s timeline of "
-                        "the shipped student with footskate loop; raise it on a faster machine)")
+                        "the shipped student with footskate loop; raise it on a faster machine; each queue lane holds four "
+                        "requests' worth of work)")
     p.add_argument("--wait-ms", type=float, default=5.0, help="how long to gather requests for a batch (default 5)")
     p.add_argument("--max-queue", type=int, default=256, help="waiting requests before 503 (default 256)")
     p.add_argument("--threads", type=int, default=2,

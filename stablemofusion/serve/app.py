@@ -33,7 +33,7 @@ from .http_errors import ServeError, log_event
 from .guard import Guard
 from .. import limits
 from ..output import made_by
-from .server_limits import (MAX_BODY_BYTES, MAX_QUEUED_COST, MAX_REQUEST_COST, MAX_STREAMS, RECENT_RESULTS,
+from .server_limits import (MAX_BODY_BYTES, MAX_REQUEST_COST, MAX_STREAMS, QUEUED_REQUESTS, RECENT_RESULTS,
                             UPLOAD_BUDGET_BYTES)
 from .responses import motion_response
 from .live import StreamHub, ThreadStreamWorker, serve_stream
@@ -125,16 +125,19 @@ def _install_error_handlers(app: FastAPI) -> None:
 def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.0, max_queue: int = 256,
                max_body_bytes: int = MAX_BODY_BYTES, allowed_hosts: tuple[str, ...] = (), streams=None,
                max_streams: int = MAX_STREAMS, upload_budget: int = UPLOAD_BUDGET_BYTES,
-               max_request_cost: float = MAX_REQUEST_COST, max_queued_cost: float = MAX_QUEUED_COST) -> FastAPI:
+               max_request_cost: float = MAX_REQUEST_COST, max_queued_cost: float | None = None) -> FastAPI:
     """The ASGI app; ``model`` is a worker (serve/worker.py: `smf serve` gives a supervised
     :class:`~stablemofusion.serve.worker.ProcessWorker`) or a pipeline (generated on a thread). ``streams``
     the live streams' worker (serve/live.py; default: a thread with ``model`` when it is a pipeline, else
     none); ``max_streams`` live streams at once (0: none); ``max_request_cost`` the most work one request may ask for
-    (422 beyond), ``max_queued_cost`` the most work waiting (503 with Retry-After beyond)."""
+    (422 beyond), ``max_queued_cost`` the most work waiting in a lane (503 with Retry-After beyond; default
+    ``QUEUED_REQUESTS`` requests of ``max_request_cost``)."""
     worker = model if hasattr(model, "submit") else ThreadWorker(model)
     if streams is None and not hasattr(model, "submit") and max_streams > 0:
         streams = ThreadStreamWorker(model, worker.executor)
     hub = StreamHub(streams, max_streams if streams is not None else 0)
+    if max_queued_cost is None:
+        max_queued_cost = QUEUED_REQUESTS * max_request_cost
     batcher = DynamicBatcher(worker, max_batch=max_batch, wait_ms=wait_ms, max_queue=max_queue,
                              max_queued_cost=max_queued_cost, max_batch_cost=max_request_cost)
     cfg = worker.model

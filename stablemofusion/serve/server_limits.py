@@ -26,9 +26,11 @@ CLIENT_HEADER = "x-smf-client"  # a request with this header (or an octet-stream
 # shipped student at 1 step with footskate 'loop' (1,920, about 2.6 s on one thread) is admitted, the same at 6
 # steps (2,520, 5.9 s) is refused with 422, so a light request never waits long behind a heavy one
 MAX_REQUEST_COST = 2000.0
-# the work waiting, all requests together: past it a new request gets 503 with a Retry-After (health says
-# "saturated"), so no request joins a queue it cannot get through in seconds
-MAX_QUEUED_COST = 4 * MAX_REQUEST_COST
+# the work waiting in each lane, in requests of the most work: past it a new request gets 503 with a Retry-After
+# (health says "saturated"), so no request joins a queue it cannot get through in seconds; a server whose
+# --max-request-cost is raised queues this many of its larger requests
+QUEUED_REQUESTS = 4
+MAX_QUEUED_COST = QUEUED_REQUESTS * MAX_REQUEST_COST
 # requests of at most this much work (the shipped teacher's 10 steps over a 20 s motion) queue in a lane of their
 # own: batches alternate between it and the heavy lane, and a batch holds at most MAX_REQUEST_COST of work, so a
 # light request waits for at most one heavy batch, however many heavy ones are queued

@@ -1,8 +1,9 @@
 """One seeded noise for every runtime: standard normal draws that are a pure function of their coordinates.
 
-The same (seed, stream, draw, index) gives the same number in numpy, in torch (which takes these arrays) and in
-JavaScript (``assets/runtime/noise.js``), so a prompt, seed and length make the same motion everywhere. Nothing
-is sequential: any element can be computed alone, and a motion's first n frames do not depend on its length.
+The same (seed, stream, draw, index) gives the same number in numpy, in torch on any device (the same functions,
+written once against the array API: the numbers are made where the model runs) and in JavaScript
+(``assets/runtime/noise.js``), so a prompt, seed and length make the same motion everywhere. Nothing is
+sequential: any element can be computed alone, and a motion's first n frames do not depend on its length.
 
 Definition (all integers unsigned 32-bit, ``*`` wrapping multiplication, ``^`` xor, ``>>`` logical shift):
 
@@ -23,23 +24,39 @@ stream 0 and its own seed when each item has one; the initial noise is ``draw`` 
 
 from __future__ import annotations
 
+from typing import Any, Sequence
+
 import numpy as np
+
+from .motion.arrays import device as device_of
+from .motion.arrays import namespace
 
 NOISE_VERSION = 1  # bump when any number above changes
 _MASK = 0xFFFFFFFF
 _M1, _M2, _GOLDEN = 0x7FEB352D, 0x846CA68B, 0x9E3779B9
 SEED_LIMIT = 2**53
+CHUNK = 1 << 22  # elements made at once on a CPU (about 100 MB of temporaries); a GPU takes 16 times more
 
 
-def mix(x: np.ndarray) -> np.ndarray:
-    """The 32-bit mixing bijection of the definition, on a uint32 array (a new array)."""
-    x = np.asarray(x, dtype=np.uint32)
-    x = x ^ (x >> np.uint32(16))
-    x = x * np.uint32(_M1)
-    x ^= x >> np.uint32(15)
-    x *= np.uint32(_M2)
-    x ^= x >> np.uint32(16)
-    return x
+def _mul(x, m: int):
+    """``x * m`` modulo 2**32 of 32-bit words: numpy's uint32 wraps by itself; elsewhere (torch, whose unsigned
+    integers lack most operations) the words are int64 in [0, 2**32) and the product is taken in 16-bit halves
+    of ``m``, so that nothing exceeds 2**49."""
+    if isinstance(x, np.ndarray):
+        return x * np.uint32(m)
+    return (x * (m & 0xFFFF) + (((x * (m >> 16)) & 0xFFFF) << 16)) & _MASK
+
+
+def mix(x):
+    """The 32-bit mixing bijection of the definition on an array of words: a numpy uint32 array (other numpy
+    integers are taken as uint32), or int64 words in [0, 2**32) of another library (a new array)."""
+    if isinstance(x, (np.ndarray, np.generic, list, tuple, int)):
+        x = np.asarray(x, dtype=np.uint32)
+    x = x ^ (x >> 16)
+    x = _mul(x, _M1)
+    x = x ^ (x >> 15)
+    x = _mul(x, _M2)
+    return x ^ (x >> 16)
 
 
 def _mix_int(x: int) -> int:
@@ -62,30 +79,48 @@ def draw_key(seed: int, stream: int = 0, draw: int = 0) -> int:
     return _mix_int(k ^ (int(draw) & _MASK))
 
 
+_NUMPY = np.zeros(0)  # asks namespace() for numpy's array API (numpy 1.x, as in Blender, has none of its own)
+_MIXED: dict[str, Any] = {}  # mix(c) for the counters c = 0, 1, ... (the same for every key), per library and device
+
+
+def _mixed_counters(n: int, like=None):
+    """mix(0), ..., mix(n - 1) as words of ``like``'s library and device (numpy when None), kept between calls
+    (they do not depend on the seed)."""
+    place = "numpy" if like is None or isinstance(like, np.ndarray) else f"{type(like).__module__}:{device_of(like)}"
+    have = _MIXED.get(place)
+    if have is None or have.shape[0] < n:
+        size = max(n, 2 * (0 if have is None else have.shape[0]))
+        if place == "numpy":
+            have = mix(np.arange(size, dtype=np.uint32))
+        else:
+            xp = namespace(like)
+            have = mix(xp.arange(size, dtype=xp.int64, device=device_of(like)))
+        _MIXED[place] = have
+    return have[:n]
+
+
+def _box_muller(keys, count: int, like=None):
+    """(N, count) float32: elements 0..count-1 of the draws of the N ``keys`` (Python ints), made by ``like``'s
+    library on its device (numpy when None)."""
+    pairs = (int(count) + 1) // 2
+    counters = _mixed_counters(2 * pairs, like)
+    xp = namespace(_NUMPY if like is None else like)
+    if like is None or isinstance(like, np.ndarray):
+        k = np.asarray(keys, dtype=np.uint32)
+    else:
+        k = xp.asarray(list(keys), dtype=xp.int64, device=device_of(like))
+    words = mix(counters[None, :] ^ k[:, None])  # (N, 2 pairs)
+    a, b = words[:, 0::2], words[:, 1::2]
+    u = (xp.astype(a >> 8, xp.float64) + 1.0) * (1.0 / 2**24)
+    v = xp.astype(b >> 8, xp.float64) * (2.0 * np.pi / 2**24)
+    r = xp.sqrt(-2.0 * xp.log(u))
+    out = xp.reshape(xp.stack([r * xp.cos(v), r * xp.sin(v)], axis=-1), (k.shape[0], 2 * pairs))
+    return xp.astype(out[:, :count], xp.float32)
+
+
 def normal(seed: int, count: int, *, stream: int = 0, draw: int = 0) -> np.ndarray:
     """Elements 0..count-1 of one draw: (count,) float32 standard normal values."""
-    pairs = (int(count) + 1) // 2
-    k = np.uint32(draw_key(seed, stream, draw))
-    words = mix(_mixed_counters(2 * pairs) ^ k)
-    a, b = words[0::2], words[1::2]
-    u = ((a >> np.uint32(8)).astype(np.float64) + 1.0) * (1.0 / 2**24)
-    v = (b >> np.uint32(8)).astype(np.float64) * (2.0 * np.pi / 2**24)
-    r = np.sqrt(-2.0 * np.log(u))
-    out = np.empty(2 * pairs, dtype=np.float64)
-    out[0::2] = r * np.cos(v)
-    out[1::2] = r * np.sin(v)
-    return out[:count].astype(np.float32)
-
-
-_MIXED = np.zeros(0, dtype=np.uint32)  # mix(c) for the counters c = 0, 1, ... (the same for every key)
-
-
-def _mixed_counters(n: int) -> np.ndarray:
-    """mix(0), ..., mix(n - 1), kept between calls (they do not depend on the seed)."""
-    global _MIXED
-    if len(_MIXED) < n:
-        _MIXED = mix(np.arange(max(n, 2 * len(_MIXED)), dtype=np.uint32))
-    return _MIXED[:n]
+    return _box_muller([draw_key(seed, stream, draw)], count)[0]
 
 
 def noise(seed: int, frames: int, dims: int, *, stream: int = 0, draw: int = 0) -> np.ndarray:
@@ -93,18 +128,41 @@ def noise(seed: int, frames: int, dims: int, *, stream: int = 0, draw: int = 0) 
     return normal(seed, int(frames) * int(dims), stream=stream, draw=draw).reshape(int(frames), int(dims))
 
 
-def batch_noise(seed: int | list[int], lengths: list[int], dims: int, *, draw: int = 0) -> np.ndarray:
-    """(B, max(lengths), dims) float32 of one sampling call: item k's own frames from stream k of ``seed`` (one
-    int) or from stream 0 of ``seed[k]`` (one per item); zeros past each item's length."""
+def draws(seed: int | Sequence[int], lengths: Sequence[int], dims: int, draw_indices: Sequence[int], *,
+          like=None):
+    """(len(draw_indices), B, max(lengths), dims) float32: the draws of one sampling call, made by ``like``'s
+    library on its device (numpy when None; a torch tensor on a GPU makes them there). Item k's own frames come
+    from stream k of ``seed`` (one int) or from stream 0 of ``seed[k]`` (one per item); zeros past each item's
+    length. Made a few items at a time (at most :data:`CHUNK` elements on a CPU), whatever the batch."""
     lengths = [int(n) for n in lengths]
     per_item = isinstance(seed, (list, tuple))
     if per_item and len(seed) != len(lengths):
         raise ValueError(f"one seed per item: {len(seed)} seeds for {len(lengths)} items")
-    out = np.zeros((len(lengths), max(lengths, default=0), int(dims)), dtype=np.float32)
-    for k, n in enumerate(lengths):
-        s, stream = (seed[k], 0) if per_item else (seed, k)
-        out[k, :n] = noise(s, n, dims, stream=stream, draw=draw)
-    return out
+    B, T, D = len(lengths), max(lengths, default=0), int(dims)
+    numpy = like is None or isinstance(like, np.ndarray)
+    xp = namespace(_NUMPY if numpy else like)
+    where = None if numpy else device_of(like)
+    chunk = CHUNK if where is None or str(where) == "cpu" else 16 * CHUNK
+    items = max(1, chunk // max(1, T * D))
+    frame = xp.arange(T, device=where)
+    out = []
+    for d in draw_indices:
+        parts = []
+        for lo in range(0, B, items):
+            hi = min(B, lo + items)
+            keys = [draw_key(*((seed[k], 0) if per_item else (seed, k)), int(d)) for k in range(lo, hi)]
+            x = xp.reshape(_box_muller(keys, T * D, like), (hi - lo, T, D))
+            n = xp.asarray(lengths[lo:hi], device=where)
+            parts.append(xp.where((frame[None, :] < n[:, None])[:, :, None], x, xp.zeros_like(x)))
+        out.append(parts[0] if len(parts) == 1 else xp.concat(parts, axis=0))
+    if not out:
+        return xp.zeros((0, B, T, D), dtype=xp.float32, device=where)
+    return xp.stack(out)
 
 
-__all__ = ["NOISE_VERSION", "batch_noise", "draw_key", "mix", "noise", "normal"]
+def batch_noise(seed: int | list[int], lengths: list[int], dims: int, *, draw: int = 0) -> np.ndarray:
+    """(B, max(lengths), dims) float32 of one sampling call, in numpy: :func:`draws` of one draw index."""
+    return draws(seed, lengths, dims, [draw])[0]
+
+
+__all__ = ["NOISE_VERSION", "batch_noise", "draw_key", "draws", "mix", "noise", "normal"]

@@ -1,6 +1,7 @@
 """The portable noise: a standard normal, independent across seeds, streams and draws, the same for any length,
 and the same numbers in JavaScript (assets/runtime/noise.js) as in numpy."""
 
+import importlib.util
 import json
 import shutil
 import subprocess
@@ -9,7 +10,7 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from stablemofusion.noise import batch_noise, draw_key, mix, noise, normal
+from stablemofusion.noise import batch_noise, draw_key, draws, mix, noise, normal
 
 
 def test_mix_is_the_published_bijection_on_known_values():
@@ -73,3 +74,43 @@ def test_javascript_gives_the_same_numbers(tmp_path):
         assert js_values.shape == want.shape
         ulps = np.abs(js_values.view(np.int32).astype(np.int64) - want.view(np.int32).astype(np.int64))
         assert ulps.max() <= 1, (s, st, d, int(ulps.max()))
+
+
+def _ulps(got, want) -> np.ndarray:
+    return np.abs(np.asarray(got).view(np.int32).astype(np.int64) - want.view(np.int32).astype(np.int64))
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not (importlib.util.find_spec("torch") and __import__("torch").cuda.is_available()), reason="needs a CUDA device"))])
+def test_torch_makes_the_same_numbers_where_the_model_runs(device):
+    torch = pytest.importorskip("torch")
+    like = torch.empty(0, device=device)
+    for seed, lengths, indices in [(0, [196], range(3)), (2**53 - 1, [50, 7, 33], [0, 9]),
+                                   ([3, 2**40 + 1, 0], [12, 40, 40], [1]), (7, [1, 2], [0])]:
+        want = draws(seed, lengths, 263, indices)
+        got = draws(seed, lengths, 263, indices, like=like)
+        assert got.device.type == device and got.dtype == torch.float32 and tuple(got.shape) == want.shape
+        assert _ulps(got.cpu().numpy(), want).max() == 0  # the same float32 numbers, bit for bit
+    mixed = mix(torch.arange(1 << 16, dtype=torch.int64, device=device))  # the words of a tensor: int64 in [0, 2**32)
+    np.testing.assert_array_equal(mixed.cpu().numpy(), mix(np.arange(1 << 16, dtype=np.uint32)).astype(np.int64))
+
+
+def test_a_sampling_call_draws_the_portable_noise_on_its_device():
+    torch = pytest.importorskip("torch")
+    from stablemofusion.diffusion.sampling import Noise
+
+    noise_of_call = Noise([4, 9], [30, 21], 7, torch.device("cpu"))
+    first, rest = noise_of_call.draw(), noise_of_call.draw(2)
+    assert tuple(first.shape) == (2, 30, 7) and tuple(rest.shape) == (2, 2, 30, 7)
+    np.testing.assert_array_equal(first.numpy(), batch_noise([4, 9], [30, 21], 7))
+    np.testing.assert_array_equal(rest.numpy(), draws([4, 9], [30, 21], 7, [1, 2]))
+
+
+def test_a_large_batch_is_made_a_few_items_at_a_time_with_the_same_numbers(monkeypatch):
+    import stablemofusion.noise as module
+
+    want = draws(11, [20, 19, 18, 20, 5], 263, [0, 2])
+    monkeypatch.setattr(module, "CHUNK", 263 * 20 * 2)  # two items a chunk
+    got = draws(11, [20, 19, 18, 20, 5], 263, [0, 2])
+    np.testing.assert_array_equal(got, want)
+    assert not got[:, 4, 5:].any() and got[:, 4, :5].all()

@@ -15,11 +15,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
-import numpy as np
 import torch
 
 from ..errors import SMFError
+from ..limits import fresh_seed
 from ..models.base import TextCondition
+from ..noise import draw_key, draws
 from .schedulers import SamplerSpec, model_output_for
 from .solvers import SolverTable
 
@@ -153,15 +154,14 @@ def _cat_opt(a: torch.Tensor | None, b: torch.Tensor | None, like: torch.Tensor 
 
 class Noise:
     """The noise of one sampling call: (B, T, D) standard normal draws of the portable noise
-    (:mod:`stablemofusion.noise`, the same numbers on every runtime), zeros past each item's length.
+    (:mod:`stablemofusion.noise`, the same numbers on every runtime, made on the call's device), zeros past each
+    item's length.
 
     ``seed`` an int: item k draws from stream k of it. A list (one per item): item k from stream 0 of its own
     seed, so an item's result does not depend on the others it is batched with (and equals generating it
     alone). None: a fresh seed. Each :meth:`draw` takes the next draw index (the initial noise is draw 0)."""
 
     def __init__(self, seed: int | list[int] | None, lengths: list[int], dim: int, device: torch.device):
-        from ..limits import fresh_seed
-
         self.lengths, self.dim, self.device = list(lengths), int(dim), torch.device(device)
         self.frames = max(self.lengths)
         self.per_item = isinstance(seed, (list, tuple))
@@ -173,19 +173,15 @@ class Noise:
     def draw(self, count: int | None = None) -> torch.Tensor:
         """``count`` draws stacked (count, B, T, D), or one (B, T, D) when ``count`` is None; float32 on
         the device."""
-        from ..noise import batch_noise
-
         n = 1 if count is None else count
-        out = np.stack([batch_noise(self.seed, self.lengths, self.dim, draw=self.next_draw + k) for k in range(n)])
+        out = draws(self.seed, self.lengths, self.dim, range(self.next_draw, self.next_draw + n),
+                    like=torch.empty(0, device=self.device))  # made on the device, as numpy makes them
         self.next_draw += n
-        out = torch.from_numpy(out).to(self.device)
         return out[0] if count is None else out
 
     def generator(self) -> torch.Generator | list[torch.Generator]:
         """A generator for schedulers that draw their own step noise (no ``variance_noise``): seeded from the
         key of the call's next draw (these samplers are torch-only)."""
-        from ..noise import draw_key
-
         self.next_draw += 1
         make = lambda s, stream: torch.Generator(device=self.device).manual_seed(  # noqa: E731
             draw_key(s, stream, self.next_draw - 1))

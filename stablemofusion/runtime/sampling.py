@@ -8,7 +8,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..noise import batch_noise
+from ..noise import batch_noise, draws
 from .graphs import PortableModel, Table
 
 Denoiser = Callable[[np.ndarray, int], np.ndarray]  # (model input x (B, T, D), step k) -> x0 (B, T, D)
@@ -63,8 +63,7 @@ def sample(model: PortableModel, tokens: np.ndarray, mask: np.ndarray, lengths: 
     table = model.table(sampler, steps)
     T = max(lengths)
     x = batch_noise(seed, lengths, model.dim, draw=0) * np.float32(table.init_sigma)
-    step_noise = (np.stack([batch_noise(seed, lengths, model.dim, draw=1 + k) for k in range(table.steps)])
-                  if table.stochastic else None)
+    step_noise = draws(seed, lengths, model.dim, range(1, 1 + table.steps)) if table.stochastic else None
     x = run_table(guided_denoiser(model, tokens, mask, lengths, T, table, guidance), table, x, step_noise, x0_hook)
     return x * model.std + model.mean
 

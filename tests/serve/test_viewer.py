@@ -286,6 +286,28 @@ def test_live_mode_keeps_moving_and_a_new_prompt_changes_it(page, tmp_path):
     assert page.logs[logs:] == []  # no error or warning while streaming
 
 
+def test_a_live_stream_that_breaks_connects_again_and_continues_where_the_character_stands(page):
+    """A live connection that breaks (as when its server dies behind a load balancer) is opened again with the same
+    prompt and seed; the new stream's frames come after the old ones and start where the character stood."""
+    logs = len(page.logs)
+    page.fill("#prompt", "a person walks forward")
+    page.fill("#seed", "3")
+    page.check("#live")
+    page.wait_for_function("window.smf.live && window.smf.live.received >= 30", timeout=60_000)
+    page.evaluate("window.smf.live.ws.close(4000)")  # not a normal end (1000): the viewer connects again
+    page.wait_for_function("window.smf.live && window.smf.live.reconnects === 1 && window.smf.live.place !== null "
+                           "&& window.smf.live.received > window.smf.live.base + 20", timeout=60_000)
+    base, offset = page.evaluate("[window.smf.live.base, window.smf.live.offset]")
+    joints = np.asarray(page.evaluate("Array.from(window.smf.joints)"), dtype=np.float64).reshape(-1, 22, 3)
+    seam = base - offset  # the first frame of the new stream
+    assert np.abs(joints[seam, 0, [0, 2]] - joints[seam - 1, 0, [0, 2]]).max() < 1e-4  # the root goes on from there
+    assert page.evaluate("window.smf.live.index") == 0 and "live:" in page.inner_text("#status")
+    page.uncheck("#live")
+    page.wait_for_function("window.smf.live === null", timeout=10_000)
+    page.fill("#seed", "")
+    assert page.logs[logs:] == []
+
+
 def test_a_path_drawn_on_the_floor_is_followed(page):
     """Tick "path", click three points on the floor: the request carries them and the root passes each."""
     page.select_option("#footskate", "off")

@@ -273,6 +273,7 @@ window.addEventListener('drop', async (ev) => {
 // and are appended; the play clock starts with the first frames
 function liveAppend(m) {
   const L = state.live;
+  if (L.base) continueFrom(m, L);
   const flat = Float32Array.from(m.joints.flat(2));
   const keep = state.joints && state.frames ? state.joints.subarray(0, state.frames * 66) : new Float32Array(0);
   let joints = new Float32Array(keep.length + flat.length);
@@ -316,10 +317,68 @@ function livePrompt(text) {
   const L = state.live;
   const first = { prompt: text };
   if ($('seed').value.trim() !== '') first.seed = Number($('seed').value);
+  if (!L.prompts.length) L.seed = first.seed;
   const message = JSON.stringify(L.prompts.length ? { prompt: text } : first);
   L.prompts.push(text);
   if (L.ws.readyState === WebSocket.OPEN) L.ws.send(message);
   else L.ws.addEventListener('open', () => L.ws.send(message), { once: true });
+}
+
+// a stream that broke (its server died: behind a load balancer another replica takes the new connection) is opened
+// again with its prompt and seed; the new stream starts from rest at the origin, so its frames are turned and moved
+// to continue from where the character stands, and its frames and prompts counted after the old ones
+const LIVE_RECONNECTS = 5; // tries in a row without a frame in between
+function continueFrom(m, L) {
+  if (!L.place) {
+    const last = state.joints.subarray((state.frames - 1) * 66, state.frames * 66);
+    const first = m.joints[0];
+    const heading = (hips) => Math.atan2(hips[2] - hips[5], hips[0] - hips[3]); // left hip minus right hip (x, z)
+    const turn = heading(last.subarray(3, 9)) - heading([...first[1], ...first[2]]);
+    L.place = { c: Math.cos(turn), s: Math.sin(turn), fx: first[0][0], fz: first[0][2], tx: last[0], tz: last[2] };
+  }
+  const { c, s, fx, fz, tx, tz } = L.place;
+  m.joints = m.joints.map((frame) => frame.map(([x, y, z]) => {
+    const px = x - fx, pz = z - fz;
+    return [tx + c * px - s * pz, y, tz + s * px + c * pz];
+  }));
+  m.start += L.base;
+  m.prompt_index += L.indexBase;
+}
+
+function liveConnect() {
+  const L = state.live;
+  const proto = location.protocol === 'https:' ? 'wss:' : 'ws:';
+  const ws = new WebSocket(`${proto}//${location.host}/v1/stream`);
+  L.ws = ws;
+  const current = () => state.live !== null && state.live.ws === ws;  // not stopped or replaced since
+  ws.addEventListener('message', (ev) => {
+    if (!current()) return;  // frames already in flight when the stream was stopped
+    const m = JSON.parse(ev.data);
+    if (m.type === 'frames') { L.tries = 0; liveAppend(m); }
+    else if (m.type === 'error') { state.live.failed = true; status(m.error, true); }
+  });
+  ws.addEventListener('close', (ev) => {
+    if (!current()) return;
+    // 1000: ended on purpose; 1013: the server's limit of streams; an error said: stop. Anything else: connect again
+    if (ev.code === 1000 || ev.code === 1013 || L.failed || !L.prompts.length || L.tries >= LIVE_RECONNECTS) {
+      liveStop(false);
+      return;
+    }
+    L.tries += 1;
+    L.reconnects += 1;
+    status(`live: the connection broke; connecting again (${L.tries} of ${LIVE_RECONNECTS})`, true);
+    setTimeout(() => {
+      if (!current()) return;
+      L.base = L.received;
+      L.indexBase = L.prompts.length - 1;
+      L.place = null;
+      const first = { prompt: L.prompts[L.prompts.length - 1] };
+      if (L.seed !== undefined) first.seed = L.seed;
+      liveConnect();
+      L.ws.addEventListener('open', () => L.ws.send(JSON.stringify(first)), { once: true });
+    }, 300 * L.tries);
+  });
+  return ws;
 }
 
 function liveStart() {
@@ -332,19 +391,9 @@ function liveStart() {
   $('scrub').disabled = true;
   $('play').disabled = true;
   $('generate').textContent = 'Send';
-  const proto = location.protocol === 'https:' ? 'wss:' : 'ws:';
-  const ws = new WebSocket(`${proto}//${location.host}/v1/stream`);
-  state.live = { ws, start: null, offset: 0, received: 0, index: -1, prompts: [], late: 0 };
-  const current = () => state.live !== null && state.live.ws === ws;  // not stopped or replaced since
-  ws.addEventListener('message', (ev) => {
-    if (!current()) return;  // frames already in flight when the stream was stopped
-    const m = JSON.parse(ev.data);
-    if (m.type === 'frames') liveAppend(m);
-    else if (m.type === 'error') { state.live.failed = true; status(m.error, true); }
-  });
-  ws.addEventListener('close', () => {
-    if (current()) liveStop(false);
-  });
+  state.live = { ws: null, start: null, offset: 0, received: 0, index: -1, prompts: [], late: 0, tries: 0,
+                 reconnects: 0, base: 0, indexBase: 0, place: null, seed: undefined };
+  liveConnect();
   status('live: connecting...');
 }
 

@@ -47,19 +47,7 @@ def read_prompts(args) -> list[str]:
         raise SMFError("--seconds does not apply to --timeline: give each segment its seconds ('PROMPT:SECONDS; ...')")
     check_seconds(args.seconds, "--seconds")
     if args.prompts is not None:
-        if not args.prompts.is_file():
-            raise SMFError(f"no such file: {args.prompts}")
-        if args.prompts.stat().st_size > MAX_PROMPTS_FILE_BYTES:
-            raise SMFError(f"{args.prompts}: a prompts file is at most {MAX_PROMPTS_FILE_BYTES // 2**20} MB "
-                           f"(one prompt of at most {MAX_PROMPT_CHARS} characters a line)")
-        try:
-            text = args.prompts.read_text(encoding="utf-8")
-        except UnicodeDecodeError as e:
-            raise SMFError(f"{args.prompts}: not UTF-8 text (byte {e.start}); save the prompts file as UTF-8") from None
-        prompts = [ln.strip() for ln in text.splitlines() if ln.strip()]
-        if not prompts:
-            raise SMFError(f"{args.prompts} holds no prompts")
-        return prompts
+        return read_prompts_file(args.prompts)
     if args.timeline is not None:
         from ..timeline_plan import parse_timeline
 
@@ -67,6 +55,25 @@ def read_prompts(args) -> list[str]:
     if not args.text.strip():
         raise SMFError("the prompt is empty")
     return [args.text]
+
+
+def read_prompts_file(path: Path) -> list[str]:
+    """The prompts of a file, one a line (blank lines skipped), read bounded and checked."""
+    from ..errors import SMFError
+
+    if not path.is_file():
+        raise SMFError(f"no such file: {path}")
+    if path.stat().st_size > MAX_PROMPTS_FILE_BYTES:
+        raise SMFError(f"{path}: a prompts file is at most {MAX_PROMPTS_FILE_BYTES // 2**20} MB "
+                       f"(one prompt of at most {MAX_PROMPT_CHARS} characters a line)")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as e:
+        raise SMFError(f"{path}: not UTF-8 text (byte {e.start}); save the prompts file as UTF-8") from None
+    prompts = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    if not prompts:
+        raise SMFError(f"{path} holds no prompts")
+    return prompts
 
 
 def read_path(path: Path | None):

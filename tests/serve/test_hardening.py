@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import io
+import json
 import logging
 import re
 import socket
@@ -261,6 +262,18 @@ def closed_by_server(sock: socket.socket, timeout: float = 30.0) -> bool:
         return True
 
 
+def refused_by_server(sock: socket.socket, timeout: float = 30.0) -> bool:
+    """Whether the server answered this connection with its JSON 503 (before any request) and then ended it in
+    order: everything up to the end is read; a reset (the answer lost) raises."""
+    sock.settimeout(timeout)
+    data = b""
+    while chunk := sock.recv(4096):
+        data += chunk
+    head, _, body = data.partition(b"\r\n\r\n")
+    return (head.startswith(b"HTTP/1.1 503") and b"content-type: application/json" in head
+            and json.loads(body)["error"].startswith("the server is at its limit of"))
+
+
 def test_a_half_open_connection_is_closed():
     """A client that sends part of its headers and waits is disconnected after the header timeout."""
     from stablemofusion.serve.worker import ThreadWorker
@@ -431,7 +444,8 @@ def test_a_header_block_over_the_limit_sent_in_one_write_is_refused(pipe):
 
 def test_idle_connections_cannot_lock_everyone_out(pipe):
     """300 connections that never finish their headers (more than the 256 the server serves at once, all from one
-    address): the oldest of them are closed as new ones come, so health and a generate request are answered."""
+    address): the oldest of them are refused as new ones come (a JSON 503, then an orderly close: never a reset), so
+    health and a generate request are answered."""
     with live_server(create_app(pipe)) as url:
         port = int(url.rsplit(":", 1)[1])
         for _ in range(600):  # the worker warms first (a safety net of 60 s)
@@ -449,13 +463,33 @@ def test_idle_connections_cannot_lock_everyone_out(pipe):
             health = httpx.get(url + "/v1/health", timeout=30)
             made = httpx.post(url + "/v1/generate", json={"prompt": "a person walks", "seconds": 2, "steps": 1},
                               timeout=60)
-            closed = sum(closed_by_server(s) for s in socks[:40])  # the oldest were closed by the server
+            closed = sum(refused_by_server(s) for s in socks[:40])  # the oldest were refused by the server
         finally:
             for s in socks:
                 s.close()
     assert health.status_code == 200 and health.json()["status"] == "ok"
     assert made.status_code == 200 and made.json()["frames"] == 40
     assert closed == 40
+
+
+def test_a_request_over_the_connection_cap_gets_a_json_503():
+    """Past the connection cap a request is answered, in JSON with a Retry-After, as every other refusal is (uvicorn's
+    own cap answered in plain text); under it the app answers."""
+    from stablemofusion.serve.server import Capped
+
+    class Crowded:
+        connections, refused = set(range(6)), {0}
+
+    async def app(scope, receive, send):
+        await send({"type": "http.response.start", "status": 200, "headers": []})
+        await send({"type": "http.response.body", "body": b"ok"})
+
+    for limit, want in ((4, 503), (5, 200)):
+        r = call(Capped(app, Crowded, limit), ("GET", "/v1/health", None))[0]
+        assert r.status_code == want
+    r = call(Capped(app, Crowded, 4), ("POST", "/v1/generate", {"prompt": "a person walks"}))[0]
+    assert r.headers["content-type"] == "application/json" and r.headers["retry-after"] == "1"
+    assert r.json() == {"error": "the server is at its limit of 256 connections; retry shortly"}
 
 
 def test_uploads_are_held_against_one_budget(pipe):

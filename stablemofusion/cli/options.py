@@ -223,7 +223,8 @@ def output_meta(args, pipe, *, edit: bool = False) -> dict:
 @contextlib.contextmanager
 def user_warnings():
     """Within it, the pipeline's warnings meant for users (engine, length, out of domain) are gathered and printed
-    after as one line each, ``smf: warning: ...``."""
+    after on stderr, one line each, ``smf: warning: ...`` (stdout keeps the results alone)."""
+    import sys
     import warnings
 
     from ..pipelines.final import EngineWarning, LengthClampedWarning, OutOfDomainWarning
@@ -233,4 +234,4 @@ def user_warnings():
         yield
     shown = (EngineWarning, LengthClampedWarning, OutOfDomainWarning)
     for w in dict.fromkeys(str(c.message) for c in caught if issubclass(c.category, shown)):
-        print(f"smf: warning: {w}")
+        print(f"smf: warning: {w}", file=sys.stderr)

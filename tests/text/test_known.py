@@ -81,9 +81,9 @@ def test_pipeline_warns_and_still_generates(checkpoint_with_actions):
 def test_generate_cli_prints_one_warning_line_and_writes_similarity(checkpoint_with_actions, tmp_path, capsys):
     code = main(["generate", "does a backflip", "--checkpoint", str(checkpoint_with_actions), "--seconds", "2",
                  "--steps", "2", "--format", "json", "--out", str(tmp_path)])
-    out = capsys.readouterr().out
-    assert code == 0
-    lines = [line for line in out.splitlines() if line.startswith("smf: warning:")]
+    said = capsys.readouterr()
+    assert code == 0 and "smf: warning:" not in said.out  # warnings on stderr, the results alone on stdout
+    lines = [line for line in said.err.splitlines() if line.startswith("smf: warning:")]
     assert len(lines) == 1 and "closest actions it knows" in lines[0]
     (json_file,) = tmp_path.glob("*.json")
     d = json.loads(json_file.read_text())
@@ -194,7 +194,7 @@ def test_detector_warning_and_fields_keep_their_shape(checkpoint_with_detector, 
         out = tmp_path / name
         assert main(["generate", FOREIGN[0], "--checkpoint", str(ck), "--seconds", "2", "--steps", "2",
                      "--format", "json", "--out", str(out)]) == 0
-        lines = [x for x in capsys.readouterr().out.splitlines() if x.startswith("smf: warning:")]
+        lines = [x for x in capsys.readouterr().err.splitlines() if x.startswith("smf: warning:")]
         assert len(lines) == 1 and "is not like anything this model was trained on" in lines[0]
         assert "closest actions it knows" in lines[0]
         (json_file,) = out.glob("*.json")

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import SMFError
 from ..motion import timeseries as ts
-from ..motion.arrays import device, namespace
+from ..motion.arrays import device, namespace, on_like, to_numpy
 from ..motion.features import feature_slices, features_from_joints
 from ..motion.ik import LEG_CHAIN_JOINTS, hann_window, place_legs, reach_shift
 from ..motion.lean import LEAN_SHARE, lean_into_turns
@@ -315,23 +315,28 @@ def features_from_cleaned(joints: np.ndarray) -> np.ndarray:
 
 def cleanup_features_many(features: list[np.ndarray], config: CleanupConfig = CleanupConfig(), *,
                           vgrf_model: VgrfModel | None = None, fps: float = 20.0,
-                          rigid: RigidFitConfig = DEFAULT_FIT) -> list[tuple[np.ndarray, RigidMotion]]:
+                          rigid: RigidFitConfig = DEFAULT_FIT, like=None) -> list[tuple[np.ndarray, RigidMotion]]:
     """HumanML3D features (T_i, 263) in dataset units -> per motion the cleaned features (T_i, 263) and the cleaned
     rigid body they decode to: the rigid fits of all the features together (``rigid``; each motion's fit is the
     one it gets alone), :func:`cleanup_rigid` of each, then each body written in its input's body frames
-    (:func:`~stablemofusion.motion.rigid.rigid_to_features`). Motions of one length are cleaned together."""
+    (:func:`~stablemofusion.motion.rigid.rigid_to_features`). Motions of one length are cleaned together. ``like``:
+    the rigid fit, contacts and cleanup run on its library and device (a tensor on a GPU; None: numpy), the pose
+    and the write-back on numpy."""
     fs = [np.asarray(f, dtype=np.float64) for f in features]
     for f in fs:
         if f.ndim != 2 or f.shape[1] != 263 or len(f) < 2:
             raise SMFError(f"expected features of shape (T>=2, 263), got {tuple(f.shape)}")
-    rigid_joints, bone_lengths = rigid_joints_of_features(fs, "humanml3d", rigid)  # posed once, after the cleanup
+    if config.contacts != "kinematic":
+        like = None  # the vGRF route's model runs on the host
+    rigid_joints, bone_lengths = rigid_joints_of_features(fs, "humanml3d", rigid, like)  # posed once, after the cleanup
     cleaned: list = [None] * len(fs)
     by_length: dict[int, list[int]] = {}
     for i, x in enumerate(rigid_joints):
         by_length.setdefault(len(x), []).append(i)
     for group in by_length.values():  # motions of one length are cleaned as one batch
-        x = np.stack([rigid_joints[i] for i in group])
-        joints, held = clean_joints(x, detect_contacts(x, fps, config, vgrf_model), bone_lengths[group], fps, config)
+        x = on_like(np.stack([rigid_joints[i] for i in group]), like)
+        contacts = detect_contacts(x, fps, config, vgrf_model)
+        joints, held = to_numpy(clean_joints(x, contacts, on_like(bone_lengths[group], like), fps, config))
         for k, i in enumerate(group):
             cleaned[i] = (joints[k], held[k])
     out = []

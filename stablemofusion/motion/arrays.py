@@ -18,7 +18,7 @@ from array_api_compat import array_namespace, device, is_numpy_array, is_torch_a
 Array = TypeVar("Array")
 F = TypeVar("F", bound=Callable[..., Any])
 
-__all__ = ["Array", "device", "float64_numpy", "namespace", "numpy_edge", "to_numpy", "to_torch"]
+__all__ = ["Array", "device", "float64_numpy", "namespace", "numpy_edge", "on_like", "to_numpy", "to_torch"]
 
 
 # numpy 2.1 and later is itself an array API namespace (no compatibility layer to import: 0.1 s on first use)
@@ -59,6 +59,14 @@ def to_torch(x, dtype=None, device=None):
         a = np.array(a)  # torch cannot share read-only views (np.broadcast_to), swapped bytes or flipped strides
     t = torch.from_numpy(a)
     return t if dtype is None and device is None else t.to(dtype=dtype, device=device)
+
+
+def on_like(x: np.ndarray, like: Any = None) -> Any:
+    """``x`` as an array of ``like``'s library on its device, its dtype kept (``like`` None or numpy: ``x`` as it
+    is): where the final stage runs when its inputs are numpy but its math should run elsewhere (a GPU)."""
+    if like is None or isinstance(like, np.ndarray):
+        return x
+    return namespace(like).asarray(x, device=device(like))
 
 
 def to_numpy(x: Any) -> Any:

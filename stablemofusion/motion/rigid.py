@@ -283,13 +283,14 @@ def _checked_targets(targets: np.ndarray, sk: Skeleton) -> np.ndarray:
 
 
 def fit_rigid_many(targets: list[np.ndarray], skeleton: str | Skeleton = "humanml3d",
-                   config: RigidFitConfig = DEFAULT_FIT, *, starts: list[np.ndarray | None] | None = None
-                   ) -> list[RigidMotion]:
+                   config: RigidFitConfig = DEFAULT_FIT, *, starts: list[np.ndarray | None] | None = None,
+                   like=None) -> list[RigidMotion]:
     """Fit one rigid skeleton to each motion's joint positions ``targets[i]`` (T_i, J, 3) metres, all motions at
     once: bone lengths by ``config.bone_lengths``; the closed-form pose of ``starts[i]`` (T_i, J, 3) (default:
     the targets themselves), then ``config.iterations`` block sweeps (``method="sweeps"``, vectorised over
     every frame of every motion; :mod:`stablemofusion.motion.rigid_batch`) or L-BFGS steps per motion
-    (``"lbfgs"``) towards the targets. A motion's result does not depend on the others."""
+    (``"lbfgs"``) towards the targets. A motion's result does not depend on the others. ``like``: the sweeps run
+    on its library and device (:func:`~stablemofusion.motion.rigid_batch.fit_bodies`)."""
     sk = get_skeleton(skeleton)
     xs = [_checked_targets(x, sk) for x in targets]
     begins = [None] * len(xs) if starts is None else list(starts)
@@ -301,7 +302,7 @@ def fit_rigid_many(targets: list[np.ndarray], skeleton: str | Skeleton = "humanm
             out.append(optimise_pose(RigidMotion(offsets, rotations, x[:, 0].copy(), sk.name),
                                      _squared_distance(x * CM), config.iterations))
         return out
-    fitted, starts_at = _swept(xs, begins, lengths, sk, config)
+    fitted, starts_at = _swept(xs, begins, lengths, sk, config, like)
     offsets, rotations = rigid_batch.pose_of_joints(fitted, starts_at, sk, lengths)
     root = fitted[:, 0].copy()
     joints = rigid_batch.positions_of_pose(rigid_batch.per_frame(offsets, starts_at, len(fitted)), rotations, root, sk)
@@ -310,22 +311,22 @@ def fit_rigid_many(targets: list[np.ndarray], skeleton: str | Skeleton = "humanm
             for i, (a, b) in enumerate(zip(starts_at, ends))]
 
 
-def _swept(xs: list[np.ndarray], begins: list, lengths: np.ndarray, sk: Skeleton, config: RigidFitConfig
-           ) -> tuple[np.ndarray, np.ndarray]:
+def _swept(xs: list[np.ndarray], begins: list, lengths: np.ndarray, sk: Skeleton, config: RigidFitConfig,
+           like=None) -> tuple[np.ndarray, np.ndarray]:
     """The block-sweep fit of every frame of the motions ``xs`` at once: rigid joints (N, J, 3) of all of them
     stacked, and each motion's first frame in that stack."""
     starts_at = np.cumsum([0] + [len(x) for x in xs[:-1]])
     stacked = np.concatenate(xs)
     begin = None if all(b is None for b in begins) else \
         np.concatenate([x if b is None else np.asarray(b, dtype=np.float64) for x, b in zip(xs, begins)])
-    return rigid_batch.fit_bodies(stacked, starts_at, lengths, config.iterations, sk, begin), starts_at
+    return rigid_batch.fit_bodies(stacked, starts_at, lengths, config.iterations, sk, begin, like), starts_at
 
 
 def rigid_joints_of_features(features: list[np.ndarray], skeleton: str | Skeleton = "humanml3d",
-                             config: RigidFitConfig = DEFAULT_FIT) -> tuple[list[np.ndarray], np.ndarray]:
+                             config: RigidFitConfig = DEFAULT_FIT, like=None) -> tuple[list[np.ndarray], np.ndarray]:
     """The joints (T_i, J, 3) metres of :func:`rigid_from_features_many`'s bodies and their bone lengths (M, J),
     without the pose (rotations) of each body: for a stage that moves the joints before posing them (the
-    footskate cleanup). Block sweeps only."""
+    footskate cleanup). Block sweeps only (on ``like``'s library and device)."""
     if config.method != "sweeps":
         bodies = rigid_from_features_many(features, skeleton, config)
         return [b.joints() for b in bodies], np.stack([b.bone_lengths for b in bodies])
@@ -333,7 +334,7 @@ def rigid_joints_of_features(features: list[np.ndarray], skeleton: str | Skeleto
     targets, starts = _feature_targets(features, sk, config)
     xs = [_checked_targets(x, sk) for x in targets]
     lengths = np.stack([choose_bone_lengths(x, sk, config.bone_lengths) for x in xs])
-    fitted, starts_at = _swept(xs, [None] * len(xs) if starts is None else starts, lengths, sk, config)
+    fitted, starts_at = _swept(xs, [None] * len(xs) if starts is None else starts, lengths, sk, config, like)
     return np.split(fitted, starts_at[1:]), lengths
 
 
@@ -354,13 +355,13 @@ def fit_rigid(targets: np.ndarray, skeleton: str | Skeleton = "humanml3d", confi
 
 
 def rigid_from_features_many(features: list[np.ndarray], skeleton: str | Skeleton = "humanml3d",
-                             config: RigidFitConfig = DEFAULT_FIT) -> list[RigidMotion]:
+                             config: RigidFitConfig = DEFAULT_FIT, like=None) -> list[RigidMotion]:
     """The rigid bodies that a model's features (T_i, D) describe, fitted together: their joint positions are
     the targets, and the joints their rotation channels describe (with the chosen bone lengths) the start
-    (``config.start``)."""
+    (``config.start``); the sweeps on ``like``'s library and device (None: numpy)."""
     sk = get_skeleton(skeleton)
     targets, starts = _feature_targets(features, sk, config)
-    return fit_rigid_many(targets, sk, config, starts=starts)
+    return fit_rigid_many(targets, sk, config, starts=starts, like=like)
 
 
 def _feature_targets(features: list[np.ndarray], sk: Skeleton, config: RigidFitConfig) -> tuple[list, list | None]:

@@ -31,7 +31,7 @@ from functools import lru_cache
 import numpy as np
 
 from ..errors import SMFError
-from .arrays import device, namespace
+from .arrays import device, namespace, on_like, to_numpy
 from .kinematics import forward_kinematics
 from .rotation import quat_to_matrix
 from .skeleton import Skeleton, get_skeleton
@@ -137,10 +137,11 @@ def polar_rotation(k, fallback):
 
 
 def fit_bodies(targets: np.ndarray, starts: np.ndarray, lengths: np.ndarray, sweeps: int,
-               skeleton: str | Skeleton = "humanml3d", begin: np.ndarray | None = None) -> np.ndarray:
+               skeleton: str | Skeleton = "humanml3d", begin: np.ndarray | None = None, like=None) -> np.ndarray:
     """Rigid joints (N, J, 3) metres fitted to ``targets`` (N, J, 3), the frames of motions starting at ``starts``
     (M,) stacked, with bone ``lengths`` (M, J) per motion: :func:`fit_joints` of the motions of each length, batched
-    (a motion's result is the one it gets alone)."""
+    (a motion's result is the one it gets alone); computed by ``like``'s library on its device (a tensor on a GPU;
+    None: numpy), numpy in and out."""
     ends = np.append(starts[1:], len(targets))
     out = np.empty_like(targets, dtype=np.float64)
     sizes = ends - starts
@@ -148,9 +149,9 @@ def fit_bodies(targets: np.ndarray, starts: np.ndarray, lengths: np.ndarray, swe
         which = np.flatnonzero(sizes == size)
         frames = (starts[which][:, None] + np.arange(size)).reshape(-1)
         shape = (len(which), size) + targets.shape[1:]
-        fitted = fit_joints(targets[frames].reshape(shape), lengths[which], sweeps, skeleton,
-                            None if begin is None else begin[frames].reshape(shape))
-        out[frames] = fitted.reshape((-1,) + targets.shape[1:])
+        fitted = fit_joints(on_like(targets[frames].reshape(shape), like), on_like(lengths[which], like), sweeps,
+                            skeleton, None if begin is None else on_like(begin[frames].reshape(shape), like))
+        out[frames] = to_numpy(fitted).reshape((-1,) + targets.shape[1:])
     return out
 
 

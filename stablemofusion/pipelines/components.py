@@ -43,6 +43,11 @@ def model_folder(path: str | Path | None = None, *, teacher: bool = False) -> Pa
             raise SMFError("no default model is shipped in this version; pass a checkpoint folder")
     return teacher_folder(path) if teacher else Path(path)
 
+# the final stage's fit and cleanup run on the GPU from this many motions a call: there, on an H200 at 196 frames,
+# 32 motions took 10.2 instead of 16.0 ms a motion and 256 4.8 instead of 13.4, but one took 70.8 instead of 16.2
+# (its many small kernels; benchmarks/device_final_stage.py, docs/inference.md)
+DEVICE_FINAL_STAGE_MIN_MOTIONS = 32
+
 
 class Components:
     """A loaded checkpoint ready to sample: build with :meth:`from_pretrained`. ``rigid`` the rigid final
@@ -265,8 +270,16 @@ class Components:
     def finish_many(self, features: list[np.ndarray], footskate: str = "off",
                     footskate_options=None) -> list[tuple[np.ndarray, RigidMotion | None]]:
         """:meth:`finish` of several motions' raw features (T_i, D), their rigid fits done together (one
-        vectorised fit of all their frames; each motion's result is the one it gets alone)."""
-        return finish_many(features, self.skeleton, self.fps, self.rigid, footskate, footskate_options)
+        vectorised fit of all their frames; each motion's result is the one it gets alone). On a GPU the fit and
+        the cleanup of a large batch run there, in float64 (:meth:`final_stage_like`)."""
+        return finish_many(features, self.skeleton, self.fps, self.rigid, footskate, footskate_options,
+                           self.final_stage_like(len(features)))
+
+    def final_stage_like(self, motions: int) -> torch.Tensor | None:
+        """Where the final stage's fit and cleanup of ``motions`` motions run: an empty float64 tensor on this
+        pipeline's GPU from :data:`DEVICE_FINAL_STAGE_MIN_MOTIONS` motions on, else None (numpy on the host)."""
+        on_gpu = self.device.type == "cuda" and motions >= DEVICE_FINAL_STAGE_MIN_MOTIONS
+        return torch.empty(0, dtype=torch.float64, device=self.device) if on_gpu else None
 
 
 class _LazyEncoder:

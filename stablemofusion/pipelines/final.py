@@ -65,11 +65,13 @@ def check_batch_request(prompts, seconds, frames, seed) -> tuple[list[str], list
 
 
 def finish_many(features: list[np.ndarray], skeleton: Skeleton, fps: float, rigid: RigidFitConfig | None,
-                footskate: str = "off", footskate_options=None) -> list[tuple[np.ndarray, RigidMotion | None]]:
+                footskate: str = "off", footskate_options=None, like=None) -> list[tuple[np.ndarray, RigidMotion | None]]:
     """The final stage of several motions' raw features (T_i, D): their rigid fits done together (one vectorised
     fit of all their frames; each motion's result is the one it gets alone), the footskate cleanup in 'post'
     mode (on the rigid body), and each body written back as features that decode to it exactly. Returns
-    (features (T, D) float64, rigid motion) per motion; with ``rigid`` None the raw features and None."""
+    (features (T, D) float64, rigid motion) per motion; with ``rigid`` None the raw features and None. ``like``: an
+    array whose library and device run the fit and the cleanup (a float64 tensor on a GPU: the torch backend's
+    device; None: numpy), the same functions either way."""
     check_footskate(footskate)
     fs = [np.asarray(f, dtype=np.float64) for f in features]
     if rigid is None:
@@ -79,9 +81,10 @@ def finish_many(features: list[np.ndarray], skeleton: Skeleton, fps: float, rigi
         from ..footskate.cleanup import cleanup_features_many
 
         options = footskate_options or FootskateOptions()
-        return cleanup_features_many(fs, options.config, vgrf_model=options.vgrf_model, fps=fps, rigid=rigid)
+        return cleanup_features_many(fs, options.config, vgrf_model=options.vgrf_model, fps=fps, rigid=rigid,
+                                     like=like)
     out = []
-    for motion, f in zip(rigid_from_features_many(fs, skeleton, rigid), fs):
+    for motion, f in zip(rigid_from_features_many(fs, skeleton, rigid, like), fs):
         moved, written = rigid_to_features(motion, f, rigid)
         out.append((written, moved))
     return out

@@ -144,6 +144,8 @@ def draws(seed: int | Sequence[int], lengths: Sequence[int], dims: int, draw_ind
     where = None if numpy else device_of(like)
     chunk = CHUNK if where is None or str(where) == "cpu" else 16 * CHUNK
     items = max(1, chunk // max(1, T * D))
+    if B == 0 or not len(draw_indices):
+        return xp.zeros((len(draw_indices), B, T, D), dtype=xp.float32, device=where)
     frame = xp.arange(T, device=where)
     out = []
     for d in draw_indices:
@@ -155,8 +157,6 @@ def draws(seed: int | Sequence[int], lengths: Sequence[int], dims: int, draw_ind
             n = xp.asarray(lengths[lo:hi], device=where)
             parts.append(xp.where((frame[None, :] < n[:, None])[:, :, None], x, xp.zeros_like(x)))
         out.append(parts[0] if len(parts) == 1 else xp.concat(parts, axis=0))
-    if not out:
-        return xp.zeros((0, B, T, D), dtype=xp.float32, device=where)
     return xp.stack(out)
 
 

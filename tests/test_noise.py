@@ -114,3 +114,13 @@ def test_a_large_batch_is_made_a_few_items_at_a_time_with_the_same_numbers(monke
     got = draws(11, [20, 19, 18, 20, 5], 263, [0, 2])
     np.testing.assert_array_equal(got, want)
     assert not got[:, 4, 5:].any() and got[:, 4, :5].all()
+    assert draws(11, [], 263, [0]).shape == (1, 0, 0, 263) and draws(11, [3], 263, []).shape == (0, 1, 3, 263)
+
+
+def test_numpy_without_an_array_api_of_its_own_gives_the_same_numbers(monkeypatch):
+    """Blender's numpy 1.x has no array-API namespace: the compatibility layer's numpy takes its place."""
+    import stablemofusion.motion.arrays as arrays
+
+    want = draws([5, 6], [30, 21], 263, [0, 3])
+    monkeypatch.setattr(arrays, "_NUMPY_IS_ARRAY_API", False)
+    np.testing.assert_array_equal(draws([5, 6], [30, 21], 263, [0, 3]), want)

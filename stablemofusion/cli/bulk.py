@@ -68,12 +68,15 @@ def run(args: argparse.Namespace) -> None:
     what = "shipped model" if args.checkpoint is None else str(args.checkpoint)
     plan = BulkPlan(tuple(prompts), args.seed, args.batch_size, args.shard_batches, args.seconds, sampling,
                     f"{what}{' (teacher)' if args.teacher else ''}, stablemofusion {__version__}")
-    model_args = argparse.Namespace(checkpoint=args.checkpoint, teacher=args.teacher, engine=args.engine,
+    # absolute paths: a worker of a cluster runs elsewhere
+    checkpoint = None if args.checkpoint is None else args.checkpoint.resolve()
+    model_args = argparse.Namespace(checkpoint=checkpoint, teacher=args.teacher, engine=args.engine,
                                     threads=args.threads, device="cpu", adapter=None)
+    load = functools.partial(load_pipeline, model_args)
+    load()  # here first: a model that does not load is one line, before any worker starts
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # nothing leaves this machine
-    workers = args.workers or os.cpu_count() or 1
-    summary = ray_run.run(plan, args.out, functools.partial(load_pipeline, model_args), workers=workers,
-                          address=args.address, progress=not args.quiet)
+    summary = ray_run.run(plan, args.out.resolve(), load, workers=args.workers, address=args.address,
+                          progress=not args.quiet)
     if summary["out_of_domain"]:
         print(f"smf: warning: {summary['out_of_domain']} of {summary['motions']} prompts are unlike anything this model "
               "was trained on (the dataset's out_of_domain column names them)", file=sys.stderr)

@@ -14,7 +14,7 @@ from collections import OrderedDict
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from .server_limits import (EVICT_RESERVE, GRACEFUL_SHUTDOWN_S, HEADER_TIMEOUT_S, KEEP_ALIVE_S, MAX_CONNECTIONS,
-                            MAX_HEADER_BYTES, MAX_STREAM_MESSAGE_BYTES, REFUSED_LINGER_S)
+                            MAX_HEADER_BYTES, MAX_LINGERING, MAX_STREAM_MESSAGE_BYTES, REFUSED_LINGER_S)
 
 AT_CAPACITY = f"the server is at its limit of {MAX_CONNECTIONS} connections; retry shortly"
 _BUSY_BODY = json.dumps({"error": AT_CAPACITY}).encode()
@@ -53,8 +53,10 @@ def header_timeout_protocol(seconds: float = HEADER_TIMEOUT_S, evict_at: int = M
             evicted.add(self)
             self._refused = True
             self.transport.write(BUSY_RESPONSE)
-            if self.transport.can_write_eof():
-                self.transport.write_eof()
+            if len(evicted) > MAX_LINGERING or not self.transport.can_write_eof():
+                self.transport.close()  # a flood: sockets stay bounded, its answer may arrive as a reset
+                return
+            self.transport.write_eof()
             self.loop.call_later(REFUSED_LINGER_S, self.transport.close)
 
         def data_received(self, data: bytes) -> None:
@@ -98,9 +100,8 @@ def header_timeout_protocol(seconds: float = HEADER_TIMEOUT_S, evict_at: int = M
 class Capped:
     """``app`` answering a JSON 503 (``Retry-After: 1``) to a request that arrives while the server holds more than
     ``limit`` connections (counted by ``protocol``, :func:`header_timeout_protocol`'s class, less those it is
-    closing); a live stream is
-    closed with 1013 (try again later). uvicorn's own cap would answer in plain text. Anything else (``state``)
-    is the app's."""
+    closing); a live stream is told so and closed with 1013 (try again later), as at the stream limit. uvicorn's
+    own cap would answer in plain text. Anything else (``state``) is the app's."""
 
     def __init__(self, app, protocol: type, limit: int = MAX_CONNECTIONS):
         self.app, self.protocol, self.limit = app, protocol, limit
@@ -111,7 +112,10 @@ class Capped:
     async def __call__(self, scope, receive, send) -> None:
         if scope["type"] in ("http", "websocket") and (
                 len(self.protocol.connections) - len(self.protocol.refused) > self.limit):
-            if scope["type"] == "websocket":
+            if scope["type"] == "websocket":  # as the stream limit is said (serve/live.py): accepted, told, closed
+                await receive()  # websocket.connect
+                await send({"type": "websocket.accept"})
+                await send({"type": "websocket.send", "text": json.dumps({"type": "error", "error": AT_CAPACITY})})
                 await send({"type": "websocket.close", "code": 1013})
                 return
             await send({"type": "http.response.start", "status": 503,

@@ -146,3 +146,15 @@ def test_bad_flags_are_one_line_errors(tmp_path):
     run = bulk(tmp_path / "missing.txt", tmp_path / "o")
     _, stderr = run.communicate(timeout=120)
     assert run.returncode == 2 and "no such file" in stderr
+    run = bulk(tmp_path / "p.txt", tmp_path / "o", "--checkpoint", str(tmp_path / "nothing"))
+    _, stderr = run.communicate(timeout=120)
+    assert run.returncode == 2 and "holds no portable graphs" in stderr and "Traceback" not in stderr, stderr
+
+
+def test_a_workers_failure_is_named_in_one_line():
+    from stablemofusion.bulk.ray_run import cause
+
+    said = ("The actor died because of an error raised in its creation task\n  File \"x.py\", line 3, in f\n"
+            "    raise SMFError(...)\nstablemofusion.errors.SMFError: /m holds no portable graphs (graphs.json)\n")
+    assert cause(RuntimeError(said)) == "/m holds no portable graphs (graphs.json)"
+    assert cause(RuntimeError("ValueError: bad\nmore")) == "ValueError: bad"

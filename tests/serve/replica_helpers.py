@@ -55,13 +55,17 @@ class Replicas:
         self.url = f"http://{HOST}:{self.port}"
         self.replicas: list[subprocess.Popen | None] = [None] * count
         self.balancer: subprocess.Popen | None = None
+        self.logs: list = []  # the processes' stderr files, closed with them
 
     def start_replica(self, k: int) -> None:
         env = {**os.environ, "OMP_NUM_THREADS": "1"}
         self.replicas[k] = subprocess.Popen(
             [sys.executable, "-c", SERVE, "serve", "--host", HOST, "--port", str(self.ports[k]), *self.serve_args],
-            env=env, stdout=subprocess.DEVNULL, stderr=open(self.folder / f"replica{k}.log", "ab"),
-            start_new_session=True)
+            env=env, stdout=subprocess.DEVNULL, stderr=self._log(f"replica{k}.log"), start_new_session=True)
+
+    def _log(self, name: str):
+        self.logs.append(open(self.folder / name, "ab"))
+        return self.logs[-1]
 
     def start(self) -> "Replicas":
         for k in range(self.count):
@@ -72,7 +76,7 @@ class Replicas:
         config.write_text(haproxy_config(self.count))
         env = {**os.environ, **haproxy_env(f"{HOST}:{self.port}", [f"{HOST}:{p}" for p in self.ports])}
         self.balancer = subprocess.Popen([HAPROXY, "-db", "-f", str(config)], env=env, stdout=subprocess.DEVNULL,
-                                         stderr=open(self.folder / "haproxy.log", "ab"))
+                                         stderr=self._log("haproxy.log"))
         wait_ready(self.url, 60, replicas=self.count)
         return self
 
@@ -91,6 +95,8 @@ class Replicas:
                 with contextlib.suppress(ProcessLookupError):
                     os.killpg(proc.pid, signal.SIGKILL) if proc is not self.balancer else proc.kill()
                 proc.wait(30)
+        for log in self.logs:
+            log.close()
 
     def __enter__(self) -> "Replicas":
         try:

@@ -102,6 +102,16 @@ def test_body_size_limit_and_full_queue(pipe):
     assert queue["refused"] >= 1 and queue["max_queued_cost"] > 0 and not queue["saturated"]
 
 
+def test_a_lane_queues_four_of_the_largest_requests_the_server_takes(pipe):
+    """The work each queue lane holds follows --max-request-cost: a server that takes larger requests still queues
+    some of them (the default: four of 2,000 units)."""
+    from stablemofusion.serve.server_limits import MAX_QUEUED_COST, QUEUED_REQUESTS
+
+    assert create_app(pipe).state.batcher.max_queued_cost == MAX_QUEUED_COST == QUEUED_REQUESTS * 2000.0
+    assert create_app(pipe, max_request_cost=1e6).state.batcher.max_queued_cost == QUEUED_REQUESTS * 1e6
+    assert create_app(pipe, max_request_cost=1e6, max_queued_cost=5.0).state.batcher.max_queued_cost == 5.0
+
+
 def batched_equals_alone(app, pipe, reqs, steps=2):
     """Send (action, seconds, seed) requests at once: they form one batch, and each motion equals the pipeline's
     for that request alone. Returns the responses."""

@@ -490,6 +490,15 @@ def test_a_request_over_the_connection_cap_gets_a_json_503():
     r = call(Capped(app, Crowded, 4), ("POST", "/v1/generate", {"prompt": "a person walks"}))[0]
     assert r.headers["content-type"] == "application/json" and r.headers["retry-after"] == "1"
     assert r.json() == {"error": "the server is at its limit of 256 connections; retry shortly"}
+    # a live stream over the cap is told so and closed with 1013 (try again later), as at the stream limit
+    from starlette.testclient import TestClient
+    from starlette.websockets import WebSocketDisconnect
+
+    with TestClient(Capped(app, Crowded, 4)).websocket_connect("/v1/stream") as ws:
+        assert ws.receive_json() == {"type": "error", "error": r.json()["error"]}
+        with pytest.raises(WebSocketDisconnect) as closed:
+            ws.receive_json()
+    assert closed.value.code == 1013
 
 
 def test_uploads_are_held_against_one_budget(pipe):

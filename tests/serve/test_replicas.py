@@ -41,18 +41,22 @@ def ready_again(reps: Replicas, k: int) -> None:
     wait_ready(reps.url, 60, replicas=reps.count)
 
 
-async def load_with_fault(reps: Replicas, k: int, sig: int, clients: int = 4, seconds: float = 6.0):
-    """Seeded generate requests through the balancer for ``seconds``, replica k sent ``sig`` a third of the way."""
-    answers, failures = {}, []
-    end = time.monotonic() + seconds
+async def load_with_fault(reps: Replicas, k: int, sig: int, clients: int = 4, after: int = 8, limit_s: float = 120.0):
+    """Seeded generate requests through the balancer; once both replicas have answered, replica k is sent ``sig``,
+    and the load goes on until ``after`` more answers (waited for, not timed: a loaded machine is slow)."""
+    answers, failures, served, since = {}, [], set(), [0]
+    faulted = asyncio.Event()
+    deadline = time.monotonic() + limit_s
 
     async def client(n: int, c: httpx.AsyncClient):
         i = n
-        while time.monotonic() < end:
+        while time.monotonic() < deadline and since[0] < after:
             try:
                 r = await c.post(f"{reps.url}/v1/generate?format=npy", json=body(i), timeout=120)
                 if r.status_code == 200:
                     answers[i] = (np.load(io.BytesIO(r.content)), r.headers["x-smf-replica"])
+                    served.add(r.headers["x-smf-replica"])
+                    since[0] += faulted.is_set()
                 else:
                     failures.append((r.status_code, r.text))
             except httpx.HTTPError as e:
@@ -60,12 +64,14 @@ async def load_with_fault(reps: Replicas, k: int, sig: int, clients: int = 4, se
             i += clients
 
     async def fault():
-        await asyncio.sleep(seconds / 3)
+        while time.monotonic() < deadline and not (len(served) == reps.count and len(answers) >= 2 * clients):
+            await asyncio.sleep(0.05)
         reps.signal(k, sig)
+        faulted.set()
 
     async with httpx.AsyncClient() as c:
         await asyncio.gather(fault(), *[client(n, c) for n in range(clients)])
-    return answers, failures
+    return answers, failures, since[0]
 
 
 def test_the_docs_show_the_configuration_that_is_tested():
@@ -92,9 +98,9 @@ def test_requests_spread_over_the_replicas_and_answer_as_a_replica_alone(reps):
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["killed", "stopped"])
 def test_a_replica_that_dies_or_drains_under_load_costs_no_request(reps, sig):
-    answers, failures = asyncio.run(load_with_fault(reps, 0, sig))
+    answers, failures, after = asyncio.run(load_with_fault(reps, 0, sig))
     assert failures == []
-    assert len(answers) >= 8 and {name for _, name in answers.values()} == {"r1", "r2"}  # before and after
+    assert after >= 8 and {name for _, name in answers.values()} == {"r1", "r2"}  # answers before and after
     ready_again(reps, 0)
     # a seeded request gives the same motion whichever replica answered it
     for i in sorted(answers)[:: max(1, len(answers) // 4)]:
@@ -104,10 +110,11 @@ def test_a_replica_that_dies_or_drains_under_load_costs_no_request(reps, sig):
 
 def test_a_live_stream_whose_replica_dies_reconnects_and_continues(reps):
     from websockets.asyncio.client import connect
+    from websockets.exceptions import WebSocketException
 
     async def go():
         received, reconnects, killed = [0, 0], 0, []
-        end = time.monotonic() + 12
+        end = time.monotonic() + 90  # a safety net: the test waits for frames, not for a time
         while time.monotonic() < end and reconnects < 4:
             try:
                 async with connect(reps.url.replace("http", "ws") + "/v1/stream", open_timeout=10) as ws:
@@ -124,7 +131,7 @@ def test_a_live_stream_whose_replica_dies_reconnects_and_continues(reps):
                             killed.append(k)
                         if killed and received[1] >= 40:
                             return received, reconnects, killed
-            except Exception:  # its connection broke: connect again through the balancer, same prompt
+            except (OSError, asyncio.TimeoutError, WebSocketException):  # its connection broke: connect again
                 reconnects += 1
                 await asyncio.sleep(0.2)
         return received, reconnects, killed

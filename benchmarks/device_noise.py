@@ -55,14 +55,15 @@ def sync(device: torch.device) -> None:
 def timed(device, fn, repeats: int) -> float:
     """Median seconds of ``fn(r)`` over ``repeats`` calls after one warm-up, the device synchronised around each."""
     fn(repeats)
-    times = []
-    for r in range(repeats):
-        sync(device)
-        t0 = time.perf_counter()
-        fn(r)
-        sync(device)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
+    return float(np.median([once(device, fn, r) for r in range(repeats)]))
+
+
+def once(device, fn, r: int) -> float:
+    sync(device)
+    t0 = time.perf_counter()
+    fn(r)
+    sync(device)
+    return time.perf_counter() - t0
 
 
 def check(device: torch.device, frames: int, dims: int) -> dict:

@@ -1,7 +1,7 @@
 """One seeded noise for every runtime: standard normal draws that are a pure function of their coordinates.
 
-The same (seed, stream, draw, index) gives the same number in numpy, in torch on any device (the same functions,
-written once against the array API: the numbers are made where the model runs) and in JavaScript
+The same (seed, stream, draw, index) gives the same number in numpy, in torch on the CPU or a CUDA GPU (the same
+functions, written once against the array API: the numbers are made where the model runs) and in JavaScript
 (``assets/runtime/noise.js``), so a prompt, seed and length make the same motion everywhere. Nothing is
 sequential: any element can be computed alone, and a motion's first n frames do not depend on its length.
 

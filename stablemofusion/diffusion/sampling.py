@@ -174,8 +174,11 @@ class Noise:
         """``count`` draws stacked (count, B, T, D), or one (B, T, D) when ``count`` is None; float32 on
         the device."""
         n = 1 if count is None else count
+        # made on the device as numpy makes them (float64 inside: a device without it, such as Apple's, gets them
+        # made on the CPU)
+        where = self.device if self.device.type in ("cpu", "cuda") else torch.device("cpu")
         out = draws(self.seed, self.lengths, self.dim, range(self.next_draw, self.next_draw + n),
-                    like=torch.empty(0, device=self.device))  # made on the device, as numpy makes them
+                    like=torch.empty(0, device=where)).to(self.device)
         self.next_draw += n
         return out[0] if count is None else out
 

@@ -29,7 +29,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .motion.arrays import device as device_of
-from .motion.arrays import namespace
+from .motion.arrays import namespace, on_like
 
 NOISE_VERSION = 1  # bump when any number above changes
 _MASK = 0xFFFFFFFF
@@ -83,18 +83,23 @@ _NUMPY = np.zeros(0)  # asks namespace() for numpy's array API (numpy 1.x, as in
 _MIXED: dict[str, Any] = {}  # mix(c) for the counters c = 0, 1, ... (the same for every key), per library and device
 
 
+def _on_numpy(like) -> bool:
+    return like is None or isinstance(like, np.ndarray)
+
+
+def _words(values, like=None):
+    """32-bit words as ``like``'s library holds them (numpy when None): numpy uint32, elsewhere int64 on its
+    device (see :func:`_mul`)."""
+    return np.asarray(values, dtype=np.uint32) if _on_numpy(like) else on_like(np.asarray(values, np.int64), like)
+
+
 def _mixed_counters(n: int, like=None):
     """mix(0), ..., mix(n - 1) as words of ``like``'s library and device (numpy when None), kept between calls
     (they do not depend on the seed)."""
-    place = "numpy" if like is None or isinstance(like, np.ndarray) else f"{type(like).__module__}:{device_of(like)}"
+    place = "numpy" if _on_numpy(like) else f"{type(like).__module__}:{device_of(like)}"
     have = _MIXED.get(place)
     if have is None or have.shape[0] < n:
-        size = max(n, 2 * (0 if have is None else have.shape[0]))
-        if place == "numpy":
-            have = mix(np.arange(size, dtype=np.uint32))
-        else:
-            xp = namespace(like)
-            have = mix(xp.arange(size, dtype=xp.int64, device=device_of(like)))
+        have = mix(_words(np.arange(max(n, 2 * (0 if have is None else have.shape[0]))), like))
         _MIXED[place] = have
     return have[:n]
 
@@ -105,10 +110,7 @@ def _box_muller(keys, count: int, like=None):
     pairs = (int(count) + 1) // 2
     counters = _mixed_counters(2 * pairs, like)
     xp = namespace(_NUMPY if like is None else like)
-    if like is None or isinstance(like, np.ndarray):
-        k = np.asarray(keys, dtype=np.uint32)
-    else:
-        k = xp.asarray(list(keys), dtype=xp.int64, device=device_of(like))
+    k = _words(keys, like)
     words = mix(counters[None, :] ^ k[:, None])  # (N, 2 pairs)
     a, b = words[:, 0::2], words[:, 1::2]
     u = (xp.astype(a >> 8, xp.float64) + 1.0) * (1.0 / 2**24)
@@ -139,7 +141,7 @@ def draws(seed: int | Sequence[int], lengths: Sequence[int], dims: int, draw_ind
     if per_item and len(seed) != len(lengths):
         raise ValueError(f"one seed per item: {len(seed)} seeds for {len(lengths)} items")
     B, T, D = len(lengths), max(lengths, default=0), int(dims)
-    numpy = like is None or isinstance(like, np.ndarray)
+    numpy = _on_numpy(like)
     xp = namespace(_NUMPY if numpy else like)
     where = None if numpy else device_of(like)
     chunk = CHUNK if where is None or str(where) == "cpu" else 16 * CHUNK

@@ -57,14 +57,14 @@ def run(plan: BulkPlan, out: Path, make_pipeline: Callable[[], object], *, worke
     workers = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
     actors = [ShardWorker.remote(make_pipeline, str(out)) for _ in range(min(workers, len(todo)))]
     motions = unknown = 0
-    pending = set(todo)
-    made_before = sum(len(i) for j in range(plan.shards) if j not in pending for _, i in plan.batches(j))
+    made_before = len(plan.prompts) - sum(len(i) for j in todo for _, i in plan.batches(j))
     bar = tqdm(total=len(plan.prompts), initial=made_before, unit="motion", desc="bulk", disable=not progress)
+    shared = ray.put(plan)  # the prompts are sent to the cluster once, not with every shard
     try:
         ray.get([a.pid.remote() for a in actors])  # each has loaded its pipeline
         if on_started is not None:
             on_started(actors)
-        for _, count, odd in ActorPool(actors).map_unordered(lambda a, j: a.make.remote(plan, j), todo):
+        for _, count, odd in ActorPool(actors).map_unordered(lambda a, j: a.make.remote(shared, j), todo):
             motions += count
             unknown += odd
             bar.update(count)

@@ -46,15 +46,12 @@ def run(args: argparse.Namespace) -> None:
 
     from .. import __version__
     from ..errors import SMFError
-    from ..limits import check_footskate, check_guidance, check_seconds, check_seed, check_steps
+    from ..limits import check_seconds
     from .generate import read_prompts_file
-    from .options import choose_engine, load_pipeline
+    from .options import check_sampling, choose_engine, load_pipeline
 
     check_seconds(args.seconds, "--seconds")
-    check_guidance(args.guidance)
-    check_steps(args.steps)
-    check_seed(args.seed)
-    check_footskate(args.footskate)
+    check_sampling(args)
     if args.workers is not None and args.workers < 1:
         raise SMFError(f"--workers is at least 1, got {args.workers}")
     if args.threads < 1:

@@ -90,7 +90,9 @@ def test_torch_makes_the_same_numbers_where_the_model_runs(device):
         want = draws(seed, lengths, 263, indices)
         got = draws(seed, lengths, 263, indices, like=like)
         assert got.device.type == device and got.dtype == torch.float32 and tuple(got.shape) == want.shape
-        assert _ulps(got.cpu().numpy(), want).max() == 0  # the same float32 numbers, bit for bit
+        # the same float32 numbers: float64 sin/cos/log may differ by an ulp between libraries and CPUs, which
+        # rounding to float32 hides but for a value that falls on a float32 rounding boundary (one float32 ulp)
+        assert _ulps(got.cpu().numpy(), want).max() <= 1
     mixed = mix(torch.arange(1 << 16, dtype=torch.int64, device=device))  # the words of a tensor: int64 in [0, 2**32)
     np.testing.assert_array_equal(mixed.cpu().numpy(), mix(np.arange(1 << 16, dtype=np.uint32)).astype(np.int64))
 

@@ -78,24 +78,30 @@ def plan_windows(segments: list[tuple[str, int]], max_frames: int, overlap: int,
     return windows
 
 
-def segment_frames(segments: list[tuple[str, float]], fps: float) -> list[tuple[str, int]]:
-    """A timeline's (prompt, seconds) segments checked (prompts, at least one frame each, the count and the total
-    length within the limits) and in frames at ``fps``."""
-    import math
-
+def check_timeline(segments: list[tuple[str, float]]) -> list[tuple[str, float]]:
+    """A timeline's (prompt, seconds) segments checked against the limits (the count, each prompt, each length and
+    the total), before any model is loaded; one-line SMFError naming the first problem."""
     from .limits import check_prompt, check_seconds, check_segments
 
     check_segments(len(segments))
-    out = []
     for prompt, secs in segments:
         check_prompt(prompt, "every timeline prompt")
+        check_seconds(secs, f"timeline segment {prompt!r}: seconds")
+    check_seconds(sum(secs for _, secs in segments), "a timeline's total seconds")
+    return segments
+
+
+def segment_frames(segments: list[tuple[str, float]], fps: float) -> list[tuple[str, int]]:
+    """A timeline's (prompt, seconds) segments checked (:func:`check_timeline`, and at least one frame each) and in
+    frames at ``fps``."""
+    import math
+
+    for prompt, secs in segments:
         if not isinstance(secs, (int, float)) or not math.isfinite(secs) or secs * fps < 1:
             raise SMFError(f"timeline segment {prompt!r}: seconds must be at least one frame ({1 / fps:g} s), "
                            f"got {secs}")
-        check_seconds(secs, f"timeline segment {prompt!r}: seconds")
-        out.append((prompt, int(round(secs * fps))))
-    check_seconds(sum(secs for _, secs in segments), "a timeline's total seconds")
-    return out
+    check_timeline(segments)
+    return [(prompt, int(round(secs * fps))) for prompt, secs in segments]
 
 
-__all__ = ["DEFAULT_OVERLAP", "Window", "parse_timeline", "plan_windows", "segment_frames"]
+__all__ = ["DEFAULT_OVERLAP", "Window", "check_timeline", "parse_timeline", "plan_windows", "segment_frames"]

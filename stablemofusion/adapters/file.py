@@ -10,6 +10,7 @@ JSON. An adapter never changes the base model's files: it is merged into a loade
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 from dataclasses import asdict, dataclass, field
@@ -18,15 +19,31 @@ from pathlib import Path
 import torch
 
 from ..errors import SMFError
-from .lora import LoraConfig, layer_deltas
+from .lora import LoraConfig, checked_pairs, layer_deltas
 
 FORMAT = "stablemofusion-adapter"
 VERSION = 1
-MAX_ADAPTER_BYTES = 256 * 2**20  # a larger file is not an adapter of the models this package runs
+MAX_ADAPTER_BYTES = 64 * 2**20  # a larger file is not an adapter of the models this package runs (the shipped one: about 1 MB)
 PARTS = ("student", "teacher")
+FLOAT_DTYPES = ("F16", "BF16", "F32")  # safetensors' names of the dtypes an adapter's weights may have
 
 
 def weights_hash(folder: str | Path) -> str:
+    """sha256 of the weights a model folder loads (:func:`folder_weights_hash`), computed once per folder and
+    version of its files in a process."""
+    from ..diffusion.checkpoint import resolve
+
+    folder = resolve(folder)
+    stamp = tuple((p.name, p.stat().st_mtime_ns, p.stat().st_size) for p in sorted(folder.rglob("*")) if p.is_file())
+    return _weights_hash(folder, stamp)
+
+
+@functools.lru_cache(maxsize=8)
+def _weights_hash(folder: Path, stamp: tuple) -> str:
+    return folder_weights_hash(folder)
+
+
+def folder_weights_hash(folder: str | Path) -> str:
     """sha256 of the weights file a model folder loads (its EMA weights if it has them): what an adapter records
     of its base and checks at load. A model whose weights are held by its portable graphs (the shipped model) is
     hashed as the weights file it would have: its weights in its export dtype, as ``smf export`` writes them (the
@@ -96,6 +113,13 @@ class Adapter:
             raise SMFError(f"adapter {self.info.name!r} has no {part} weights")
         return layer_deltas(self.weights[part], self.info.lora.scale, shapes)
 
+    def check(self, part: str, shapes: dict[str, tuple]) -> None:
+        """The checks of :meth:`deltas` (the file has ``part`` weights, and they fit ``shapes``), nothing computed: a
+        server refuses a crafted file before it starts its worker."""
+        if part not in self.weights or not self.weights[part]:
+            raise SMFError(f"adapter {self.info.name!r} has no {part} weights")
+        checked_pairs(self.weights[part], self.info.lora.scale, shapes)
+
     def check_base(self, part: str, folder: str | Path) -> None:
         """SMFError unless ``folder`` holds the very weights this adapter's ``part`` was trained on."""
         want = self.info.base.get(part)
@@ -135,12 +159,18 @@ class Adapter:
                     raise SMFError(f"{path}: not a stablemofusion adapter (make one with `smf adapt`)")
                 if int(meta.get("version", 0)) > VERSION:
                     raise SMFError(f"{path}: adapter format {meta['version']} is newer than this version reads")
-                info = AdapterInfo.from_dict(json.loads(meta["info"]))
+                try:
+                    info = AdapterInfo.from_dict(json.loads(meta["info"]))
+                except SMFError as e:
+                    raise SMFError(f"{path}: {e}") from None
                 weights: dict[str, dict[str, torch.Tensor]] = {p: {} for p in PARTS}
                 for key in f.keys():
                     part, _, name = key.partition("/")
                     if part not in weights:
                         raise SMFError(f"{path}: unexpected tensor {key}")
+                    dtype = f.get_slice(key).get_dtype()
+                    if dtype not in FLOAT_DTYPES:
+                        raise SMFError(f"{path}: tensor {key} is {dtype}, not floating point")
                     weights[part][name] = f.get_tensor(key).float()
         except (SafetensorError, OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
             raise SMFError(f"{path}: not a readable adapter file ({str(e).splitlines()[0]})") from None
@@ -159,4 +189,25 @@ def load_adapters(paths) -> list[Adapter]:
     return adapters
 
 
-__all__ = ["Adapter", "AdapterInfo", "FORMAT", "load_adapters", "weights_hash"]
+def checked_adapters(paths, folder: str | Path) -> list[Adapter]:
+    """Adapters from file paths, each checked against the model in ``folder`` before that model is loaded: it must
+    be trained on this model's weights, and every layer it changes must fit the model's weight shapes (read from the
+    model built on PyTorch's meta device: no memory, no weights). A crafted file is refused in one line here, by the
+    CLI and by a server before it starts its worker."""
+    from ..diffusion.checkpoint import read_config
+    from ..models.base import build_denoiser
+
+    adapters = load_adapters(paths)
+    if not adapters:
+        return adapters
+    config = read_config(folder)
+    part = "student" if config.student else "teacher"
+    with torch.device("meta"):
+        shapes = {n: tuple(p.shape) for n, p in build_denoiser(config.model).named_parameters()}
+    for a in adapters:
+        a.check(part, shapes)  # first: it costs nothing, the base's hash a second
+        a.check_base(part, folder)
+    return adapters
+
+
+__all__ = ["Adapter", "AdapterInfo", "FORMAT", "checked_adapters", "load_adapters", "weights_hash"]

@@ -34,6 +34,14 @@ class LoraConfig:
     alpha: float = 16.0
     text: bool = True
 
+    def __post_init__(self):
+        if isinstance(self.rank, bool) or not isinstance(self.rank, int) or self.rank < 1:
+            raise SMFError(f"an adapter's rank is a whole number from 1, got {self.rank!r}")
+        if isinstance(self.alpha, bool) or not isinstance(self.alpha, (int, float)) or not math.isfinite(self.alpha):
+            raise SMFError(f"an adapter's alpha is a finite number, got {self.alpha!r}")
+        if not isinstance(self.text, bool):
+            raise SMFError(f"an adapter's text flag is true or false, got {self.text!r}")
+
     def to_dict(self) -> dict:
         return asdict(self)
 
@@ -80,14 +88,15 @@ def load_lora_state(model: nn.Module, state: dict[str, torch.Tensor]) -> None:
 MAX_SCALE = 1e3  # alpha / rank of an adapter: trained ones are about 1-2; beyond this the merged model is noise
 
 
-def layer_deltas(state: dict[str, torch.Tensor], scale: float, shapes: dict[str, tuple]) -> dict[str, torch.Tensor]:
-    """``<layer>.weight`` -> the dense update ``scale * B @ A`` of each adapted layer (shape of the weight). Every pair
-    is checked against the model's weight shapes ``shapes`` (parameter name -> shape) before it is multiplied, so a
-    file cannot ask for more memory than the model's own weights: one-line SMFError for a layer the model lacks, a
-    rank, shape or dimension that does not fit, non-finite values or a scale beyond :data:`MAX_SCALE`."""
+def checked_pairs(state: dict[str, torch.Tensor], scale: float,
+                  shapes: dict[str, tuple]) -> list[tuple[str, torch.Tensor, torch.Tensor]]:
+    """``(layer, lora_A, lora_B)`` of each adapted layer, every pair checked against the model's weight shapes
+    ``shapes`` (parameter name -> shape) and nothing multiplied: one-line SMFError for a layer the model lacks, a rank,
+    shape or dimension that does not fit, a tensor that is not floating point, non-finite values or a scale beyond
+    :data:`MAX_SCALE`. What passes asks for no more memory than the model's own weights when merged."""
     if not (math.isfinite(scale) and abs(scale) <= MAX_SCALE):
         raise SMFError(f"adapter scale (alpha / rank) must be finite and at most {MAX_SCALE:g}, got {scale:g}")
-    out = {}
+    pairs = []
     for key in state:
         if not key.endswith(LORA_A):
             if not key.endswith(LORA_B):
@@ -111,9 +120,20 @@ def layer_deltas(state: dict[str, torch.Tensor], scale: float, shapes: dict[str,
         if not fits or a.shape[0] > min(want[0], want[1]):
             raise SMFError(f"adapter layer {layer}: lora_A {tuple(a.shape)} and lora_B {tuple(b.shape)} do not fit its "
                            f"weight {want} at a rank from 1 to {min(want[0], want[1])}")
-        a, b = a.float(), b.float()
+        if not (a.is_floating_point() and b.is_floating_point()):
+            raise SMFError(f"adapter layer {layer} holds {a.dtype} and {b.dtype} weights, not floating point")
         if not (torch.isfinite(a).all() and torch.isfinite(b).all()):
             raise SMFError(f"adapter layer {layer} holds values that are not finite")
+        pairs.append((layer, a, b))
+    return pairs
+
+
+def layer_deltas(state: dict[str, torch.Tensor], scale: float, shapes: dict[str, tuple]) -> dict[str, torch.Tensor]:
+    """``<layer>.weight`` -> the dense update ``scale * B @ A`` of each adapted layer (shape of the weight), once
+    every pair has passed :func:`checked_pairs`, so a file cannot ask for more memory than the model's own weights."""
+    out = {}
+    for layer, a, b in checked_pairs(state, scale, shapes):
+        a, b = a.float(), b.float()
         delta = b @ a if a.ndim == 2 else torch.einsum("or,rik->oik", b[..., 0], a)  # linear; conv1d
         out[layer + ".weight"] = scale * delta
     return out
@@ -131,4 +151,4 @@ def merge_into(model: nn.Module, deltas: dict[str, torch.Tensor]) -> None:
             p.add_(delta.to(device=p.device, dtype=p.dtype))
 
 
-__all__ = ["LoraConfig", "add_lora", "no_fast_path", "layer_deltas", "load_lora_state", "lora_state", "merge_into", "target_layers"]
+__all__ = ["LoraConfig", "add_lora", "checked_pairs", "no_fast_path", "layer_deltas", "load_lora_state", "lora_state", "merge_into", "target_layers"]

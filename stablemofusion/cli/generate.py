@@ -49,9 +49,9 @@ def read_prompts(args) -> list[str]:
     if args.prompts is not None:
         return read_prompts_file(args.prompts)
     if args.timeline is not None:
-        from ..timeline_plan import parse_timeline
+        from ..timeline_plan import check_timeline, parse_timeline
 
-        return [p for p, _ in parse_timeline(args.timeline)]
+        return [p for p, _ in check_timeline(parse_timeline(args.timeline))]  # refused before the model loads
     if not args.text.strip():
         raise SMFError("the prompt is empty")
     return [args.text]

@@ -170,11 +170,15 @@ def load_pipeline(args):
         pipe = PortablePipeline.from_pretrained(args.checkpoint, teacher=args.teacher, threads=threads)
         status.done()
         return pipe
+    from ..adapters.file import checked_adapters
     from ..pipeline import MotionPipeline
+    from ..pipelines.components import model_folder
 
     set_threads(args)
+    adapters = checked_adapters(getattr(args, "adapter", None), model_folder(args.checkpoint, teacher=args.teacher)) \
+        if getattr(args, "adapter", None) else None  # refused before the model loads
     pipe = MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device, engine=args.engine,
-                                          adapter=args.adapter)
+                                          adapter=adapters)
     pipe.text_cache.encoder.load()  # now, under the status line, not inside the first generation
     status.done()
     return pipe

@@ -102,20 +102,16 @@ def worker_spec(args):
 
     checkpoint = model_folder(args.checkpoint, teacher=args.teacher)
     config = read_config(checkpoint)
-    adapters = served_adapters(args.adapter or [], checkpoint, config)
+    adapters = served_adapters(args.adapter or [], checkpoint)
     spec = WorkerSpec(str(checkpoint), args.device, args.threads, args.engine, tuple(str(a) for a in args.adapter or ()))
     return spec, ServedModel.from_config(config), adapters
 
 
-def served_adapters(paths: list[Path], checkpoint: Path, config) -> tuple[str, ...]:
+def served_adapters(paths: list[Path], checkpoint: Path) -> tuple[str, ...]:
     """The names of the adapter files to serve, each checked against the model before the worker starts."""
-    from ..adapters.file import load_adapters
+    from ..adapters.file import checked_adapters
 
-    part = "student" if config.student else "teacher"
-    adapters = load_adapters(paths)
-    for a in adapters:
-        a.check_base(part, checkpoint)
-    return tuple(a.info.name for a in adapters)
+    return tuple(a.info.name for a in checked_adapters(paths, checkpoint))
 
 
 def listening_socket(host: str, port: int):

@@ -136,3 +136,49 @@ def test_info_prints_an_adapters_text_escaped(tiny_checkpoint, save_random_adapt
     assert main(["info", "--adapter", str(path)]) == 0
     out = capsys.readouterr().out
     assert "\x1b" not in out and "a person \\x1b[31mkicks" in out and "CC BY 4.0\\x1b[2J" in out
+
+
+def test_every_crafted_file_is_refused_in_one_line_naming_its_problem(tiny_checkpoint, tmp_path):
+    """Twenty crafted files and three broken containers (tests/adapters/crafted.py), each recording the model's own
+    hash: refused by the check every door runs before the model loads, each naming what is wrong."""
+    from crafted import broken_containers, crafted_adapters
+
+    from stablemofusion.adapters.file import checked_adapters
+
+    files = {**crafted_adapters(tmp_path / "crafted", tiny_checkpoint), **broken_containers(tmp_path / "broken")}
+    assert len(files) == 23
+    for case, (path, words) in files.items():
+        with pytest.raises(SMFError, match=words) as e:
+            checked_adapters([path], tiny_checkpoint)
+        assert "\n" not in str(e.value), case
+
+
+def test_the_command_line_and_a_server_refuse_a_crafted_file_before_loading_the_model(tiny_checkpoint, tmp_path):
+    """`smf generate --adapter` and `smf serve --adapter` with a bomb (its product a 40 GB matrix) and with a rank of 0
+    in its metadata: exit 2, one line, the server never listens; under a 3 GB address-space cap."""
+    import resource
+    import socket
+    import subprocess
+    import sys
+
+    from crafted import crafted_adapters
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = str(s.getsockname()[1])
+
+    files = crafted_adapters(tmp_path / "crafted", tiny_checkpoint)
+
+    def cap():
+        resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
+
+    for case in ("bomb 40 GB", "rank 0 in its info"):
+        path, words = files[case]
+        for args in (["generate", "a person walks", "--out", str(tmp_path / "out")],
+                     ["serve", "--host", "127.0.0.1", "--port", port]):
+            r = subprocess.run([sys.executable, "-m", "stablemofusion.cli.main", *args, "--checkpoint",
+                                str(tiny_checkpoint), "--adapter", str(path)], capture_output=True, text=True,
+                               timeout=120, preexec_fn=cap)
+            assert r.returncode == 2 and words in r.stderr, (case, args[0], r.stderr)
+            assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "out").exists()

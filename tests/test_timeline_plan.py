@@ -6,7 +6,7 @@ import pytest
 from stablemofusion.cli.main import main
 from stablemofusion.errors import SMFError
 from stablemofusion.pipeline import MotionPipeline
-from stablemofusion.timeline_plan import TAIL, parse_timeline, plan_windows
+from stablemofusion.timeline_plan import TAIL, check_timeline, parse_timeline, plan_windows
 
 
 def test_parse_timeline():
@@ -17,6 +17,19 @@ def test_parse_timeline():
                      (" ; ", "empty")]:
         with pytest.raises(SMFError, match=msg):
             parse_timeline(bad)
+
+
+def test_a_timeline_is_checked_before_the_model_loads(tmp_path, capsys):
+    """Lengths, counts and the total against the limits without a model: the command line refuses
+    'walk:1e308' in one line (a folder that is no model would be the error if it loaded first)."""
+    for bad, msg in [("walk:1e308", "at most 120 s"), ("walk:0", "more than 0"), ("walk:60; run:61", "total"),
+                     (";".join(["walk:1"] * 17), "1 to 16 segments")]:
+        with pytest.raises(SMFError, match=msg):
+            check_timeline(parse_timeline(bad))
+    assert main(["generate", "--timeline", "a person walks:1e308", "--checkpoint", str(tmp_path), "--out",
+                 str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "at most 120 s, got 1e+308" in err and len(err.strip().splitlines()) == 1
 
 
 def test_windows_cover_every_frame_once():

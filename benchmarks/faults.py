@@ -123,7 +123,8 @@ def adapters(work: Path, runtimes) -> list[dict]:
                                    str(work / "out"), "--adapter"],
                       "serve start": ["serve", "--host", HOST, "--port", str(free_port()), "--threads", "1",
                                       "--adapter"]},
-             "onnx": {"export --onnx": ["export", "--onnx", "--out", str(work / "graphs"), "--adapter"],
+             "onnx": {"export --onnx": ["export", "--onnx", "--checkpoint", str(model_folder(None)), "--out",
+                                        str(work / "graphs"), "--adapter"],
                       "generate": ["generate", "a person walks", "--engine", "onnx", "--format", "npy", "--out",
                                    str(work / "out"), "--adapter"]}}
     out = []

@@ -13,19 +13,15 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
 from ..errors import SMFError
-from .lora import LoraConfig, checked_pairs, layer_deltas
+from .check import FORMAT, PARTS, VERSION, AdapterInfo, check_adapter_files, model_part, read_header  # noqa: F401
+from .lora import layer_deltas
 
-FORMAT = "stablemofusion-adapter"
-VERSION = 1
-MAX_ADAPTER_BYTES = 64 * 2**20  # a larger file is not an adapter of the models this package runs (the shipped one: about 1 MB)
-PARTS = ("student", "teacher")
-FLOAT_DTYPES = ("F16", "BF16", "F32")  # safetensors' names of the dtypes an adapter's weights may have
 
 
 def weights_hash(folder: str | Path) -> str:
@@ -71,34 +67,6 @@ def folder_weights_hash(folder: str | Path) -> str:
 
 
 @dataclass
-class AdapterInfo:
-    """What an adapter is: ``actions`` label -> the captions it was taught (the out-of-domain check knows
-    them); ``clips`` (file, caption) pairs; ``base`` part -> sha256 of the base weights it fits;
-    ``guidance`` the student's guidance scale it was distilled at; ``training`` figures of the run."""
-
-    name: str
-    actions: dict[str, list[str]]
-    clips: list[tuple[str, str]]
-    licence: str
-    base: dict[str, str]
-    lora: LoraConfig
-    guidance: float | None = None
-    training: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict:
-        d = asdict(self)
-        d["clips"] = [list(c) for c in self.clips]
-        return d
-
-    @staticmethod
-    def from_dict(d: dict) -> "AdapterInfo":
-        d = dict(d)
-        d["lora"] = LoraConfig(**d["lora"])
-        d["clips"] = [tuple(c) for c in d["clips"]]
-        return AdapterInfo(**d)
-
-
-@dataclass
 class Adapter:
     """An adapter in memory: its info and, per part (student, teacher), its LoRA weights."""
 
@@ -112,13 +80,6 @@ class Adapter:
         if part not in self.weights or not self.weights[part]:
             raise SMFError(f"adapter {self.info.name!r} has no {part} weights")
         return layer_deltas(self.weights[part], self.info.lora.scale, shapes)
-
-    def check(self, part: str, shapes: dict[str, tuple]) -> None:
-        """The checks of :meth:`deltas` (the file has ``part`` weights, and they fit ``shapes``), nothing computed: a
-        server refuses a crafted file before it starts its worker."""
-        if part not in self.weights or not self.weights[part]:
-            raise SMFError(f"adapter {self.info.name!r} has no {part} weights")
-        checked_pairs(self.weights[part], self.info.lora.scale, shapes)
 
     def check_base(self, part: str, folder: str | Path) -> None:
         """SMFError unless ``folder`` holds the very weights this adapter's ``part`` was trained on."""
@@ -144,35 +105,16 @@ class Adapter:
 
     @staticmethod
     def load(path: str | Path) -> "Adapter":
-        """Read an adapter file; a one-line SMFError for anything that is not one."""
+        """Read an adapter file, its container checked first (:func:`~stablemofusion.adapters.check.read_header`);
+        a one-line SMFError for anything that is not one."""
         from safetensors import SafetensorError, safe_open
 
-        path = Path(path)
-        if not path.is_file():
-            raise SMFError(f"no such adapter file: {path}")
-        if path.stat().st_size > MAX_ADAPTER_BYTES:
-            raise SMFError(f"{path}: {path.stat().st_size / 2**20:.0f} MB is too large for an adapter")
+        info, tensors = read_header(path)
         try:
             with safe_open(str(path), framework="pt", device="cpu") as f:
-                meta = f.metadata() or {}
-                if meta.get("format") != FORMAT:
-                    raise SMFError(f"{path}: not a stablemofusion adapter (make one with `smf adapt`)")
-                if int(meta.get("version", 0)) > VERSION:
-                    raise SMFError(f"{path}: adapter format {meta['version']} is newer than this version reads")
-                try:
-                    info = AdapterInfo.from_dict(json.loads(meta["info"]))
-                except SMFError as e:
-                    raise SMFError(f"{path}: {e}") from None
-                weights: dict[str, dict[str, torch.Tensor]] = {p: {} for p in PARTS}
-                for key in f.keys():
-                    part, _, name = key.partition("/")
-                    if part not in weights:
-                        raise SMFError(f"{path}: unexpected tensor {key}")
-                    dtype = f.get_slice(key).get_dtype()
-                    if dtype not in FLOAT_DTYPES:
-                        raise SMFError(f"{path}: tensor {key} is {dtype}, not floating point")
-                    weights[part][name] = f.get_tensor(key).float()
-        except (SafetensorError, OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
+                weights = {p: {name: f.get_tensor(f"{p}/{name}").float() for name in names}
+                           for p, names in tensors.items()}
+        except (SafetensorError, OSError) as e:
             raise SMFError(f"{path}: not a readable adapter file ({str(e).splitlines()[0]})") from None
         return Adapter(info, weights)
 
@@ -190,22 +132,14 @@ def load_adapters(paths) -> list[Adapter]:
 
 
 def checked_adapters(paths, folder: str | Path) -> list[Adapter]:
-    """Adapters from file paths, each checked against the model in ``folder`` before that model is loaded: it must
-    be trained on this model's weights, and every layer it changes must fit the model's weight shapes (read from the
-    model built on PyTorch's meta device: no memory, no weights). A crafted file is refused in one line here, by the
-    CLI and by a server before it starts its worker."""
-    from ..diffusion.checkpoint import read_config
-    from ..models.base import build_denoiser
-
+    """Adapters from file paths, each checked against the model in ``folder`` before that model is loaded: first
+    without PyTorch (:func:`~stablemofusion.adapters.check.check_adapter_files`: the container, every layer against
+    the model's weight shapes, finite values), then that it was trained on this model's very weights. A crafted file
+    is refused in one line here, by the CLI and by a server before it starts its worker."""
+    check_adapter_files(paths, folder)
     adapters = load_adapters(paths)
-    if not adapters:
-        return adapters
-    config = read_config(folder)
-    part = "student" if config.student else "teacher"
-    with torch.device("meta"):
-        shapes = {n: tuple(p.shape) for n, p in build_denoiser(config.model).named_parameters()}
+    part = model_part(folder)
     for a in adapters:
-        a.check(part, shapes)  # first: it costs nothing, the base's hash a second
         a.check_base(part, folder)
     return adapters
 

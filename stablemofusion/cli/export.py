@@ -62,6 +62,9 @@ def run(args: argparse.Namespace) -> None:
     if args.checkpoint is None:
         raise SMFError("--checkpoint is required (but with --final-stage)")
     if args.onnx:
+        from .options import check_adapter_flags
+
+        check_adapter_flags(args)  # before PyTorch is imported
         from ..onnx_export import export_onnx
 
         out = export_onnx(args.checkpoint, args.out, adapters=args.adapter,

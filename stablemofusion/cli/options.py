@@ -149,6 +149,20 @@ def set_threads(args) -> None:
         torch.set_num_threads(min(torch.get_num_threads(), idle_threads()))
 
 
+def check_adapter_flags(args) -> None:
+    """The --adapter files checked against the model without PyTorch (:mod:`stablemofusion.adapters.check`), so that
+    a crafted file is refused in one line before anything heavy loads; a teacher's folder is checked when it loads."""
+    if not getattr(args, "adapter", None) or getattr(args, "teacher", False):
+        return
+    from importlib import resources
+
+    from ..adapters.check import check_adapter_files
+
+    folder = args.checkpoint if args.checkpoint is not None else \
+        Path(str(resources.files("stablemofusion") / "assets" / "default_model"))
+    check_adapter_files(args.adapter, folder)
+
+
 def load_pipeline(args):
     """The pipeline of ``--checkpoint``/``--teacher``, saying on stderr what it loads (imports and loading take a few
     seconds on a first run); ``--engine onnx``: the portable graphs (:mod:`stablemofusion.runtime`)."""
@@ -170,6 +184,7 @@ def load_pipeline(args):
         pipe = PortablePipeline.from_pretrained(args.checkpoint, teacher=args.teacher, threads=threads)
         status.done()
         return pipe
+    check_adapter_flags(args)  # before PyTorch is imported
     from ..adapters.file import checked_adapters
     from ..pipeline import MotionPipeline
     from ..pipelines.components import model_folder

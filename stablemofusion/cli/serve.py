@@ -97,6 +97,9 @@ def worker_spec(args):
         model = ServedModel.of(PortablePipeline.from_pretrained(args.checkpoint, teacher=args.teacher))
         folder = None if args.checkpoint is None else str(args.checkpoint)
         return WorkerSpec(folder, None, args.threads, args.engine, teacher=args.teacher), model, ()
+    from .options import check_adapter_flags
+
+    check_adapter_flags(args)  # before PyTorch is imported
     from ..diffusion.checkpoint import read_config
     from ..pipelines.components import model_folder
 

@@ -155,30 +155,27 @@ def test_every_crafted_file_is_refused_in_one_line_naming_its_problem(tiny_check
 
 def test_the_command_line_and_a_server_refuse_a_crafted_file_before_loading_the_model(tiny_checkpoint, tmp_path):
     """`smf generate --adapter` and `smf serve --adapter` with a bomb (its product a 40 GB matrix) and with a rank of 0
-    in its metadata: exit 2, one line, the server never listens; under a 3 GB address-space cap."""
-    import resource
+    in its metadata, NaN values: exit 2, one line, the server never listens, and PyTorch was not imported (the check
+    runs before it, in a few tens of MB)."""
     import socket
     import subprocess
     import sys
 
     from crafted import crafted_adapters
 
+    files = crafted_adapters(tmp_path / "crafted", tiny_checkpoint)
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = str(s.getsockname()[1])
-
-    files = crafted_adapters(tmp_path / "crafted", tiny_checkpoint)
-
-    def cap():
-        resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
-
-    for case in ("bomb 40 GB", "rank 0 in its info"):
+    smf = ("import sys; from stablemofusion.cli.main import main; code = main(); "
+           "print('torch imported:', 'torch' in sys.modules); sys.exit(code)")
+    for case in ("bomb 40 GB", "rank 0 in its info", "NaN"):
         path, words = files[case]
         for args in (["generate", "a person walks", "--out", str(tmp_path / "out")],
                      ["serve", "--host", "127.0.0.1", "--port", port]):
-            r = subprocess.run([sys.executable, "-m", "stablemofusion.cli.main", *args, "--checkpoint",
-                                str(tiny_checkpoint), "--adapter", str(path)], capture_output=True, text=True,
-                               timeout=120, preexec_fn=cap)
+            r = subprocess.run([sys.executable, "-c", smf, *args, "--checkpoint", str(tiny_checkpoint),
+                                "--adapter", str(path)], capture_output=True, text=True, timeout=120)
             assert r.returncode == 2 and words in r.stderr, (case, args[0], r.stderr)
             assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+            assert "torch imported: False" in r.stdout, (case, args[0])
     assert not (tmp_path / "out").exists()

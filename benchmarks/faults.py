@@ -50,37 +50,29 @@ from serve_faults import HOST, free_port, rss_mb  # noqa: E402
 SMF = [sys.executable, "-c", "import sys; from stablemofusion.cli.main import main; sys.exit(main())"]
 ENV = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
 RUNTIMES = {"onnx": "portable", "auto": "PyTorch"}
+TIME = "/usr/bin/time"  # GNU time (Debian: apt-get install time)
 
 
-def run(args: list[str], **kw) -> dict:
-    """Run ``smf ARGS`` (``cap_mb``: under an address-space cap; ``timeout`` s): exit status, stderr's lines (and the
-    last), seconds, peak memory (MB, read by wait4)."""
+def run(args: list[str], *, cap_mb: int | None = None, timeout: float = 300) -> dict:
+    """Run ``smf ARGS`` (``cap_mb``: under an address-space cap): exit status, stderr's lines (and the last), seconds,
+    peak resident memory in MB (GNU time's %M: a child forked from this process would report this process's peak)."""
     def cap():
-        if kw.get("cap_mb"):
-            resource.setrlimit(resource.RLIMIT_AS, (kw["cap_mb"] << 20, kw["cap_mb"] << 20))
+        if cap_mb:
+            resource.setrlimit(resource.RLIMIT_AS, (cap_mb << 20, cap_mb << 20))
 
-    t = time.perf_counter()
-    with tempfile.TemporaryFile() as err:
-        pid = os.fork()
-        if pid == 0:  # the child: cap, redirect, exec
-            cap()
-            os.dup2(err.fileno(), 2)
-            devnull = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(devnull, 1)
-            os.execve(SMF[0], SMF + args, ENV)
-        deadline = time.monotonic() + kw.get("timeout", 300)
-        while True:
-            done, status, usage = os.wait4(pid, os.WNOHANG)
-            if done:
-                break
-            if time.monotonic() > deadline:
-                os.kill(pid, signal.SIGKILL)
-            time.sleep(0.02)
-        err.seek(0)
-        text = err.read(1 << 20).decode(errors="replace")
-    lines = [line for line in text.splitlines() if line.strip()]
-    return {"rc": os.waitstatus_to_exitcode(status), "lines": len(lines), "last": lines[-1][:200] if lines else "",
-            "s": round(time.perf_counter() - t, 2), "mb": round(usage.ru_maxrss / 1024)}
+    with tempfile.NamedTemporaryFile("r") as peak:
+        t = time.perf_counter()
+        try:
+            p = subprocess.run([TIME, "-q", "-f", "%M", "-o", peak.name] + SMF + args, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE, env=ENV, preexec_fn=cap, timeout=timeout)
+            code, err = p.returncode, p.stderr.decode(errors="replace")
+        except subprocess.TimeoutExpired:
+            code, err = "timeout", ""
+        seconds = time.perf_counter() - t
+        kb = peak.read().strip().splitlines()
+    lines = [line for line in err.splitlines() if line.strip()]
+    return {"rc": code, "lines": len(lines), "last": lines[-1][:200] if lines else "", "s": round(seconds, 2),
+            "mb": round(int(kb[-1]) / 1024) if kb and kb[-1].isdigit() else None}
 
 
 @contextlib.contextmanager
@@ -158,20 +150,33 @@ def bvh(work: Path, runtimes) -> list[dict]:
     cases = {f"Frame Time {v}": text.replace(frame_time, f"Frame Time: {v}") for v in ("1e-9", "1e8", "1e308", "100000")}
     cases["a value of 1e300"] = text[:first] + " ".join(row[:3] + ["1e300"] + row[4:]) + text[text.index("\n", first):]
     cases["a value of NaN"] = text[:first] + " ".join(row[:3] + ["nan"] + row[4:]) + text[text.index("\n", first):]
-    rows = []
-    for name, body in cases.items():
-        path = work / "bvh" / f"{name.replace(' ', '_')}.bvh"
-        path.write_text(body)
-        target = work / "bvh" / "out.npy"
-        r = run(["convert", str(path), str(target)], cap_mb=1536)
-        r["wrote"] = target.exists()
-        target.unlink(missing_ok=True)
-        rows.append(r)
-    s = summary(rows)
-    return [{"hole": "2 BVH on the CLI", "runtime": "any", "case": f"smf convert: {', '.join(cases)} (1.5 GB cap)",
-             "after": f"{s['exit_2_one_line']}/{s['cases']} exit 2 in one line, {sum(r['wrote'] for r in rows)} files "
-                      f"written; slowest {s['slowest_s']:.2f} s, peak {s['peak_mb']} MB",
-             "ok": s["exit_2_one_line"] == s["cases"] and not any(r["wrote"] for r in rows), "rows": rows}]
+    doors = {"convert": lambda f: ["convert", str(f), str(work / "bvh" / "out.npy")],
+             "edit": lambda f: ["edit", "a person waves", "--motion", str(f), "--mode", "suffix", "--keep-start", "1",
+                                "--engine", "onnx", "--out", str(work / "bvh" / "edited")],
+             "adapt": lambda f: ["adapt", "--data", str(f.parent), "--caption", "a person walks", "--licence", "CC0",
+                                 "--out", str(work / "bvh" / "a.safetensors")]}
+    out = []
+    for door, args in doors.items():
+        rows = []
+        for name, body in cases.items():
+            folder = work / "bvh" / name.replace(" ", "_")
+            folder.mkdir()
+            path = folder / "clip.bvh"
+            path.write_text(body)
+            rows.append(run(args(path), cap_mb=1536))
+            rows[-1]["wrote"] = sorted(f.name for f in (work / "bvh").iterdir() if f.is_file() and f.suffix != ".bvh")
+            for f in (work / "bvh").iterdir():
+                if f.is_file():
+                    f.unlink()
+            folder.joinpath("clip.bvh").unlink()
+            folder.rmdir()
+        s = summary(rows)
+        wrote = sum(bool(r["wrote"]) for r in rows)
+        out.append({"hole": "2 BVH on the CLI", "runtime": "any", "case": f"smf {door}: {', '.join(cases)} (1.5 GB cap)",
+                    "after": f"{s['exit_2_one_line']}/{s['cases']} exit 2 in one line, {wrote} files written; slowest "
+                             f"{s['slowest_s']:.2f} s, peak {s['peak_mb']} MB",
+                    "ok": s["exit_2_one_line"] == s["cases"] and not wrote, "rows": rows})
+    return out
 
 
 # --- 3. paths ---------------------------------------------------------------------------------------------------
@@ -328,7 +333,32 @@ def tracebacks(work: Path, runtimes) -> list[dict]:
              "ok": s["exit_2_one_line"] == s["cases"], "rows": rows}]
 
 
-# --- 9. leftovers -----------------------------------------------------------------------------------------------
+# --- 9. leftovers ---------------------------------------------------------------------------------------------
+def complete(f: Path) -> bool:
+    """Whether an output file is whole: a .npy that loads, a BVH with every frame it announces, a .glb as long as
+    its header says, a GIF with its trailer."""
+    import struct
+
+    import numpy as np
+
+    data = f.read_bytes()
+    if f.suffix == ".npy":
+        try:
+            np.load(f, allow_pickle=False)
+            return True
+        except (ValueError, OSError, EOFError):
+            return False
+    if f.suffix == ".bvh":
+        text = data.decode(errors="replace")
+        frames = next((int(x.split(":")[1]) for x in text.splitlines() if x.startswith("Frames:")), -1)
+        return text.endswith("\n") and len(text.split("MOTION\n", 1)[-1].splitlines()) == frames + 2
+    if f.suffix == ".glb":
+        return len(data) >= 12 and data[:4] == b"glTF" and struct.unpack("<I", data[8:12])[0] == len(data)
+    if f.suffix == ".gif":
+        return data[:3] == b"GIF" and data.endswith(b";")
+    return False
+
+
 def leftovers(work: Path, runtimes) -> list[dict]:
     dest = work / "killed"
     args = SMF + ["generate", "a person runs", "--seconds", "10", "--format", "npy,bvh,glb,gif", "--engine", "onnx",
@@ -342,13 +372,17 @@ def leftovers(work: Path, runtimes) -> list[dict]:
     p.send_signal(signal.SIGKILL)
     p.wait()
     hidden = sorted(f.name for f in dest.iterdir() if f.name.startswith("."))
+    visible = [f for f in dest.iterdir() if not f.name.startswith(".")]
+    broken = [f.name for f in visible if not complete(f)]
     subprocess.run(args, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=300)
-    after = sorted(f.name for f in dest.iterdir() if f.name.startswith("."))
-    files = sorted(f.name for f in dest.iterdir() if not f.name.startswith("."))
-    return [{"hole": "9 leftovers", "runtime": "any", "case": "SIGKILL while writing a GIF, then the same command",
-             "after": f"{len(hidden)} hidden temporaries after the kill, {len(after)} after the next run; "
-                      f"files: {', '.join(files)}",
-             "ok": not after and len(files) == 4, "hidden": hidden}]
+    again = [f for f in dest.iterdir() if not f.name.startswith(".") and f not in visible]
+    return [{"hole": "9 leftovers", "runtime": "any", "case": "SIGKILL while writing a GIF (npy, bvh, glb, gif), then the "
+                                                                "same command",
+             "after": f"after the kill: {len(visible)} files, {len(broken)} partial, {len(hidden)} hidden temporary "
+                      f"({', '.join(h.split('.')[-1] for h in hidden)}); the next run: {len(again)} new files under free "
+                      f"names, {sum(not complete(f) for f in again)} partial",
+             "ok": not broken and len(hidden) <= 4 and len(again) >= 4 and all(complete(f) for f in again),
+             "hidden": hidden, "broken": broken}]
 
 
 HOLES = {"adapters": adapters, "bvh": bvh, "paths": paths, "queue": queue, "overload": overload, "prompts": prompts,
@@ -368,6 +402,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="smf-faults-") as tmp:
         for name in a.only.split(","):
             t = time.perf_counter()
+            (Path(tmp) / name).mkdir()
             rows = HOLES[name](Path(tmp) / name, runtimes)
             for r in rows:
                 r["bench_s"] = round(time.perf_counter() - t, 1)

@@ -132,7 +132,7 @@ def read_clips(folder: str | Path, joint_map: str | Path = "bandai-namco", *, ca
     jmap = JointMap.named(joint_map)
     sk = get_skeleton(skeleton)
     clips = []
-    for f, name in zip(tqdm(files, desc="clips", unit="file", disable=not progress), names):
+    for f, name in zip(tqdm(files, desc="clips", unit="file", disable=None if progress else True), names):
         joints = retarget_bvh(f, jmap, unit=unit)  # MotionFormatError / SMFError name the file
         if joints.shape[0] - 1 < min_frames:
             raise SMFError(f"{f}: {joints.shape[0] / sk.fps:.2f} s is too short; clips need at least "

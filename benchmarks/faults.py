@@ -265,7 +265,7 @@ def overload(work: Path, runtimes, clients: int = 500, seconds: float = 30) -> l
 
 
 # --- 6. --prompts -----------------------------------------------------------------------------------------------
-def prompts(work: Path, runtimes, count: int = 20_000, seconds: float = 40) -> list[dict]:
+def prompts(work: Path, runtimes, count: int = 20_000, seconds: float = 90) -> list[dict]:
     out = []
     for engine in runtimes:
         f = work / "prompts.txt"
@@ -273,7 +273,7 @@ def prompts(work: Path, runtimes, count: int = 20_000, seconds: float = 40) -> l
         f.write_text("\n".join(f"a person {words[i % len(words)]} {i}" for i in range(count)) + "\n")
         dest = work / f"prompts-{engine}"
         p = subprocess.Popen(SMF + ["generate", "--prompts", str(f), "--engine", engine, "--seconds", "2", "--format",
-                                    "npy", "--out", str(dest), "--no-progress"], env=ENV,
+                                    "npy", "--out", str(dest)], env=ENV,
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         samples, t0 = [], time.monotonic()
         while time.monotonic() - t0 < seconds and p.poll() is None:
@@ -282,13 +282,13 @@ def prompts(work: Path, runtimes, count: int = 20_000, seconds: float = 40) -> l
             samples.append((round(time.monotonic() - t0), round(rss_mb(p.pid)), n))
         p.kill()
         p.wait()
-        at10 = next(s for s in samples if s[0] >= 10)
-        last = samples[-1]
         first_file = next((s[0] for s in samples if s[2] > 0), None)
+        base = next((s for s in samples if first_file is not None and s[0] >= first_file + 10), samples[-1])
+        last = samples[-1]
         out.append({"hole": "6 --prompts", "runtime": RUNTIMES[engine], "case": f"{count:,} prompts, {seconds:g} s",
-                    "after": f"memory {at10[1]} MB at {at10[0]} s, {last[1]} MB at {last[0]} s; first file at "
-                             f"{first_file} s, {last[2]} files at {last[0]} s",
-                    "ok": last[1] <= at10[1] * 1.1 + 20 and first_file is not None and first_file <= 15,
+                    "after": f"first file at {first_file} s; memory {base[1]} MB at {base[0]} s ({base[2]:,} files), "
+                             f"{last[1]} MB at {last[0]} s ({last[2]:,} files)",
+                    "ok": first_file is not None and last[1] <= base[1] * 1.1 and last[2] > base[2],
                     "samples": samples})
     return out
 
@@ -385,6 +385,26 @@ def leftovers(work: Path, runtimes) -> list[dict]:
              "hidden": hidden, "broken": broken}]
 
 
+# what an earlier hostile run of the same attacks reported, before the fixes (not re-run here: some ask for 160 GB)
+BEFORE = {
+    "1 adapters": "a 320 kB file: `generate --adapter` peaked at 12.8 GB for 48 s before refusing, `serve --adapter` "
+                  "12.7 GB per worker start; a 1.6 MB file asked for 160 GB (traceback); rank 0, a 1-D tensor, a wrong "
+                  "shape: tracebacks, or a server that listened, then sat in `failed` (503) after 21 s",
+    "2 BVH on the CLI": "Frame Time 1e8: 15 GB allocated, killed by the kernel; 100000: a 528 MB `.npy` from 4 kB; "
+                        "1e308: an OverflowError traceback; a value of 1e300 written into the `.npy` as inf, exit 0",
+    "3 paths": "points at 1e15 m: 200 with a broken skeleton (hip bone 0.126-0.137 m, not 0.1031); 1e300: inf in the "
+               "`.npy` (200), 500 for glb; times [0, 1e-9]: the root moved 3 m in one frame, 200; the CLI wrote an "
+               "inf `.npy`, then crashed",
+    "4 queued work": "first in, first out: a 2 s request waited 30 s behind 32 heavy ones (portable, idle), 41 s on "
+                     "PyTorch, 57 s behind 64; health said 200 throughout",
+    "5 overload": "89% of connection attempts reset, not answered; health answered 8-9% of probes; the 503s that came "
+                  "were plain text",
+    "6 --prompts": "20,000 prompts: 3 GB after 90 s, 0 files written, no progress",
+    "7 rendering": "that GIF took 236 s (other prompts 9-10 s): up to 1.14 million dashes a frame",
+    "8 tracebacks": "a traceback for each",
+    "9 leftovers": "hidden temporaries (`.NAME.xxxx.gif`) and motions with some formats missing remained",
+}
+
 HOLES = {"adapters": adapters, "bvh": bvh, "paths": paths, "queue": queue, "overload": overload, "prompts": prompts,
          "rendering": rendering, "tracebacks": tracebacks, "leftovers": leftovers}
 
@@ -399,6 +419,7 @@ def main() -> None:
     resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, 8192), hard))
     runtimes = a.runtimes.split(",")
     report = []
+    print("| hole | runtime | attack | before (reported) | now | holds |\n|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory(prefix="smf-faults-") as tmp:
         for name in a.only.split(","):
             t = time.perf_counter()
@@ -406,8 +427,8 @@ def main() -> None:
             rows = HOLES[name](Path(tmp) / name, runtimes)
             for r in rows:
                 r["bench_s"] = round(time.perf_counter() - t, 1)
-                print(f"| {r['hole']} | {r['runtime']} | {r['case']} | {r['after']} | {'yes' if r['ok'] else '**no**'} |",
-                      flush=True)
+                print(f"| {r['hole']} | {r['runtime']} | {r['case']} | {BEFORE[r['hole']]} | {r['after']} | "
+                      f"{'yes' if r['ok'] else '**no**'} |", flush=True)
             report += rows
     if a.json:
         a.json.write_text(json.dumps(report, indent=1, default=str))

@@ -44,6 +44,34 @@ def example_path(name: str) -> Path:
     return path
 
 
+def npy_header(f, size: int, where: str) -> tuple[tuple[int, ...], np.dtype]:
+    """(shape, dtype) of a ``.npy``'s header (any version numpy writes) read from the open file ``f`` of ``size``
+    bytes, checked before its data is read: real numbers, and data exactly as long as the header says, so a small
+    file cannot ask for gigabytes. MotionFormatError naming ``where`` otherwise."""
+    try:
+        version = np.lib.format.read_magic(f)
+        read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, _, dtype = read(f)
+    except Exception:  # noqa: BLE001 - numpy raises many types for broken headers
+        raise MotionFormatError(f"{where}: not a readable .npy array") from None
+    if dtype.hasobject or not np.issubdtype(dtype, np.number) or np.issubdtype(dtype, np.complexfloating):
+        raise MotionFormatError(f"{where}: array of dtype {dtype} is not real numbers")
+    want = f.tell() + int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
+    if size != want:
+        raise MotionFormatError(f"{where}: its header says {want:.0f} bytes, the file has {size} "
+                                f"({'truncated' if size < want else 'extra bytes'})")
+    return tuple(shape), dtype
+
+
+def check_values(values: np.ndarray, where: str) -> None:
+    """MotionFormatError unless every number of a motion file is finite and at most MAX_ABS_VALUE in size."""
+    from ..limits import MAX_ABS_VALUE
+
+    values = np.asarray(values, dtype=np.float64)
+    if not (np.isfinite(values).all() and np.abs(values).max(initial=0.0) <= MAX_ABS_VALUE):
+        raise MotionFormatError(f"{where}: values must be finite numbers of at most {MAX_ABS_VALUE:g}")
+
+
 def load_motion(path: str | Path, skeleton: str | Skeleton | None = None, joint_map: str | None = None) -> Motion:
     """Read a joints `.npy`, a features `.npy`, a `.bvh` written with our skeleton's joint names, or a
     packaged example given as ``example:<name>``; ``joint_map`` (a built-in name such as 'bandai-namco', or a
@@ -57,15 +85,16 @@ def load_motion(path: str | Path, skeleton: str | Skeleton | None = None, joint_
         raise SMFError(f"no such file: {path}")
     if path.suffix.lower() == ".bvh":
         return _load_bvh(path, skeleton, joint_map)
+    with open(path, "rb") as f:
+        shape, _ = npy_header(f, path.stat().st_size, str(path))  # before any data is read
+    sk, kind = skeleton_for_shape(shape) if skeleton is None else _kind_for(shape, get_skeleton(skeleton))
     try:
         arr = np.load(path, allow_pickle=False)
     except Exception as e:  # noqa: BLE001 - numpy raises many types for broken files
         raise MotionFormatError(f"{path}: not a readable .npy array ({e.__class__.__name__})") from None
-    if not np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.complexfloating):
-        raise MotionFormatError(f"{path}: array of dtype {arr.dtype} is not real numbers")
-    sk, kind = skeleton_for_shape(arr.shape) if skeleton is None else _kind_for(arr.shape, get_skeleton(skeleton))
     if not np.isfinite(arr).all():
         raise MotionFormatError(f"{path}: {kind} contain NaN or inf")
+    check_values(arr, str(path))
     if kind == "features":
         return Motion(joints_from_features(arr.astype(np.float64), sk), sk, sk.fps, arr)
     joints = arr.astype(np.float64)

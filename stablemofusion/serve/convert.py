@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .http_errors import ServeError
-from ..limits import MAX_ABS_VALUE, MAX_FRAME_TIME_S, MIN_FRAME_TIME_S
+from ..limits import MAX_FRAME_TIME_S, MIN_FRAME_TIME_S
 from .server_limits import (MAX_ABS_METRES, MAX_CONVERT_FRAMES, MAX_CONVERT_SECONDS, MAX_CONVERT_VALUES,
                             MAX_HIERARCHY_BYTES)
 from ..output import joints_json_bytes
@@ -69,28 +69,18 @@ def _check_bvh(data: bytes, filename: str) -> None:
 
 
 def _check_npy(data: bytes, filename: str) -> None:
-    """The header of an uploaded .npy (any layout numpy writes): a real numeric array of a known skeleton's shape,
-    at most MAX_CONVERT_SECONDS long, whose data is exactly as long as the header says."""
+    """The header of an uploaded .npy (:func:`~stablemofusion.motion.files.npy_header`, as every door reads one): a
+    real numeric array of a known skeleton's shape, at most MAX_CONVERT_SECONDS long, whose data is exactly as long
+    as the header says; then its values (:func:`~stablemofusion.motion.files.check_values`)."""
     from ..errors import SMFError
+    from ..motion.files import check_values, npy_header
     from ..motion.skeleton import skeleton_for_shape
 
     try:
-        buf = io.BytesIO(data)
-        version = np.lib.format.read_magic(buf)
-        read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-        shape, _, dtype = read(buf)
-    except Exception:  # noqa: BLE001 - numpy raises many types for broken headers
-        raise ServeError(422, f"{filename}: not a readable .npy array") from None
-    if dtype.hasobject or not np.issubdtype(dtype, np.number) or np.issubdtype(dtype, np.complexfloating):
-        raise ServeError(422, f"{filename}: array of dtype {dtype} is not real numbers")
-    try:
+        shape, _ = npy_header(io.BytesIO(data), len(data), filename)
         sk, _ = skeleton_for_shape(shape)
     except SMFError as e:
-        raise ServeError(422, f"{filename}: {e}") from None
-    size = buf.tell() + int(np.prod(shape)) * dtype.itemsize
-    if len(data) != size:
-        raise ServeError(422, f"{filename}: its header says {size} bytes, the file has {len(data)} "
-                              f"({'truncated' if len(data) < size else 'extra bytes'})")
+        raise ServeError(422, str(e) if filename in str(e) else f"{filename}: {e}") from None
     if shape[0] > MAX_CONVERT_SECONDS * sk.fps:
         raise ServeError(422, f"{filename}: the viewer shows motions of up to {MAX_CONVERT_SECONDS:g} s, got "
                               f"{shape[0]} frames at {sk.fps:g} fps")
@@ -98,9 +88,13 @@ def _check_npy(data: bytes, filename: str) -> None:
 
 
 def _check_values(values: np.ndarray, filename: str) -> None:
-    values = np.asarray(values, dtype=np.float64)
-    if not (np.isfinite(values).all() and np.abs(values).max(initial=0.0) <= MAX_ABS_VALUE):
-        raise ServeError(422, f"{filename}: values must be finite numbers of at most {MAX_ABS_VALUE:g}")
+    from ..errors import SMFError
+    from ..motion.files import check_values
+
+    try:
+        check_values(values, filename)
+    except SMFError as e:
+        raise ServeError(422, str(e)) from None
 
 
 def _load(data: bytes, suffix: str, filename: str) -> tuple[np.ndarray, float]:

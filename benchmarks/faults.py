@@ -177,6 +177,33 @@ def bvh(work: Path, runtimes) -> list[dict]:
                     "after": f"{s['exit_2_one_line']}/{s['cases']} exit 2 in one line, {wrote} files written; slowest "
                              f"{s['slowest_s']:.2f} s, peak {s['peak_mb']} MB",
                     "ok": s["exit_2_one_line"] == s["cases"] and not wrote, "rows": rows})
+    # the same for joints .npy files (the server's checks, now every door's)
+    import io
+
+    import numpy as np
+
+    walk = np.cumsum(np.full((40, 22, 3), 0.01, np.float32), axis=1)
+    buf = io.BytesIO()
+    np.save(buf, walk)
+    data = buf.getvalue()
+    npys = {"a header asking for 26 GB": data.replace(b"(40, 22, 3)", b"(100000000, 22, 3)"),
+            "values of 1e30": None, "NaN": None, "truncated": data[:-100]}
+    for name, values in (("values of 1e30", walk * 1e30), ("NaN", walk * np.nan)):
+        b = io.BytesIO()
+        np.save(b, values)
+        npys[name] = b.getvalue()
+    rows = []
+    for name, body in npys.items():
+        path = work / "npy" / f"{name.replace(' ', '_')}.npy"
+        path.parent.mkdir(exist_ok=True)
+        path.write_bytes(body)
+        rows.append(run(["convert", str(path), str(work / "npy" / "out.bvh")], cap_mb=1536))
+    s = summary(rows)
+    out.append({"hole": "2 .npy on the CLI", "runtime": "any", "case": f"smf convert of a .npy: {', '.join(npys)} (1.5 GB cap)",
+                "after": f"{s['exit_2_one_line']}/{s['cases']} exit 2 in one line, "
+                         f"{int((work / 'npy' / 'out.bvh').exists())} files written; slowest {s['slowest_s']:.2f} s, "
+                         f"peak {s['peak_mb']} MB",
+                "ok": s["exit_2_one_line"] == s["cases"] and not (work / "npy" / "out.bvh").exists(), "rows": rows})
     return out
 
 
@@ -393,6 +420,8 @@ BEFORE = {
                   "shape: tracebacks, or a server that listened, then sat in `failed` (503) after 21 s",
     "2 BVH on the CLI": "Frame Time 1e8: 15 GB allocated, killed by the kernel; 100000: a 528 MB `.npy` from 4 kB; "
                         "1e308: an OverflowError traceback; a value of 1e300 written into the `.npy` as inf, exit 0",
+    "2 .npy on the CLI": "not reported; run before its header check, the 26 GB header gave one line naming a "
+                         "MemoryError: numpy asked for the memory first",
     "3 paths": "points at 1e15 m: 200 with a broken skeleton (hip bone 0.126-0.137 m, not 0.1031); 1e300: inf in the "
                "`.npy` (200), 500 for glb; times [0, 1e-9]: the root moved 3 m in one frame, 200; the CLI wrote an "
                "inf `.npy`, then crashed",

@@ -3,7 +3,7 @@
 ``from stablemofusion import MotionPipeline`` (imported on first use, so ``smf --version`` stays fast).
 """
 
-__version__ = "0.2.2"  # CHANGELOG.md: what each version changed
+__version__ = "0.2.3"  # CHANGELOG.md: what each version changed
 __all__ = ["MotionPipeline", "MotionResult", "RigidMotion", "__version__"]
 
 

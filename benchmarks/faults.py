@@ -33,6 +33,7 @@ import contextlib
 import json
 import os
 import resource
+import shutil
 import signal
 import statistics
 import subprocess
@@ -98,10 +99,11 @@ def server(engine: str, *extra: str):
 
 
 def summary(rows: list[dict], want_words: list[str] | None = None) -> dict:
-    """Worst case of a set of refusals: all exit 2 in one line (naming the problem), slowest, largest."""
+    """Worst case of a set of refusals: all exit 2 in one line (naming the problem), slowest, largest (peak memory
+    -1 where GNU time is missing)."""
     named = sum(w.lower() in r["last"].lower() for r, w in zip(rows, want_words)) if want_words else None
     return {"cases": len(rows), "exit_2_one_line": sum(r["rc"] == 2 and r["lines"] == 1 for r in rows),
-            "named": named, "slowest_s": max(r["s"] for r in rows), "peak_mb": max(r["mb"] for r in rows)}
+            "named": named, "slowest_s": max(r["s"] for r in rows), "peak_mb": max(r["mb"] or -1 for r in rows)}
 
 
 # --- 1. adapters ------------------------------------------------------------------------------------------------
@@ -131,7 +133,7 @@ def adapters(work: Path, runtimes) -> list[dict]:
                         "after": f"{s['exit_2_one_line']}/{s['cases']} exit 2 in one line"
                                  + (f", {s['named']} naming the problem" if words else f" ({rows[0]['last'][:60]}...)")
                                  + f"; slowest {s['slowest_s']:.2f} s, peak {s['peak_mb']} MB "
-                                   f"({s['peak_mb'] - base['mb']:+d} MB over a missing file's {base['mb']} MB, "
+                                   f"({s['peak_mb'] - (base['mb'] or -1):+d} MB over a missing file's {base['mb']} MB, "
                                    f"{base['s']:.2f} s)",
                         "ok": s["exit_2_one_line"] == s["cases"] and (words is None or s["named"] == s["cases"]),
                         "rows": rows})
@@ -165,10 +167,12 @@ def bvh(work: Path, runtimes) -> list[dict]:
             path = folder / "clip.bvh"
             path.write_text(body)
             rows.append(run(args(path), cap_mb=1536))
-            rows[-1]["wrote"] = sorted(f.name for f in (work / "bvh").iterdir() if f.is_file() and f.suffix != ".bvh")
+            rows[-1]["wrote"] = sorted(f.name for f in (work / "bvh").iterdir() if f != folder)
             for f in (work / "bvh").iterdir():
                 if f.is_file():
                     f.unlink()
+                elif f != folder:
+                    shutil.rmtree(f)
             folder.joinpath("clip.bvh").unlink()
             folder.rmdir()
         s = summary(rows)
@@ -226,9 +230,9 @@ def paths(work: Path, runtimes) -> list[dict]:
             f = work / "path.json"
             f.write_text(json.dumps(path))
             rows.append(run(["generate", "a person walks", "--path", str(f), "--engine", engine, "--format",
-                                    "npy,glb", "--out", str(work / "paths")]))
+                             "npy,glb", "--out", str(work / f"paths-{engine}")]))
         s = summary(rows)
-        written = len(list((work / "paths").glob("*"))) if (work / "paths").exists() else 0
+        written = len(list((work / f"paths-{engine}").glob("*"))) if (work / f"paths-{engine}").exists() else 0
         codes = sorted({c for c, _ in answers})
         out.append({"hole": "3 paths", "runtime": RUNTIMES[engine], "case": f"HTTP (json, glb) and CLI: {', '.join(PATHS)}",
                     "after": f"HTTP: {sum(c == 422 for c, _ in answers)}/{len(answers)} answered 422 JSON "

@@ -28,6 +28,17 @@ MAX_SCALE = 1e3  # alpha / rank of an adapter: trained ones are about 1-2; beyon
 LORA_A, LORA_B = ".lora_A.weight", ".lora_B.weight"
 
 
+def _finite_number(x) -> bool:
+    try:
+        return math.isfinite(float(x))
+    except (OverflowError, ValueError, TypeError):
+        return False
+
+
+def _strings(x) -> bool:
+    return isinstance(x, list) and all(isinstance(v, str) for v in x)
+
+
 @dataclass(frozen=True)
 class LoraConfig:
     """Rank and scale of the low-rank updates (``alpha / rank`` multiplies B @ A); ``text``: the trainable text
@@ -40,8 +51,8 @@ class LoraConfig:
     def __post_init__(self):
         if isinstance(self.rank, bool) or not isinstance(self.rank, int) or self.rank < 1:
             raise SMFError(f"an adapter's rank is a whole number from 1, got {self.rank!r}")
-        if isinstance(self.alpha, bool) or not isinstance(self.alpha, (int, float)) or not math.isfinite(self.alpha):
-            raise SMFError(f"an adapter's alpha is a finite number, got {self.alpha!r}")
+        if isinstance(self.alpha, bool) or not isinstance(self.alpha, (int, float)) or not _finite_number(self.alpha):
+            raise SMFError(f"an adapter's alpha is a finite number, got {str(self.alpha)[:20]}")
         if not isinstance(self.text, bool):
             raise SMFError(f"an adapter's text flag is true or false, got {self.text!r}")
 
@@ -68,6 +79,24 @@ class AdapterInfo:
     guidance: float | None = None
     training: dict = field(default_factory=dict)
 
+    def __post_init__(self):
+        ok = {"name": isinstance(self.name, str) and 0 < len(self.name) <= 200,
+              "licence": isinstance(self.licence, str),
+              "actions": isinstance(self.actions, dict) and all(isinstance(k, str) and _strings(v)
+                                                                for k, v in self.actions.items()),
+              "clips": isinstance(self.clips, list) and all(isinstance(c, (list, tuple)) and len(c) == 2
+                                                            and _strings(list(c)) for c in self.clips),
+              "base": isinstance(self.base, dict) and all(isinstance(k, str) and isinstance(v, str)
+                                                          for k, v in self.base.items()),
+              "lora": isinstance(self.lora, LoraConfig),
+              "guidance": self.guidance is None or (not isinstance(self.guidance, bool)
+                                                    and isinstance(self.guidance, (int, float))
+                                                    and _finite_number(self.guidance)),
+              "training": isinstance(self.training, dict)}
+        bad = [k for k, v in ok.items() if not v]
+        if bad:
+            raise SMFError(f"an adapter's info has a {bad[0]} of the wrong kind")
+
     def to_dict(self) -> dict:
         d = asdict(self)
         d["clips"] = [list(c) for c in self.clips]
@@ -77,7 +106,7 @@ class AdapterInfo:
     def from_dict(d: dict) -> "AdapterInfo":
         d = dict(d)
         d["lora"] = LoraConfig(**d["lora"])
-        d["clips"] = [tuple(c) for c in d["clips"]]
+        d["clips"] = [tuple(c) if isinstance(c, (list, tuple)) else c for c in d["clips"]]
         return AdapterInfo(**d)
 
 
@@ -103,6 +132,8 @@ def read_header(path: str | Path) -> tuple[AdapterInfo, dict[str, dict[str, tupl
                 info = AdapterInfo.from_dict(json.loads(meta["info"]))
             except SMFError as e:
                 raise SMFError(f"{path}: {e}") from None
+            except Exception as e:  # noqa: BLE001 - crafted JSON raises many types (deep nesting, huge numbers)
+                raise SMFError(f"{path}: not a readable adapter file (its info: {type(e).__name__})") from None
             tensors: dict[str, dict] = {p: {} for p in PARTS}
             for key in f.keys():
                 part, _, name = key.partition("/")
@@ -142,6 +173,9 @@ def fit_layers(shapes: dict[str, tuple], scale: float, model_shapes: dict[str, t
             raise SMFError(f"the adapter changes {layer}.weight, which this model lacks (an adapter fits only the base "
                            "model it was trained on)")
         want = tuple(want)
+        if len(want) not in (2, 3):
+            raise SMFError(f"adapter layer {layer}: its weight {want} is not one an adapter changes (a linear or 1-D "
+                           "convolution layer's)")
         fits = (len(want) == 2 and len(a) == 2 and len(b) == 2 and 1 <= a[0] == b[1] and a[1] == want[1]
                 and b[0] == want[0]) or \
                (len(want) == 3 and len(a) == 3 and len(b) == 3 and 1 <= a[0] == b[1] and b[2] == 1
@@ -205,6 +239,20 @@ def model_part(folder: str | Path) -> str:
     return "student" if isinstance(config, dict) and config.get("distil") else "teacher"
 
 
+def teacher_of(folder: str | Path) -> Path | None:
+    """The folder of the teacher a distilled student in ``folder`` names (``distil.teacher``, relative to the
+    student's folder unless absolute), where it is there; else None."""
+    folder = _run_folder(Path(folder))
+    try:
+        named = json.loads((folder / "config.json").read_text(encoding="utf-8"))["distil"]["teacher"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not isinstance(named, str) or not named:
+        return None
+    teacher = _run_folder(Path(named) if Path(named).is_absolute() else folder / named)
+    return teacher if (teacher / "config.json").is_file() else None
+
+
 def check_adapter_files(paths, folder: str | Path, part: str | None = None) -> list[AdapterInfo]:
     """Each adapter file of ``paths`` checked against the model in ``folder`` (its ``part``, student or teacher;
     default :func:`model_part`) without PyTorch: the container (:func:`read_header`), its ``part``'s layers against the model's weight shapes
@@ -233,4 +281,4 @@ def check_adapter_files(paths, folder: str | Path, part: str | None = None) -> l
 
 
 __all__ = ["AdapterInfo", "FORMAT", "LoraConfig", "MAX_ADAPTER_BYTES", "MAX_SCALE", "check_adapter_files",
-           "fit_layers", "model_part", "model_weight_shapes", "read_header"]
+           "fit_layers", "model_part", "model_weight_shapes", "read_header", "teacher_of"]

@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> None:
 
     from ..edit_plan import check_edit_inputs, source_features
     from ..errors import SMFError
-    from ..motion.files import load_motion
+    from ..motion.files import check_values, load_motion, npy_header
     from ..output import parse_formats, write_results
     from .character import load_rig
     from .options import choose_engine, load_pipeline, output_meta, sampling_kwargs, user_warnings
@@ -60,10 +60,13 @@ def run(args: argparse.Namespace) -> None:
             raise SMFError("--path is for --mode trajectory")
         if not args.path.is_file():
             raise SMFError(f"no such file: {args.path}")
+        with open(args.path, "rb") as f:
+            npy_header(f, args.path.stat().st_size, str(args.path))  # before its data is read
         try:
             path = np.load(args.path, allow_pickle=False).astype(np.float64)
         except Exception as e:  # noqa: BLE001 - numpy raises many types for broken files
             raise SMFError(f"{args.path}: not a readable .npy array ({e.__class__.__name__})") from None
+        check_values(path, str(args.path))
     motion = load_motion(args.motion, joint_map=args.joint_map)
     check_edit_inputs(args.mode, args.keep_start, args.keep_end, args.seconds)
     kwargs = sampling_kwargs(args)

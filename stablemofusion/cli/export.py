@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> None:
     if args.onnx:
         from .options import check_adapter_flags
 
-        check_adapter_flags(args)  # before PyTorch is imported
+        check_adapter_flags(args, teacher_part=True)  # before PyTorch is imported
         from ..onnx_export import export_onnx
 
         out = export_onnx(args.checkpoint, args.out, adapters=args.adapter,

@@ -149,18 +149,27 @@ def set_threads(args) -> None:
         torch.set_num_threads(min(torch.get_num_threads(), idle_threads()))
 
 
-def check_adapter_flags(args) -> None:
+def check_adapter_flags(args, *, teacher_part: bool = False) -> None:
     """The --adapter files checked against the model without PyTorch (:mod:`stablemofusion.adapters.check`), so that
-    a crafted file is refused in one line before anything heavy loads; a teacher's folder is checked when it loads."""
-    if not getattr(args, "adapter", None) or getattr(args, "teacher", False):
+    a crafted file is refused in one line before anything heavy loads: against ``--teacher``'s folder with
+    ``--teacher``, and with ``teacher_part`` (export of a student) also their teacher part against its teacher. A
+    folder that is not there is left to the loader, which names it."""
+    if not getattr(args, "adapter", None):
         return
     from importlib import resources
 
-    from ..adapters.check import check_adapter_files
+    from ..adapters.check import check_adapter_files, teacher_of
 
-    folder = args.checkpoint if args.checkpoint is not None else \
+    folder = Path(args.checkpoint) if args.checkpoint is not None else \
         Path(str(resources.files("stablemofusion") / "assets" / "default_model"))
+    if getattr(args, "teacher", False):
+        folder = teacher_of(folder)
+    if folder is None or not ((folder / "config.json").is_file() or (folder / "checkpoint" / "config.json").is_file()):
+        return
     check_adapter_files(args.adapter, folder)
+    teacher = teacher_of(folder) if teacher_part else None
+    if teacher is not None:
+        check_adapter_files(args.adapter, teacher, "teacher")
 
 
 def load_pipeline(args):
@@ -168,6 +177,8 @@ def load_pipeline(args):
     seconds on a first run); ``--engine onnx``: the portable graphs (:mod:`stablemofusion.runtime`)."""
     from ..limits import PORTABLE_ENGINE
 
+    if args.engine != PORTABLE_ENGINE:
+        check_adapter_flags(args)  # before PyTorch is imported, and before the status line
     what = f"the model in {args.checkpoint}" if args.checkpoint is not None else "the shipped model"
     status = LoadingStatus(f"smf: loading {what}{' (its teacher)' if args.teacher else ''} and its text encoder ...")
     if args.engine == PORTABLE_ENGINE:
@@ -184,7 +195,6 @@ def load_pipeline(args):
         pipe = PortablePipeline.from_pretrained(args.checkpoint, teacher=args.teacher, threads=threads)
         status.done()
         return pipe
-    check_adapter_flags(args)  # before PyTorch is imported
     from ..adapters.file import checked_adapters
     from ..pipeline import MotionPipeline
     from ..pipelines.components import model_folder

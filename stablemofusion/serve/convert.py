@@ -77,10 +77,13 @@ def _check_npy(data: bytes, filename: str) -> None:
     from ..motion.skeleton import skeleton_for_shape
 
     try:
-        shape, _ = npy_header(io.BytesIO(data), len(data), filename)
+        shape, _ = npy_header(io.BytesIO(data), len(data), filename)  # its messages name the file
+    except SMFError as e:
+        raise ServeError(422, str(e)) from None
+    try:
         sk, _ = skeleton_for_shape(shape)
     except SMFError as e:
-        raise ServeError(422, str(e) if filename in str(e) else f"{filename}: {e}") from None
+        raise ServeError(422, f"{filename}: {e}") from None
     if shape[0] > MAX_CONVERT_SECONDS * sk.fps:
         raise ServeError(422, f"{filename}: the viewer shows motions of up to {MAX_CONVERT_SECONDS:g} s, got "
                               f"{shape[0]} frames at {sk.fps:g} fps")

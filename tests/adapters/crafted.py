@@ -35,7 +35,7 @@ def _save(path: Path, tensors: dict, info: dict | str | None, meta: dict | None 
 
 
 def crafted_adapters(folder: Path, checkpoint: Path) -> dict[str, tuple[Path, str]]:
-    """Twenty crafted adapter files for the (student) model at ``checkpoint``, written into ``folder``: case name ->
+    """Twenty-four crafted adapter files for the (student) model at ``checkpoint``, written into ``folder``: case name ->
     (path, a phrase its one-line refusal contains). Every file passes the base-model check where a real adapter
     would (it records the model's own weights hash), so only the checks of what it holds can refuse it."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -45,6 +45,7 @@ def crafted_adapters(folder: Path, checkpoint: Path) -> dict[str, tuple[Path, st
     linear = next(n[: -len(".weight")] for n, p in model.named_parameters()
                   if p.ndim == 2 and n.endswith(".weight") and "out_proj" not in n)
     out, inp = model.get_parameter(linear + ".weight").shape
+    norm = next(n[: -len(".weight")] for n, p in model.named_parameters() if p.ndim == 1 and n.endswith(".weight"))
     A, B = f"{part}/{linear}.lora_A.weight", f"{part}/{linear}.lora_B.weight"
     a, b = torch.randn(2, inp, dtype=torch.float16) * 0.01, torch.randn(out, 2, dtype=torch.float16) * 0.01
     info = _info(base)
@@ -76,6 +77,12 @@ def crafted_adapters(folder: Path, checkpoint: Path) -> dict[str, tuple[Path, st
         "info of the wrong kind": ({A: a, B: b}, json.dumps({**info, "clips": 5, "lora": "big"}), None,
                                    "not a readable adapter file"),
         "a tensor outside the parts": ({f"evil/{linear}.lora_A.weight": a}, info, None, "unexpected tensor"),
+        "a layer whose weight is 1-D": ({f"{part}/{norm}.lora_A.weight": a, f"{part}/{norm}.lora_B.weight": b}, info,
+                                        None, "is not one an adapter changes"),
+        "info nested 100,000 deep": ({A: a, B: b}, "[" * 100_000 + "]" * 100_000, None, "not a readable adapter file"),
+        "an alpha of 400 digits": ({A: a, B: b}, json.dumps({**info, "lora": {"rank": 2, "alpha": 10 ** 400}}), None,
+                                   "alpha is a finite number"),
+        "a name of the wrong kind": ({A: a, B: b}, json.dumps({**info, "name": ["x"]}), None, "name of the wrong kind"),
     }
     made = {}
     for k, (name, (tensors, meta_info, meta, words)) in enumerate(cases.items()):

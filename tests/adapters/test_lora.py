@@ -139,14 +139,14 @@ def test_info_prints_an_adapters_text_escaped(tiny_checkpoint, save_random_adapt
 
 
 def test_every_crafted_file_is_refused_in_one_line_naming_its_problem(tiny_checkpoint, tmp_path):
-    """Twenty crafted files and three broken containers (tests/adapters/crafted.py), each recording the model's own
+    """Twenty-four crafted files and three broken containers (tests/adapters/crafted.py), each recording the model's own
     hash: refused by the check every door runs before the model loads, each naming what is wrong."""
     from crafted import broken_containers, crafted_adapters
 
     from stablemofusion.adapters.file import checked_adapters
 
     files = {**crafted_adapters(tmp_path / "crafted", tiny_checkpoint), **broken_containers(tmp_path / "broken")}
-    assert len(files) == 23
+    assert len(files) == 27
     for case, (path, words) in files.items():
         with pytest.raises(SMFError, match=words) as e:
             checked_adapters([path], tiny_checkpoint)

@@ -41,6 +41,11 @@ def test_a_malformed_npy_is_one_line_at_the_library_and_the_command_line(tmp_pat
     err = capsys.readouterr().err
     assert words in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out.bvh").exists()
+    if "neither joints" not in words and "NaN" not in words:  # a path .npy is (T, 2): its shape is not a body's
+        assert main(["edit", "a person walks", "--motion", "example:wave-both-hands", "--mode", "trajectory", "--path", str(path),
+                     "--engine", "onnx", "--out", str(tmp_path / "edited")]) == 2
+        err = capsys.readouterr().err
+        assert words in err and len(err.strip().splitlines()) == 1, err
 
 
 def test_a_good_npy_still_reads(tmp_path):

@@ -454,6 +454,7 @@ def main() -> None:
     runtimes = a.runtimes.split(",")
     report = []
     print("| hole | runtime | attack | before (reported) | now | holds |\n|---|---|---|---|---|---|")
+    shown = set()
     with tempfile.TemporaryDirectory(prefix="smf-faults-") as tmp:
         for name in a.only.split(","):
             t = time.perf_counter()
@@ -461,7 +462,9 @@ def main() -> None:
             rows = HOLES[name](Path(tmp) / name, runtimes)
             for r in rows:
                 r["bench_s"] = round(time.perf_counter() - t, 1)
-                print(f"| {r['hole']} | {r['runtime']} | {r['case']} | {BEFORE[r['hole']]} | {r['after']} | "
+                before = "" if r["hole"] in shown else BEFORE[r["hole"]]  # once a hole
+                shown.add(r["hole"])
+                print(f"| {r['hole']} | {r['runtime']} | {r['case']} | {before} | {r['after']} | "
                       f"{'yes' if r['ok'] else '**no**'} |", flush=True)
             report += rows
     if a.json:

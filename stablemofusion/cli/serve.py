@@ -49,6 +49,11 @@ def run(args: argparse.Namespace) -> None:
     import logging
     from dataclasses import replace
 
+    from ..limits import PORTABLE_ENGINE
+    from .options import check_adapter_flags
+
+    if args.engine != PORTABLE_ENGINE:
+        check_adapter_flags(args)  # a crafted adapter file: one line, before anything heavy is imported
     import uvicorn
 
     from ..errors import SMFError
@@ -97,9 +102,6 @@ def worker_spec(args):
         model = ServedModel.of(PortablePipeline.from_pretrained(args.checkpoint, teacher=args.teacher))
         folder = None if args.checkpoint is None else str(args.checkpoint)
         return WorkerSpec(folder, None, args.threads, args.engine, teacher=args.teacher), model, ()
-    from .options import check_adapter_flags
-
-    check_adapter_flags(args)  # before PyTorch is imported
     from ..diffusion.checkpoint import read_config
     from ..pipelines.components import model_folder
 

@@ -16,7 +16,9 @@ KEEP_ALIVE_S = 5  # an idle keep-alive connection is closed after this
 MAX_CONNECTIONS = 256  # concurrent connections; a request beyond gets a JSON 503 (serve/server.py)
 EVICT_RESERVE = 16  # from MAX_CONNECTIONS - this on, a new connection refuses the oldest still without a request ...
 REFUSED_LINGER_S = 2.0  # ... with a 503 sent at once, and closes it this much later (a reset would lose the 503) ...
-MAX_LINGERING = 256  # ... while fewer than this many refused connections linger (a flood: closed at once)
+MAX_LINGERING = 512  # ... while fewer than this many refused connections linger (a flood: closed at once); 500 clients
+# connecting at once make about 260 (at 256, a few were closed at once and read a reset); with MAX_CONNECTIONS under
+# the usual limit of 1,024 open files
 MAX_HEADER_BYTES = 16 * 1024  # request line and headers (h11)
 GRACEFUL_SHUTDOWN_S = 5  # after SIGTERM, requests in flight get this long before the worker is stopped
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")  # Host header names accepted by default (DNS rebinding)

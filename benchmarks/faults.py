@@ -2,7 +2,7 @@
 
 One row per attack, each a fresh process or server on 127.0.0.1 only; every loop bounded in count and time:
 
-1. adapters: 23 crafted files (tests/adapters/crafted.py: bombs, wrong ranks and shapes, NaN, huge scale, broken
+1. adapters: 27 crafted files (tests/adapters/crafted.py: bombs, wrong ranks and shapes, NaN, huge scale, broken
    metadata and containers) at `smf generate --adapter` and `smf serve --adapter` (PyTorch), at
    `smf export --onnx --adapter` (the portable runtime's way to adapters) and `smf generate --engine onnx
    --adapter`: exit status, lines on stderr, seconds, peak memory, and the peak above the same command refused

@@ -86,7 +86,7 @@ def main() -> None:
     from stablemofusion.eval.classifier import dataset_labels, load_classifier
     from stablemofusion.eval.prompts import load_prompts, prompt_accuracy
     from stablemofusion.footskate.metrics import mean_metrics
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", type=Path, default=None, help="the model the adapter was made for (default: shipped)")

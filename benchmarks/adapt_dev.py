@@ -47,7 +47,7 @@ def main() -> None:
     import torch
 
     from adapt_check import hops_on_one_leg, root_speed
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     warnings.simplefilter("ignore")
     torch.set_num_threads(args.threads)

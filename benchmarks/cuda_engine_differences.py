@@ -10,7 +10,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from conftest import _save_tiny_checkpoint
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 path = _save_tiny_checkpoint(Path(tempfile.mkdtemp()) / "c", np.zeros(263), np.full(263, 0.1))
 p = MotionPipeline.from_pretrained(path, device="cuda", dtype=torch.float32)
 prompts, lengths = ["a person walks forward", "a person waves", "a person bows"], [40, 57, 196]

@@ -2,7 +2,7 @@
 with the fit and the cleanup on the GPU, for the torch backend's raw motions.
 
 For each batch size: the shipped student's raw features of B motions of the longest length (text cached), then
-``Components.finish_many`` of them with the math on the host (numpy) and on the device, footskate post and off:
+``TorchBackend.finish_many`` of them with the math on the host (numpy) and on the device, footskate post and off:
 milliseconds per motion (median of ``--repeats`` after one warm-up), the largest difference of the features and
 joints between the two, whether the held feet are the same; and the denoising call's own milliseconds per motion
 beside them (noise, network, copy back), so that the two add up to what a motion costs before its files.
@@ -23,7 +23,7 @@ import time
 import numpy as np
 import torch
 
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.pipelines.final import finish_many
 from stablemofusion.text.cache import TextEmbeddingCache
 

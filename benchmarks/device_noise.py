@@ -34,7 +34,7 @@ import torch
 
 from stablemofusion.diffusion import sampling
 from stablemofusion.noise import draws
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.pipelines.settings import Settings
 from stablemofusion.text.cache import TextEmbeddingCache
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from stablemofusion.data.layout import MotionLayout
 from stablemofusion.motion.features import joints_from_features
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 MODES = ("prefix", "suffix", "inbetween", "upper-body", "trajectory")
 PROMPTS = ["a person jumps up and down", "someone walks in a circle", "a man crouches and stands up again",

@@ -27,7 +27,7 @@ def main() -> None:
     from stablemofusion.edit_plan import source_features
     from stablemofusion.motion.features import joints_from_features
     from stablemofusion.motion.files import load_motion
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
     from stablemofusion.render import render_strip
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -110,7 +110,7 @@ def summary(rows: list[dict], want_words: list[str] | None = None) -> dict:
 def adapters(work: Path, runtimes) -> list[dict]:
     from crafted import broken_containers, crafted_adapters
 
-    from stablemofusion.pipelines.components import model_folder
+    from stablemofusion.core.folders import model_folder
 
     files = {**crafted_adapters(work / "adapters", model_folder(None)), **broken_containers(work / "adapters")}
     missing = str(work / "absent.safetensors")

@@ -67,9 +67,9 @@ def captions(data: Path, split: str, n: int) -> tuple[list[str], list[str], list
 
 
 def quality(args) -> None:
-    from stablemofusion.runtime.pipeline import PortablePipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
-    pipe = PortablePipeline.from_pretrained(threads=1)
+    pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
     seeds = [int(s) for s in args.seeds.split(",")]
     ids, caps, secs = captions(args.data, args.set, args.n)
     sets = {f"{args.set}_captions": [(c, s, None) for c, s in zip(caps, secs)]}
@@ -117,7 +117,7 @@ def binned(lean: np.ndarray, pred: np.ndarray) -> list[dict]:
 
 def lean(args) -> None:
     from stablemofusion.eval.classifier import corpus_labels
-    from stablemofusion.runtime.pipeline import PortablePipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     labels = corpus_labels(args.data)
     real = [np.load(args.data / "new_joints" / f"{k}.npy") for k, v in labels.items()
@@ -130,7 +130,7 @@ def lean(args) -> None:
                     "corr": round(float(np.corrcoef(L, P)[0, 1]), 3),
                     "residual_deg_rms_where_turning": round(float(np.sqrt((resid ** 2).mean())), 2),
                     "bins": binned(L, P)}}
-    pipe = PortablePipeline.from_pretrained(threads=1)
+    pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
     items = [json.loads(x) for x in (HERE / "paths" / "heldout.jsonl").read_text().splitlines() if x.strip()]
     curves = [it["prompt"] for it in items if it["kind"] in ("circle", "curve", "half")]
     for mode in ("off", "post"):
@@ -150,9 +150,9 @@ def lean(args) -> None:
 
 
 def speed(args) -> None:
-    from stablemofusion.runtime.pipeline import PortablePipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
-    pipe = PortablePipeline.from_pretrained(threads=1)
+    pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
     prompts = [json.loads(x)["prompt"] for x in (HERE / "prompts_plain.jsonl").read_text().splitlines() if x.strip()][:32]
     pipe(prompts, seconds=4, seed=0)  # warm: text cache, sessions
     out = {}

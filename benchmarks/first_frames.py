@@ -22,7 +22,7 @@ import torch
 
 from stablemofusion.diffusion.schedulers import make_sampler
 from stablemofusion.motion.features import bone_lengths, features_from_joints, joints_from_features
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 
 def worst_bone(joints: np.ndarray, reference: np.ndarray) -> np.ndarray:

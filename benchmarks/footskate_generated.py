@@ -26,7 +26,7 @@ from stablemofusion.footskate import FootskateOptions
 from stablemofusion.footskate.cleanup import align_yaw_xz, cleanup_features
 from stablemofusion.footskate.metrics import joint_change, mean_metrics, pose_change
 from stablemofusion.motion.features import joints_from_features
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 
 def _captions(data: Path, ids: list[str]) -> list[str]:

@@ -25,7 +25,7 @@ from stablemofusion.footskate.contacts import KinematicContactConfig
 from stablemofusion.footskate.metrics import joint_change, mean_metrics, pop_frames, pose_change
 from stablemofusion.motion.features import joints_from_features
 from stablemofusion.motion.rigid import rigid_from_features, rigid_to_features
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 from footskate_generated import pick_test_items  # noqa: E402  (run from the repo root: benchmarks/ is on sys.path)
 

@@ -8,7 +8,7 @@ unconditional passes separately) -> + 10-step SDE DPM-Solver++ Karras -> + text 
 
 The baseline's 1,000 steps are past what a request may ask (steps 1-50, stablemofusion/limits.py): this research
 benchmark resolves each row's settings with the model's own checks and then sets its step count, calling the
-sampler below the request checks (stablemofusion.pipelines.denoise.sample), as the paper's baseline ran.
+sampler below the request checks (stablemofusion.backends.torch_sampling.sample), as the paper's baseline ran.
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from dataclasses import replace
 
 import torch
 
-from stablemofusion.pipeline import MotionPipeline
-from stablemofusion.pipelines.denoise import sample as sample_raw
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
+from stablemofusion.backends.torch_sampling import sample as sample_raw
 from stablemofusion.pipelines.settings import GUIDANCE, Settings
 
 

@@ -45,11 +45,11 @@ def main() -> None:
     from stablemofusion.footskate.metrics import mean_metrics
     from stablemofusion.motion.rigid import bone_length_deviation
     from stablemofusion.path_plan import parse_path
-    from stablemofusion.runtime.pipeline import PortablePipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     warnings.simplefilter("ignore")
     items = [json.loads(line) for line in args.prompts.read_text().splitlines() if line.strip()]
-    pipe = PortablePipeline.from_pretrained(threads=1)
+    pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
     rows, joints, plain = [], [], []
     for k, it in enumerate(items):
         spec = parse_path(it["prompt"])
@@ -84,7 +84,7 @@ def main() -> None:
     pairs = [(r["prompt"], r["read"][2]) for r in rows if r["read"] is not None][:8]
     runtimes = {"onnx": (pipe, {})}
     if args.torch:
-        from stablemofusion.pipeline import MotionPipeline
+        from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
         runtimes["torch-fast"] = (MotionPipeline.from_pretrained(), {"engine": "fast"})
     out["time_ms"] = {}

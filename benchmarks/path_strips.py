@@ -14,7 +14,7 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from stablemofusion.motion.skeleton import HUMANML3D
-from stablemofusion.runtime.pipeline import PortablePipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 CASES = [("a tired man walks in a circle then waves", None), ("a person turns around", None),
          ("a person walks in a zigzag", None), ("a person runs", [[0, 0], [0, 3], [3, 3], [3, 0]])]
@@ -55,7 +55,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     warnings.simplefilter("ignore")
-    pipe = PortablePipeline.from_pretrained(threads=1)
+    pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
     panels = []
     for prompt, path in CASES:
         r = pipe(prompt, seed=args.seed, path=path)[0]

@@ -13,7 +13,7 @@ FRAMES = [0, 16, 32, 48, 64, 79]
 
 
 def main() -> None:
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
     from stablemofusion.render import render_strip
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -1,7 +1,7 @@
 """Time and accuracy of the rigid final stage (fit + features written back) per 4 s motion, batch 1 and 32.
 
 The shipped model's raw features for 32 prompts (80 frames, seeds 0..31, default sampler) go through
-``Components.finish_many`` with each fit method; printed per method: ms per motion at batch 1 (mean over
+``TorchBackend.finish_many`` with each fit method; printed per method: ms per motion at batch 1 (mean over
 the 32 motions, one call each) and at batch 32 (one call), the worst bone deviation from the dataset
 skeleton (m), the mean joint change from the model's joints (m), the largest npy (float32) vs BVH
 difference (m), and the largest difference between a motion fitted alone and in the batch of 32 (m).
@@ -22,7 +22,7 @@ from stablemofusion.motion.features import bone_lengths, joints_from_features
 from stablemofusion.motion.files import bvh_round_trip_error
 from stablemofusion.motion.rigid import RigidFitConfig
 from stablemofusion.motion.skeleton import HUMANML3D
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 PROMPTS = ["a person walks forward", "someone waves both hands", "a person runs in a circle", "a person jumps",
            "an old woman bows", "a child kicks", "a person raises the right hand", "a man sits down"]

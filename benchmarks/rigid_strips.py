@@ -18,7 +18,7 @@ import torch
 from stablemofusion.footskate.cleanup import cleanup_features
 from stablemofusion.motion.features import joints_from_features
 from stablemofusion.motion.rigid import bone_length_deviation, rigid_from_features, rigid_to_features
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.render import render_strip
 
 FIXTURE = Path(__file__).resolve().parents[1] / "tests" / "footskate" / "data" / "dragged_foot_features.npy"

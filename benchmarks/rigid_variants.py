@@ -18,7 +18,7 @@ from stablemofusion.eval.evaluator import load_evaluator
 from stablemofusion.eval.protocol import EmbeddingModel, EvalConfig, evaluate
 from stablemofusion.footskate.metrics import mean_metrics
 from stablemofusion.motion.rigid import RigidFitConfig
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 VARIANTS: dict[str, RigidFitConfig | None] = {
     "model's raw motion (no rigid stage)": None,

@@ -28,13 +28,13 @@ def main() -> None:
     from stablemofusion.eval.classifier import corpus_labels, load_classifier
     from stablemofusion.eval.prompts import load_prompts, prompt_accuracy
     from stablemofusion.footskate.metrics import mean_metrics
-    from stablemofusion.pipeline import MotionPipeline
-    from stablemofusion.runtime.pipeline import PortablePipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     warnings.simplefilter("ignore")
     torch.set_num_threads(1)
     items, labels, classifier = load_prompts(args.prompts), corpus_labels(args.data), load_classifier(args.classifier)
-    pipes = {"onnx": PortablePipeline.from_pretrained(threads=1), "torch-eager": MotionPipeline.from_pretrained()}
+    pipes = {"onnx": MotionPipeline.from_pretrained(backend="onnx", threads=1), "torch-eager": MotionPipeline.from_pretrained()}
     kw = {"onnx": {}, "torch-eager": {"engine": "eager"}}
     inside = [it.prompt for it in items if not it.ood]
     out, joints = {}, {}

@@ -39,8 +39,8 @@ def main() -> None:
     args = ap.parse_args()
     import torch
 
-    from stablemofusion.pipeline import MotionPipeline
-    from stablemofusion.runtime.pipeline import PortablePipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     warnings.simplefilter("ignore")
     torch.set_num_threads(args.threads)
@@ -50,11 +50,11 @@ def main() -> None:
         import tempfile
 
         from stablemofusion.onnx_export import export_onnx
-        from stablemofusion.runtime.pipeline import default_graphs_path
+        from stablemofusion.backends.onnx_backend import default_graphs_path
 
         graphs = export_onnx(None, Path(tempfile.mkdtemp()) / "graphs", adapters=[args.adapter],
                              text_encoder_from=default_graphs_path())
-    portable = PortablePipeline.from_pretrained(graphs, threads=args.threads)
+    portable = MotionPipeline.from_pretrained(graphs, backend="onnx", threads=args.threads)
     torch_pipe = MotionPipeline.from_pretrained(adapter=args.adapter)
     runtimes = {"onnx": portable, "torch-fast": torch_pipe, "torch-eager": torch_pipe}
     engines = {"onnx": None, "torch-fast": "fast", "torch-eager": "eager"}

@@ -60,7 +60,7 @@ def pipeline_reference(args, bodies: list[dict], batch: int = 32, repeats: int =
     """Motions/s of the pipeline itself on batches of ``batch`` of the same requests (best of ``repeats``)."""
     import torch
 
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     torch.set_num_threads(args.threads)
     pipe = MotionPipeline.from_pretrained(args.checkpoint, device="cpu")

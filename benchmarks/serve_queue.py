@@ -19,7 +19,7 @@ import httpx
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "serve"))
 from serve_helpers import live_server  # noqa: E402
 
-from stablemofusion.runtime.pipeline import PortablePipeline  # noqa: E402
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline  # noqa: E402
 from stablemofusion.serve.app import create_app  # noqa: E402
 
 
@@ -49,7 +49,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--heavy", type=int, default=64)
     args = ap.parse_args()
-    pipe = PortablePipeline.from_pretrained(threads=1)
+    pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
     with live_server(create_app(pipe, max_streams=0)) as base:
         print(json.dumps(asyncio.run(run(base, args.heavy)), indent=1))
 

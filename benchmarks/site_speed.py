@@ -53,10 +53,10 @@ def main() -> None:
     from playwright.sync_api import sync_playwright
 
     from stablemofusion.path_plan import parse_path
-    from stablemofusion.runtime.pipeline import PortablePipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
     from stablemofusion.site import folder_size, write_site
 
-    pipe = PortablePipeline.from_pretrained(threads=1)
+    pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
     prompts = [json.loads(line)["prompt"] for line in (HERE / "prompts_freeform.jsonl").read_text().splitlines()]
     prompts = prompts[:2 * args.motions + 1]  # every motion timed has a prompt of its own
     with tempfile.TemporaryDirectory() as tmp:

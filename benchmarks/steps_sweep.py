@@ -23,7 +23,7 @@ import torch
 
 from stablemofusion.cli.main import main
 from stablemofusion.errors import SMFError
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.serve import create_app
 
 PROMPTS = ["a person runs forward", "a person waves both hands", "an old man walks in a circle"]

@@ -86,7 +86,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     from stablemofusion.eval.classifier import corpus_labels, load_classifier
     from stablemofusion.eval.prompts import check_known, load_prompts
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     classifier = load_classifier(args.classifier)
     labels = corpus_labels(args.data)

@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from stablemofusion.eval.classifier import load_classifier
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 SEGMENTS = [("a person walks forward", 8.0), ("a person waves both hands", 6.0), ("a person bows", 6.0)]
 WANTED = ["walk", "wave-both-hands", "bow"]

@@ -102,7 +102,7 @@ class PlanTensors:
 
 
 def edit_hooks(plan: EditPlan, mean, std, batch: int, device, dtype, impose: str = "x0"):
-    """The sampling hooks imposing ``plan`` on a batch (:mod:`stablemofusion.pipelines.denoise`), built once on
+    """The sampling hooks imposing ``plan`` on a batch (:mod:`stablemofusion.backends.torch_sampling`), built once on
     the torch side: (x0 hook or None, x_t hook factory or None). ``mean``/``std`` (D,) float32 the model's
     normalisation; ``impose`` 'x0' (replace the prediction's known entries and project its root) or 'xt'
     (impute the noisy sample; the root constraints still on x0)."""

@@ -37,7 +37,7 @@ from .motion.rigid_batch import fit_joints, pose_joints
 from .motion.rotation import matrix_to_euler
 from .path_plan import bend_features, follow_features
 
-from .runtime.graphs import FORMAT, MANIFEST, TABLE_FIELDS, VERSION
+from .backends.onnx_graphs import FORMAT, MANIFEST, TABLE_FIELDS, VERSION
 
 OPSET = 18
 
@@ -200,7 +200,7 @@ def _tables(sampler: str, steps_range: range, schedule, arrays: dict[str, np.nda
 
 def export_model_graphs(components, out: Path) -> dict:
     """The condition and denoise graphs, the sampler tables and the settings of one loaded model
-    (:class:`~stablemofusion.pipelines.components.Components`) into ``out``; returns its manifest entry."""
+    (:class:`~stablemofusion.backends.torch_backend.TorchBackend`) into ``out``; returns its manifest entry."""
     from .limits import LENGTH_MULTIPLE
     from .diffusion.schedulers import parse_sampler, sampler_names
 
@@ -272,10 +272,11 @@ def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder_
     copied instead of exported again (the same MiniLM). ``adapters`` (``smf adapt`` files): merged into the
     weights first, their actions known: the graphs of the adapted model, as fast as the base's."""
     from .io import atomic_dir
-    from .pipelines.components import Components, model_folder
+    from .backends.torch_backend import TorchBackend
+    from .core.folders import model_folder
 
     path = model_folder(model_path)
-    student = Components.from_pretrained(path, device="cpu", dtype=torch.float32, adapter=adapters or None)
+    student = TorchBackend.from_pretrained(path, device="cpu", dtype=torch.float32, adapter=adapters or None)
     if student.config.text_encoder != "minilm":
         raise SMFError(f"only models on the MiniLM text encoder export to ONNX, this one uses "
                        f"{student.config.text_encoder}")
@@ -295,7 +296,7 @@ def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder_
             manifest["text_encoder"] = entry
         manifest["model"] = export_model_graphs(student, tmp)
         if student.student:
-            teacher = Components.from_pretrained(path, teacher=True, device="cpu", dtype=torch.float32,
+            teacher = TorchBackend.from_pretrained(path, teacher=True, device="cpu", dtype=torch.float32,
                                                  adapter=adapters or None)
             manifest["teacher"] = export_model_graphs(teacher, tmp / "teacher")
             manifest["teacher"]["folder"] = "teacher"

@@ -38,7 +38,7 @@ MODEL_LICENCE = ("The model's weights were trained on Bandai-Namco motion captur
 
 
 def web_description(graphs) -> dict:
-    """``web.json``: what the JavaScript runtime needs of a model's graphs (:class:`~stablemofusion.runtime.graphs.
+    """``web.json``: what the JavaScript runtime needs of a model's graphs (:class:`~stablemofusion.backends.onnx_graphs.
     PortableGraphs`): file names, frame rate and lengths, the default sampler's table, the normalisation, the
     skeleton's names, tree and bone lengths, the path words and the limits of a path, the known actions."""
     m, manifest = graphs.model, graphs.manifest

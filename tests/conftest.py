@@ -113,7 +113,7 @@ def pipe(checkpoint):
     """A pipeline of ``checkpoint`` on one thread, one per module (tests may change it)."""
     import torch
 
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     torch.set_num_threads(1)
     return MotionPipeline.from_pretrained(checkpoint, device="cpu")

@@ -16,7 +16,7 @@ from stablemofusion.models.base import build_denoiser
 from stablemofusion.motion.skeleton import HUMANML3D
 from stablemofusion.motion.features import joints_from_features
 from stablemofusion.motion.files import load_motion
-from stablemofusion.pipeline import MotionPipeline, default_model_path
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline, default_model_path
 from stablemofusion.limits import SAMPLER, STEPS, STUDENT_SAMPLER
 from stablemofusion.text import EMBEDDINGS_FILE, TEXT_SIDE_FILES
 

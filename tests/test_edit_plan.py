@@ -12,7 +12,7 @@ from stablemofusion.motion.features import features_from_joints, joints_from_fea
 from stablemofusion.motion.files import load_motion
 from stablemofusion.motion.root import follow_path, headings, land_at, place_like, root_xz
 from stablemofusion.motion.skeleton import HUMANML3D
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 
 @pytest.fixture(scope="module")

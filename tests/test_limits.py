@@ -9,7 +9,7 @@ import pytest
 from stablemofusion import limits
 from stablemofusion.cli.main import main
 from stablemofusion.errors import SMFError
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.serve import create_app
 
 from serve.serve_helpers import call

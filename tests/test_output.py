@@ -77,9 +77,9 @@ def test_a_new_format_is_one_function(result, tmp_path):
 
 
 def test_the_feet_the_cleanup_held_travel_with_the_json_answer():
-    from stablemofusion.runtime.pipeline import PortablePipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
-    pipe = PortablePipeline.from_pretrained(threads=1)
+    pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
     post = pipe("a person walks forward", seconds=3, seed=1)[0]
     held = json_payload(post)["contacts"]
     assert len(held) == 4 and all(len(c) == post.frames for c in held) and 0 < sum(map(sum, held)) < 4 * post.frames

@@ -82,7 +82,7 @@ def test_the_teacher_is_its_own_distribution_of_the_same_version(wheels):
 @pytest.fixture(scope="module")
 def without_teacher(tmp_path_factory):
     """The shipped model as the package's wheel installs it, without the teacher's distribution."""
-    from stablemofusion.pipeline import default_model_path
+    from stablemofusion.pipelines.motion_pipeline import default_model_path
 
     folder = tmp_path_factory.mktemp("installed") / "default_model"
     shutil.copytree(default_model_path(), folder, ignore=shutil.ignore_patterns("teacher"))
@@ -92,12 +92,12 @@ def without_teacher(tmp_path_factory):
 def test_without_the_teacher_the_student_runs_and_teacher_says_how_to_install_it(without_teacher, capsys):
     from stablemofusion.cli.main import main
     from stablemofusion.errors import SMFError
-    from stablemofusion.runtime.pipeline import PortablePipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
-    motion = PortablePipeline.from_pretrained(without_teacher, threads=1)("a person walks", seconds=2, seed=0)[0]
+    motion = MotionPipeline.from_pretrained(without_teacher, backend="onnx", threads=1)("a person walks", seconds=2, seed=0)[0]
     assert motion.joints.shape == (40, 22, 3)
     with pytest.raises(SMFError, match=r"the teacher is not installed: pip install 'stablemofusion\[teacher\]'"):
-        PortablePipeline.from_pretrained(without_teacher, teacher=True)
+        MotionPipeline.from_pretrained(without_teacher, backend="onnx", teacher=True)
     for engine in ("onnx", "eager"):  # the portable runtime's graphs, the torch backend's folder
         code = main(["generate", "a person walks", "--seconds", "2", "--teacher", "--engine", engine,
                      "--checkpoint", str(without_teacher), "--out", str(without_teacher.parent / "out")])

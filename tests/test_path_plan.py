@@ -12,7 +12,7 @@ import pytest
 from stablemofusion.footskate.metrics import mean_metrics
 from stablemofusion.motion.features import joints_from_features
 from stablemofusion.path_plan import KINDS, bend, facing, heading_offset, parse_path
-from stablemofusion.runtime.pipeline import PortablePipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 
 def hips_turn(joints: np.ndarray) -> float:
@@ -25,7 +25,7 @@ def hips_turn(joints: np.ndarray) -> float:
 
 @pytest.fixture(scope="module")
 def pipe():
-    return PortablePipeline.from_pretrained(threads=1)
+    return MotionPipeline.from_pretrained(backend="onnx", threads=1)
 
 
 @pytest.mark.parametrize("prompt, kind, angle, model", [
@@ -103,7 +103,7 @@ def test_a_timeline_bends_its_own_segment(pipe):
 
 
 def test_the_torch_path_bends_the_same(pipe):
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     torch_pipe = MotionPipeline.from_pretrained(device="cpu")
     for prompt in ("a man walks in a circle", "someone jogs there and back"):
@@ -136,7 +136,7 @@ def test_an_explicit_path_with_times_is_on_time(pipe):
 
 
 def test_a_long_explicit_path_is_a_timeline_and_both_runtimes_agree(pipe):
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     loop = [[0.0, 0.0], [0.0, 6.0], [6.0, 6.0], [6.0, 0.0], [0.0, 0.0]]  # 24 m: 20 s of walking
     a = pipe("a person walks", path=loop, seed=3)[0]

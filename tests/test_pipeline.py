@@ -9,7 +9,7 @@ import torch
 from stablemofusion.cli.main import main
 from stablemofusion.diffusion.schedulers import make_sampler, sampler_names
 from stablemofusion.errors import SMFError
-from stablemofusion.pipeline import LengthClampedWarning, MotionPipeline, Settings
+from stablemofusion.pipelines.motion_pipeline import LengthClampedWarning, MotionPipeline, Settings
 
 
 @pytest.fixture(scope="module")
@@ -195,7 +195,7 @@ def test_an_engine_asked_for_by_name_that_cannot_run_hooks_is_replaced_visibly(p
     silently); 'auto' picks 'fast' without a word."""
     import warnings
 
-    from stablemofusion.pipeline import EngineWarning
+    from stablemofusion.pipelines.motion_pipeline import EngineWarning
 
     with pytest.warns(EngineWarning, match="'compiled' cannot run"):
         pipe(["a person walks"], frames=40, steps=2, seed=0, footskate="loop", engine="compiled")
@@ -214,9 +214,9 @@ def test_the_final_stage_runs_its_functions_where_the_model_runs(device, footska
     from stablemofusion.motion.rigid import DEFAULT_FIT
     from stablemofusion.motion.skeleton import get_skeleton
     from stablemofusion.pipelines.final import finish_many
-    from stablemofusion.runtime.pipeline import PortablePipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
-    raw = PortablePipeline.from_pretrained(threads=1)(["a person walks forward", "someone waves both hands",
+    raw = MotionPipeline.from_pretrained(backend="onnx", threads=1)(["a person walks forward", "someone waves both hands",
                                                        "a man runs in a circle"], seconds=[2, 3, 2], seed=4,
                                                       footskate="off")
     features, sk = [r.features for r in raw], get_skeleton("humanml3d")

@@ -23,7 +23,7 @@ from motion.gltf_tools import VALIDATE_JS, gltf_validator_dir, play_node_tree
 from stablemofusion.cli.main import main
 from stablemofusion.motion.bvh import forward_kinematics, read_bvh
 from stablemofusion.motion.skeleton import HUMANML3D
-from stablemofusion.runtime.pipeline import PortablePipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.site import WEBGPU_FILES
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -73,7 +73,7 @@ def test_the_page_generates_the_runtimes_motion_offline(served, tmp_path):
                 for p in ("'\\u{1F600}'.repeat(300)", "'\\u{1F600}'.repeat(301)", "'a \\uD800 walks'")]
         assert text[0] == "" and "at most 300 characters" in text[1] and "lone surrogate" in text[2], text
         browser.close()
-    pipe = PortablePipeline.from_pretrained(threads=1)
+    pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
     want = pipe(PROMPT, seconds=4, seed=SEED, footskate="off")[0].joints
     got = np.asarray(joints)
     assert got.shape == want.shape and np.abs(got - want).max() < 5e-3
@@ -155,7 +155,7 @@ def test_the_page_runs_the_graphs_on_webgpu_where_its_build_was_added(tmp_path):
     finally:
         server.terminate()
         server.wait(10)
-    want = PortablePipeline.from_pretrained(threads=1)(PROMPT, seconds=2, seed=SEED, footskate="off")[0].joints
+    want = MotionPipeline.from_pretrained(backend="onnx", threads=1)(PROMPT, seconds=2, seed=SEED, footskate="off")[0].joints
     assert backend == "webgpu" and np.abs(np.asarray(joints) - want).max() < 5e-3
     assert "no WebGPU adapter" in refused
 

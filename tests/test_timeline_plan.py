@@ -5,7 +5,7 @@ import pytest
 
 from stablemofusion.cli.main import main
 from stablemofusion.errors import SMFError
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.timeline_plan import TAIL, check_timeline, parse_timeline, plan_windows
 
 

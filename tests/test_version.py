@@ -14,8 +14,8 @@ import pytest
 
 from stablemofusion import __version__
 from stablemofusion.cli.main import main
-from stablemofusion.pipeline import default_model_path
-from stablemofusion.runtime.pipeline import PortablePipeline
+from stablemofusion.pipelines.motion_pipeline import default_model_path
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.serve import create_app
 from serve.serve_helpers import call
 
@@ -51,7 +51,7 @@ def test_files_say_what_made_them(tmp_path, engine):
 
 
 def test_answers_say_what_made_them():
-    app = create_app(PortablePipeline.from_pretrained(threads=1))
+    app = create_app(MotionPipeline.from_pretrained(backend="onnx", threads=1))
     request = {"prompt": "a person walks forward", "seconds": 2, "seed": 0}
     js, glb, health = call(app, ("POST", "/v1/generate", request), ("POST", "/v1/generate?format=glb", request),
                            ("GET", "/v1/health", None))

@@ -193,7 +193,7 @@ def model_weight_shapes(folder: str | Path) -> dict[str, tuple[int, ...]] | None
     teacher inside it); None where neither is there (the PyTorch checks run when it loads)."""
     from safetensors import SafetensorError, safe_open
 
-    from ..runtime.graphs import MANIFEST
+    from ..backends.onnx_graphs import MANIFEST
     from ..text.names import GRAPHS_DIR
 
     folder = _run_folder(Path(folder))

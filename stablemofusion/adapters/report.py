@@ -29,7 +29,7 @@ def write_report(adapter: Adapter, base: str | Path | None, out: str | Path, see
     """Write ``out/report.md`` and its strips for ``adapter`` on model ``base``."""
     import warnings
 
-    from ..pipeline import MotionPipeline
+    from ..pipelines.motion_pipeline import MotionPipeline
     from ..render import render_strip
 
     out = Path(out)

@@ -264,8 +264,8 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
     from ..diffusion.solvers import solver_table
     from ..diffusion.train import masked_mse
     from ..limits import STUDENT_SAMPLER
-    from ..pipelines.components import model_folder
-    from ..pipeline import MotionPipeline
+    from ..core.folders import model_folder
+    from ..pipelines.motion_pipeline import MotionPipeline
 
     # 1. check inputs, load the base (student and teacher), fingerprint the run
     cfg.check()

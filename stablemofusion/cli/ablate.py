@@ -64,7 +64,7 @@ def run_samplers(args: argparse.Namespace) -> None:
     from ..diffusion.schedulers import make_sampler
     from ..errors import SMFError
     from ..eval.ablation import ablate_samplers, sampler_markdown
-    from ..pipeline import MotionPipeline
+    from ..pipelines.motion_pipeline import MotionPipeline
     from ..pipelines.settings import Settings
     from .evaluate import eval_config, load_embedder, rigid_config
 

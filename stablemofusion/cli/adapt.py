@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> None:
     t0 = time.perf_counter()
     from ..adapters.clips import read_clips
     from ..adapters.train import adapt
-    from ..pipelines.components import model_folder
+    from ..core.folders import model_folder
     from ..diffusion.checkpoint import read_config
 
     base = model_folder(args.base)

@@ -2,7 +2,7 @@
 
 AITS is the time of the denoising loop (text already cached, after a warm-up); beside it the end-to-end time
 per motion (a full pipeline call: denoising, the rigid final stage and cleanup, results built; text cached)
-and the final stage alone (``Components.finish_many`` of the batch's raw features), per motion."""
+and the final stage alone (``TorchBackend.finish_many`` of the batch's raw features), per motion."""
 
 from __future__ import annotations
 
@@ -43,7 +43,7 @@ def add_parser(sub, name: str) -> None:
 def _pipeline(args):
     import torch
 
-    from ..pipeline import MotionPipeline
+    from ..pipelines.motion_pipeline import MotionPipeline
 
     if args.preset is None:
         return MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device,

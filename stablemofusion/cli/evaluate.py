@@ -173,7 +173,7 @@ def write_results(result: dict, out: Path | None, title: str) -> str:
 def run(args: argparse.Namespace) -> None:
     from ..errors import SMFError
     from ..eval.protocol import evaluate
-    from ..pipeline import MotionPipeline
+    from ..pipelines.motion_pipeline import MotionPipeline
 
     if not args.data.is_dir():
         raise SMFError(f"no such corpus folder: {args.data}")

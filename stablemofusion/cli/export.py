@@ -157,9 +157,9 @@ def build_known_actions(lexicon: str, encoder: str, *, corpus: Path | None = Non
 def _text_encoder_graphs(checkpoint) -> Path | None:
     """A graphs folder whose MiniLM graph an adapted export copies (adapters leave MiniLM as it is): the model
     folder's own, else the shipped model's; None: export it again."""
-    from ..pipelines.components import model_folder
-    from ..runtime.graphs import MANIFEST
-    from ..runtime.pipeline import GRAPHS_DIR, default_graphs_path
+    from ..core.folders import model_folder
+    from ..backends.onnx_graphs import MANIFEST
+    from ..backends.onnx_backend import GRAPHS_DIR, default_graphs_path
 
     folder = model_folder(checkpoint) / GRAPHS_DIR
     return folder if (folder / MANIFEST).is_file() else default_graphs_path()

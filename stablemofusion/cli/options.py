@@ -46,10 +46,6 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
     add_contact_arguments(p)
 
 
-PORTABLE_ADAPTERS = ("--adapter needs PyTorch; the portable runtime runs adapters merged into graphs: "
-                     "`smf export --onnx --adapter FILE --out DIR`, then --checkpoint DIR")
-
-
 def add_adapter_flag(p: argparse.ArgumentParser) -> None:
     """--adapter FILE (repeatable): adapters made by `smf adapt`, merged into the model at load."""
     p.add_argument("--adapter", type=Path, action="append", default=None,
@@ -173,38 +169,36 @@ def check_adapter_flags(args, *, teacher_part: bool = False) -> None:
 
 
 def load_pipeline(args):
-    """The pipeline of ``--checkpoint``/``--teacher``, saying on stderr what it loads (imports and loading take a few
-    seconds on a first run); ``--engine onnx``: the portable graphs (:mod:`stablemofusion.runtime`)."""
-    from ..limits import PORTABLE_ENGINE
+    """The pipeline of ``--checkpoint``/``--teacher`` on the backend ``--engine`` means
+    (:func:`~stablemofusion.backends.backend_for`), saying on stderr what it loads (imports and loading take a few
+    seconds on a first run). Adapter files are checked before PyTorch is imported."""
+    import os
 
-    if args.engine != PORTABLE_ENGINE:
+    from ..backends import backend_for
+    from ..pipelines.motion_pipeline import MotionPipeline
+
+    torch_backend = backend_for(None, args.engine) == "torch"
+    if torch_backend:
         check_adapter_flags(args)  # before PyTorch is imported, and before the status line
     what = f"the model in {args.checkpoint}" if args.checkpoint is not None else "the shipped model"
     status = LoadingStatus(f"smf: loading {what}{' (its teacher)' if args.teacher else ''} and its text encoder ...")
-    if args.engine == PORTABLE_ENGINE:
-        import os
+    adapters = getattr(args, "adapter", None)
+    if torch_backend:
+        from ..adapters.file import checked_adapters
+        from ..core.folders import model_folder
 
-        from ..errors import SMFError
-        from ..runtime.pipeline import PortablePipeline
-
-        if getattr(args, "adapter", None):
-            raise SMFError(PORTABLE_ADAPTERS)
-        # one thread unless asked: ONNX Runtime's threads cost more than they give on small machines (docs/runtime.md)
+        set_threads(args)
+        threads, options = None, {"device": args.device}
+        if adapters:  # refused before the model loads
+            adapters = checked_adapters(adapters, model_folder(args.checkpoint, teacher=args.teacher))
+    else:  # one thread unless asked: ONNX Runtime's threads cost more than they give on small machines (docs/runtime.md)
         threads = args.threads or (int(os.environ["OMP_NUM_THREADS"]) if os.environ.get("OMP_NUM_THREADS", "").isdigit()
                                    else 1)
-        pipe = PortablePipeline.from_pretrained(args.checkpoint, teacher=args.teacher, threads=threads)
-        status.done()
-        return pipe
-    from ..adapters.file import checked_adapters
-    from ..pipeline import MotionPipeline
-    from ..pipelines.components import model_folder
-
-    set_threads(args)
-    adapters = checked_adapters(getattr(args, "adapter", None), model_folder(args.checkpoint, teacher=args.teacher)) \
-        if getattr(args, "adapter", None) else None  # refused before the model loads
-    pipe = MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device, engine=args.engine,
-                                          adapter=adapters)
-    pipe.text_cache.encoder.load()  # now, under the status line, not inside the first generation
+        options = {}
+    pipe = MotionPipeline.from_pretrained(args.checkpoint, engine=args.engine, teacher=args.teacher, threads=threads,
+                                          adapter=adapters, **options)
+    if torch_backend:
+        pipe.text_cache.encoder.load()  # now, under the status line, not inside the first generation
     status.done()
     return pipe
 
@@ -229,24 +223,15 @@ class LoadingStatus:
 
 
 def output_meta(args, pipe, *, edit: bool = False) -> dict:
-    """What the JSON output records of how a motion was made (the guidance, steps and sampler ``pipe`` used;
-    ``edit``: for an edit)."""
-    from ..limits import PORTABLE_ENGINE
+    """What the JSON output records of how a motion was made (the guidance, steps and sampler ``pipe`` resolves the
+    flags to, on either backend; ``edit``: for an edit)."""
     from ..output import made_by
-
-    if args.engine == PORTABLE_ENGINE:
-        from ..limits import STUDENT_EDIT_STEPS
-
-        m = pipe.model
-        own = max(m.steps, STUDENT_EDIT_STEPS) if edit and m.student else m.steps
-        return {**made_by(pipe.graphs.manifest.get("model_version")), "sampler": args.sampler or m.sampler,
-                "steps": args.steps or own, "guidance": m.guidance if args.guidance is None else args.guidance,
-                "student": m.student, "adapters": []}
     from ..pipelines.settings import Settings
 
     s = pipe.settings(Settings(guidance_scale=args.guidance, steps=args.steps, sampler=args.sampler), edit=edit)
-    return {**made_by(pipe.config.export.version if pipe.config.export is not None else None), "sampler": s.sampler,
-            "steps": s.steps, "guidance": s.guidance_scale, "student": pipe.student, "adapters": list(pipe.adapters)}
+    b = pipe.backend
+    return {**made_by(b.version), "sampler": s.sampler, "steps": s.steps, "guidance": s.guidance_scale,
+            "student": b.student, "adapters": list(b.adapters)}
 
 
 @contextlib.contextmanager

@@ -49,10 +49,10 @@ def run(args: argparse.Namespace) -> None:
     import logging
     from dataclasses import replace
 
-    from ..limits import PORTABLE_ENGINE
+    from ..backends import backend_for
     from .options import check_adapter_flags
 
-    if args.engine != PORTABLE_ENGINE:
+    if backend_for(None, args.engine) == "torch":
         check_adapter_flags(args)  # a crafted adapter file: one line, before anything heavy is imported
     import uvicorn
 
@@ -88,22 +88,18 @@ def run(args: argparse.Namespace) -> None:
 
 def worker_spec(args):
     """(WorkerSpec, ServedModel, adapter names) of the flags: the model folder checked and read, not loaded."""
-    from ..limits import PORTABLE_ENGINE
+    from ..backends import backend_for
     from ..serve.worker import ServedModel, WorkerSpec
 
-    if args.engine == PORTABLE_ENGINE:
-        from ..errors import SMFError
-        from ..runtime.pipeline import PortablePipeline
+    if backend_for(None, args.engine) == "onnx":  # its graphs load in a fraction of a second: read them here
+        from ..pipelines.motion_pipeline import MotionPipeline
 
-        if args.adapter:
-            from .options import PORTABLE_ADAPTERS
-
-            raise SMFError(PORTABLE_ADAPTERS)
-        model = ServedModel.of(PortablePipeline.from_pretrained(args.checkpoint, teacher=args.teacher))
+        model = ServedModel.of(MotionPipeline.from_pretrained(args.checkpoint, engine=args.engine,
+                                                              teacher=args.teacher, adapter=args.adapter))
         folder = None if args.checkpoint is None else str(args.checkpoint)
         return WorkerSpec(folder, None, args.threads, args.engine, teacher=args.teacher), model, ()
     from ..diffusion.checkpoint import read_config
-    from ..pipelines.components import model_folder
+    from ..core.folders import model_folder
 
     checkpoint = model_folder(args.checkpoint, teacher=args.teacher)
     config = read_config(checkpoint)

@@ -23,10 +23,10 @@ def add_parser(sub, name: str) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    from ..runtime.pipeline import PortablePipeline
+    from ..pipelines.motion_pipeline import MotionPipeline
     from ..site import folder_size, vendored_ort_web_version, write_site
 
-    graphs = PortablePipeline.from_pretrained(args.checkpoint).graphs
+    graphs = MotionPipeline.from_pretrained(args.checkpoint, backend="onnx").graphs
     out = write_site(args.out, graphs, args.webgpu)
     print(f"wrote {out} ({folder_size(out) / 1e6:.0f} MB): serve it with any static file server, for example "
           f"`python -m http.server -d {out}`, and open http://127.0.0.1:8000/")

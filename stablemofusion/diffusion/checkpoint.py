@@ -22,15 +22,13 @@ from safetensors.torch import load_file, save_file
 
 from ..errors import SMFError
 from ..models.base import Denoiser, build_denoiser
-from ..runtime.graphs import MANIFEST, TEACHER_INSTALL
-from ..text.names import GRAPHS_DIR
+from ..core.folders import (CHECKPOINT_DIR, CONFIG, companion_file, companion_files, graphs_of,  # noqa: F401
+                            resolve, teacher_folder)
 from .config import CheckpointConfig, ExportInfo, check_guidance
 
-CONFIG = "config.json"
 MODEL = "model.safetensors"
 EMA = "ema.safetensors"
 STATE = "training_state.pt"
-CHECKPOINT_DIR = "checkpoint"  # inside a training run folder, beside log.csv and text-cache/
 TEACHER_DIR = "teacher"  # inside a released student's folder: the teacher it was distilled from (smf export)
 
 
@@ -79,14 +77,6 @@ def _write_checkpoint(folder: Path, *, model: Denoiser, config: CheckpointConfig
         (folder / name).write_text(text, encoding="utf-8")
 
 
-def resolve(path: str | Path) -> Path:
-    """A checkpoint folder, or a training run folder holding one in ``checkpoint/``."""
-    path = Path(path)
-    if not (path / CONFIG).is_file() and (path / CHECKPOINT_DIR / CONFIG).is_file():
-        return path / CHECKPOINT_DIR
-    return path
-
-
 def read_config(path: str | Path) -> CheckpointConfig:
     """The config of a checkpoint, run or exported folder."""
     path = resolve(path)
@@ -97,72 +87,6 @@ def read_config(path: str | Path) -> CheckpointConfig:
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise SMFError(f"{path / CONFIG}: invalid JSON ({e})") from None
     return CheckpointConfig.from_dict(config, where=str(path / CONFIG))
-
-
-def teacher_folder(path: str | Path) -> Path:
-    """The folder of the teacher that the distilled student in ``path`` names (``distil.teacher``: a relative
-    name is relative to the student's folder, as in a release that ships its teacher in ``teacher/``).
-    SMFError for a model that is not a student, or whose teacher is not there."""
-    path = resolve(path)
-    config = read_config(path)
-    if config.distil is None or not config.distil.teacher:
-        raise SMFError(f"{path} is not a distilled student: it has no teacher")
-    named = Path(config.distil.teacher)
-    folder = resolve(named if named.is_absolute() else path / named)
-    if not (folder / CONFIG).is_file():
-        raise SMFError(f"the teacher of {path} is not there: {folder} (the shipped model's teacher is installed with "
-                       f"{TEACHER_INSTALL})")
-    return folder
-
-
-def companion_file(path: str | Path, name: str) -> Path | None:
-    """The file ``name`` that goes with the model in ``path`` (the text side: length estimator, known actions):
-    the model folder's own; else, for a teacher shipped inside its student's folder (the parent folder is a
-    student whose ``distil.teacher`` is this folder), the student's. None when neither has it."""
-    path = resolve(path)
-    if (path / name).is_file():
-        return path / name
-    parent = path.resolve().parent
-    if not (parent / CONFIG).is_file() or not (parent / name).is_file():
-        return None
-    try:
-        named = teacher_folder(parent)
-    except SMFError:  # the parent is no student, or names a teacher that is not there
-        return None
-    return parent / name if named.resolve() == path.resolve() else None
-
-
-def companion_files(path: str | Path, names) -> dict[str, Path]:
-    """:func:`companion_file` for each of ``names``: those found (name -> file)."""
-    found = {name: companion_file(path, name) for name in names}
-    return {name: f for name, f in found.items() if f is not None}
-
-
-def graphs_of(path: str | Path) -> tuple[Path, dict] | None:
-    """The portable graphs that hold the weights of the model folder ``path`` (``smf export --onnx`` records where
-    each weight lies: ``weights`` in its manifest entry): (the folder of its graphs, its manifest entry), or None.
-    A model's graphs are in its ``onnx/``; a teacher shipped inside its student's folder has its graphs in the
-    student's ``onnx/`` under the teacher's folder name."""
-    path = resolve(path)
-    for folder, name in ((path / GRAPHS_DIR, "model"), (path.parent / GRAPHS_DIR, "teacher")):
-        try:
-            manifest = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError):
-            continue
-        entry = manifest.get(name) if isinstance(manifest, dict) else None
-        if not isinstance(entry, dict) or not isinstance(entry.get("weights"), dict):
-            continue
-        if name == "teacher":  # only the teacher its student names, in the folder the graphs name
-            if entry.get("folder") != path.name or not (path.parent / CONFIG).is_file():
-                continue
-            try:
-                if teacher_folder(path.parent).resolve() != path.resolve():
-                    continue
-            except SMFError:
-                continue
-            folder = folder / entry["folder"]
-        return folder, entry
-    return None
 
 
 def weights_from_graphs(folder: Path, entry: dict) -> dict[str, torch.Tensor]:

@@ -75,7 +75,7 @@ def ablate_arch(data, out: Path, embedder, cfg: EvalConfig, presets, train_cfg, 
 
     from ..diffusion.checkpoint import CHECKPOINT_DIR, CONFIG
     from ..diffusion.train import train
-    from ..pipeline import MotionPipeline
+    from ..pipelines.motion_pipeline import MotionPipeline
 
     table = {}
     for preset in presets:

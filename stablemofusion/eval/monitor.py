@@ -58,7 +58,7 @@ class TrainingMonitor:
     def __call__(self, run: Path, step: int) -> dict:
         """Figures of the checkpoint in ``run``: probe content/style accuracy overall and per dataset, and
         FID / top-3 on the validation subset."""
-        from ..pipeline import MotionPipeline
+        from ..pipelines.motion_pipeline import MotionPipeline
         from ..pipelines.settings import Settings
         from .prompts import prompt_accuracy
 

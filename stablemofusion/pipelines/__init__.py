@@ -1,3 +1,4 @@
 """Task pipelines (diffusers style: one per task, each ``__call__`` a numbered script from checking inputs to
-post-processing) around shared :class:`~.components.Components`, one :class:`~.settings.Settings` and one
-:class:`~.result.MotionResult`: text to motion, timeline, edit. docs/architecture.md."""
+post-processing), each written once against the backend seam (:mod:`stablemofusion.backends.base`), with one
+:class:`~.settings.Settings` and one :class:`~.result.MotionResult`: text to motion, timeline, edit, stream;
+:class:`~.motion_pipeline.MotionPipeline` offers them all. docs/architecture.md."""

@@ -11,6 +11,7 @@ from ..motion.plausible import check_plausible
 from ..motion.rigid import RigidMotion
 from ..motion.skeleton import Skeleton
 from ..text.known import DomainCheck
+from .settings import Settings
 
 
 @dataclass
@@ -18,7 +19,8 @@ class MotionResult:
     """One generated motion: features (T, D) in dataset units, joints (T, J, 3) in metres, at ``fps``; ``motion``
     the rigid body (skeleton, rotations, root path) the joints and features come from (None with the rigid
     stage off); ``seed`` the seed that makes it again; ``domain`` the closest known action (models with
-    actions.json)."""
+    actions.json); ``settings`` the settings it was sampled with (resolved: guidance, steps, sampler, footskate,
+    engine)."""
 
     prompt: str
     features: np.ndarray
@@ -27,15 +29,16 @@ class MotionResult:
     seed: int | None
     motion: RigidMotion | None = None
     domain: DomainCheck | None = None
+    settings: Settings | None = None
 
     @classmethod
     def build(cls, prompt: str, features: np.ndarray, motion: RigidMotion | None, skeleton: Skeleton, fps: float,
-              seed: int | None, domain: DomainCheck | None = None) -> "MotionResult":
+              seed: int | None, domain: DomainCheck | None = None, settings: Settings | None = None) -> "MotionResult":
         """A result whose joints come from the rigid body, or from the features without one; a motion no human
         makes is an error (:func:`~stablemofusion.motion.plausible.check_plausible`), never a result."""
         joints = joints_from_features(features, skeleton) if motion is None else motion.joints()
         check_plausible(joints, fps)
-        return cls(prompt, features, joints, fps, seed, motion, domain)
+        return cls(prompt, features, joints, fps, seed, motion, domain, settings)
 
     @property
     def contacts(self) -> np.ndarray | None:

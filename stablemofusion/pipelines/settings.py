@@ -1,22 +1,14 @@
-"""Sampling settings of every task: the defaults (in one place), one ``check``, one seed policy and the engine
-chosen once per call."""
+"""Sampling settings of every task and backend (torch-free): the defaults (in one place) and one ``check``; a
+backend resolves them once per call (``Backend.settings``) and the result carries them."""
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, replace
 
-import torch
-
-from ..diffusion.engine import check_engine, default_engine
-from ..diffusion.schedulers import sampler_spec
 from ..errors import SMFError
 from .final import EngineWarning, LengthClampedWarning, OutOfDomainWarning  # noqa: F401  (public here too)
 from ..limits import (BATCH_SIZE, FOOTSKATE, GUIDANCE, SAMPLER, STEPS, STUDENT_EDIT_STEPS, STUDENT_SAMPLER,
                       check_batch_size, check_footskate, check_guidance, check_steps)
-
-
-HOOK_ENGINES = ("eager", "fast")  # the engines whose loop runs step by step on the host: they apply x0 / x_t hooks
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -24,8 +16,8 @@ class Settings:
     """How a task samples: guidance scale, steps and sampler (None: the model's, :func:`model_defaults`),
     footskate mode ('off', 'post' or 'loop') and its :class:`~stablemofusion.footskate.FootskateOptions`,
     engine (None: the pipeline's) and batch size. Built with keywords; resolved once per call for the model
-    (:meth:`stablemofusion.pipelines.components.Components.settings`: every None filled in, the engine decided)
-    and carried to the sampling loop as it is."""
+    (``Backend.settings`` of :mod:`stablemofusion.backends.base`: every None filled in, the engine decided),
+    carried to the sampling loop as it is and by the result."""
 
     guidance_scale: float | None = None
     steps: int | None = None
@@ -37,12 +29,11 @@ class Settings:
 
     def check(self, *, rigid: bool = True) -> "Settings":
         """SMFError on a bad value (``rigid``: whether the pipeline has its rigid stage); returns self. Guidance,
-        steps and sampler left None (the model's) are not checked here."""
+        steps and sampler left None (the model's) are not checked here; the sampler's name is the backend's to
+        check."""
         check_guidance(self.guidance_scale)
         check_steps(self.steps)
         check_batch_size(self.batch_size)
-        if self.sampler is not None:
-            sampler_spec(self.sampler)  # SMFError for an unknown sampler
         if self.footskate is not None:
             check_footskate(self.footskate)
         if self.footskate not in (None, "off") and not rigid:
@@ -62,7 +53,7 @@ class Settings:
 
     @property
     def resolved(self) -> bool:
-        """Whether every choice is made (:meth:`Components.settings`)."""
+        """Whether every choice is made (``Backend.settings``)."""
         return None not in (self.guidance_scale, self.steps, self.sampler, self.engine)
 
     @property
@@ -83,23 +74,3 @@ def model_defaults(student_steps: int | None, guidance: float | None = None, *,
     if student_steps is None:
         return scale, STEPS, SAMPLER
     return scale, (max(int(student_steps), STUDENT_EDIT_STEPS) if edit else int(student_steps)), STUDENT_SAMPLER
-
-
-def resolve_engine(name: str, device: torch.device, sampler: str, *, hooks: bool = False) -> str:
-    """The engine a call runs with, decided once: ``name`` ('auto' = the fastest that works here) for the
-    sampler. Calls with x0 / x_t hooks (edits, timelines, live streams, footskate 'loop') run with one of
-    HOOK_ENGINES: 'auto' picks 'fast'; another engine asked for by name runs them with 'fast' and says so
-    (:class:`EngineWarning`)."""
-    check_engine(name, device)
-    fast = sampler_spec(sampler).fast
-    requested = name
-    if name == "auto":
-        name = default_engine(device, fast)
-    elif name != "eager" and not fast:
-        raise SMFError(f"sampler {sampler!r} runs only with the eager engine (no precomputed form)")
-    if hooks and name not in HOOK_ENGINES:
-        if requested != "auto":
-            warnings.warn(f"engine {requested!r} cannot run edits, timelines, live streams or footskate 'loop' "
-                          "(hooks change every step); this call runs with 'fast'", EngineWarning, stacklevel=4)
-        return "fast"
-    return name

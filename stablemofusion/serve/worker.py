@@ -20,7 +20,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 from ..errors import SMFError
-from ..limits import FOOTSKATE, FOOTSKATE_MODES, PORTABLE_FOOTSKATE
+from ..limits import FOOTSKATE, FOOTSKATE_MODES
 from .http_errors import ServeError, log, log_event
 from .server_limits import (WARM_STEPS, WORKER_BEAT_S, WORKER_BEAT_TIMEOUT_S, WORKER_CALL_BASE_S,
                             WORKER_CALL_PER_WORK_S, WORKER_MAX_FAILED_STARTS, WORKER_POLL_S,
@@ -76,12 +76,11 @@ class ServedModel:
 
     @classmethod
     def of(cls, pipe) -> "ServedModel":
-        """From a loaded pipeline: a MotionPipeline (its config) or a PortablePipeline (its graphs' manifest)."""
-        if hasattr(pipe, "config"):
-            return cls.from_config(pipe.config)
-        m = pipe.model
-        return cls(m.fps, m.min_frames, m.max_frames, m.student, m.steps, m.guidance,
-                   pipe.graphs.manifest.get("model_version"), PORTABLE_FOOTSKATE)
+        """From a loaded :class:`~stablemofusion.pipelines.motion_pipeline.MotionPipeline` on either backend: its
+        sizes and the settings a request without any resolves to."""
+        b, s = pipe.backend, pipe.settings()
+        return cls(b.fps, b.min_frames, b.max_frames, b.student, s.steps, s.guidance_scale, b.version,
+                   b.footskate_modes)
 
 
 @dataclass(frozen=True)
@@ -243,21 +242,14 @@ def child_loop(conn, spec: WorkerSpec, name: str, warm_up, handle, beat=None) ->
 
 
 def load_pipeline(spec: WorkerSpec):
-    """The pipeline a worker process serves: the portable runtime's for PORTABLE_ENGINE, else the torch one's
-    with its adapters."""
-    from ..limits import PORTABLE_ENGINE
+    """The pipeline a worker process serves, on the backend its engine means (:func:`~stablemofusion.backends.
+    backend_for`), with its adapters (torch) each served as a model of its own."""
+    from ..pipelines.motion_pipeline import MotionPipeline
 
-    if spec.engine == PORTABLE_ENGINE:
-        from ..runtime.pipeline import PortablePipeline
-
-        return PortablePipeline.from_pretrained(spec.checkpoint, teacher=spec.teacher, threads=spec.threads)
-    import torch
-
-    from ..pipeline import MotionPipeline
-
-    torch.set_num_threads(spec.threads)
-    pipe = MotionPipeline.from_pretrained(spec.checkpoint, device=spec.device, engine=spec.engine)
-    pipe.add_variants(spec.adapters)
+    pipe = MotionPipeline.from_pretrained(spec.checkpoint, engine=spec.engine, teacher=spec.teacher,
+                                          threads=spec.threads, **({"device": spec.device} if spec.device else {}))
+    if spec.adapters:
+        pipe.add_variants(spec.adapters)
     return pipe
 
 

@@ -37,7 +37,7 @@ def clip_folder(bandai_mini_source, tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def base(tmp_path_factory, save_tiny_checkpoint, save_tiny_student) -> Path:
     """A tiny student with its teacher in teacher/ and known actions (what `smf adapt` replays)."""
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
     from stablemofusion.text.known import KnownActions
 
     folder = tmp_path_factory.mktemp("base") / "model"
@@ -98,7 +98,7 @@ def test_bad_clip_folders_are_one_line_errors(clip_folder, bandai_mini_source, t
 
 def test_replay_leaves_out_an_action_that_is_taught_anew(base):
     from stablemofusion.adapters.train import contrast_captions, lexicon_replay, replay_prompts, retaught_actions
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
     from stablemofusion.text.frozen import sentence_embedding
 
     pipe = MotionPipeline.from_pretrained(base, device="cpu")
@@ -131,7 +131,7 @@ def _weights(a: Adapter) -> dict[str, torch.Tensor]:
 
 
 def test_adapt_writes_an_adapter_that_loads_and_resumes_exactly(base, clip_folder, tmp_path):
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     torch.set_num_threads(1)
     clips, _ = read_clips(clip_folder, "bandai-namco")
@@ -170,13 +170,13 @@ def test_adapt_writes_an_adapter_that_loads_and_resumes_exactly(base, clip_folde
 
     # the portable runtime: the graphs of the adapted model make its motions and know its captions
     from stablemofusion.cli.main import main
-    from stablemofusion.runtime.pipeline import PortablePipeline
-    from stablemofusion.runtime.sampling import sample
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
+    from stablemofusion.backends.onnx_sampling import sample
 
     graphs = tmp_path / "adapted-graphs"
     assert main(["export", "--onnx", "--checkpoint", str(base), "--adapter", str(tmp_path / "run.safetensors"),
                  "--out", str(graphs)]) == 0
-    rt = PortablePipeline.from_pretrained(graphs, threads=1)
+    rt = MotionPipeline.from_pretrained(graphs, backend="onnx", threads=1)
     tokens, mask, _ = rt.encode(["a person runs"])
     m = rt.graphs.model
     got = sample(m, tokens, mask, [40], 0, guidance=m.guidance, sampler=m.sampler, steps=m.steps)

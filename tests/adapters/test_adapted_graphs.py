@@ -33,7 +33,7 @@ def adapted_graphs(bandai_mini_source, tmp_path_factory):
     clips, _ = read_clips(tmp / "clips", "bandai-namco", caption=CAPTION)
     cfg = AdaptConfig(rank=2, teacher_steps=3, student_steps=2, batch_size=4, pool=4, replay_prompts=4, contrast=1)
     adapt(None, clips, tmp / "hop.safetensors", cfg, name="hop", licence="CC BY-NC 4.0", progress=False)
-    from stablemofusion.pipelines.components import model_folder
+    from stablemofusion.core.folders import model_folder
 
     assert main(["export", "--onnx", "--checkpoint", str(model_folder(None)), "--adapter", str(tmp / "hop.safetensors"),
                  "--out", str(tmp / "graphs")]) == 0
@@ -41,11 +41,11 @@ def adapted_graphs(bandai_mini_source, tmp_path_factory):
 
 
 def test_adapted_graphs_make_the_adapted_models_motions(adapted_graphs):
-    from stablemofusion.pipeline import MotionPipeline
-    from stablemofusion.runtime.pipeline import PortablePipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     graphs, adapter = adapted_graphs
-    rt = PortablePipeline.from_pretrained(graphs, threads=1)
+    rt = MotionPipeline.from_pretrained(graphs, backend="onnx", threads=1)
     torch_pipe = MotionPipeline.from_pretrained(device="cpu", adapter=adapter)
     base = MotionPipeline.from_pretrained(device="cpu")
     got = rt([CAPTION], seconds=4, seed=3, footskate="off")[0].joints
@@ -92,7 +92,7 @@ def test_blender_generates_with_the_adapted_graphs(adapted_graphs, tmp_path, ble
     """The add-on's Model preference: the adapted graphs in Blender's own Python, the runtime's joints."""
     import site
 
-    from stablemofusion.runtime.pipeline import PortablePipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     graphs, _ = adapted_graphs
     zip_path, script, out = tmp_path / "stablemofusion_addon.zip", tmp_path / "run.py", tmp_path / "out.json"
@@ -105,5 +105,5 @@ def test_blender_generates_with_the_adapted_graphs(adapted_graphs, tmp_path, ble
     assert out.is_file(), run.stdout[-3000:] + run.stderr[-3000:]
     got = json.loads(out.read_text())
     assert got["status"] == ["FINISHED"]
-    want = PortablePipeline.from_pretrained(graphs, threads=1)([CAPTION], seconds=2, seed=3)[0].joints
+    want = MotionPipeline.from_pretrained(graphs, backend="onnx", threads=1)([CAPTION], seconds=2, seed=3)[0].joints
     assert np.abs(np.asarray(got["joints"]) - want).max() < 1e-3

@@ -100,7 +100,7 @@ def test_crafted_adapters_are_refused_before_any_weight_is_multiplied(tiny_check
     """A small file whose lora_B @ lora_A would be a huge matrix, a rank of 0, a 1-D tensor, a wrong shape, NaN or a
     huge scale: one-line SMFError from the checks against the model's weight shapes, before any product (the
     first case would be a 40 GB matrix)."""
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     pipe = MotionPipeline.from_pretrained(tiny_checkpoint, device="cpu")
     good = Adapter.load(save_random_adapter(tmp_path / "a.safetensors", tiny_checkpoint))

@@ -19,7 +19,7 @@ import pytest
 from stablemofusion.bulk import ray_run
 from stablemofusion.bulk.dataset import BulkPlan, joints_of, read_dataset, start
 from stablemofusion.errors import SMFError
-from stablemofusion.runtime.pipeline import PortablePipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 PROMPTS = ["a person walks forward", "a tired man shuffles forward", "someone waves both hands",
            "a person runs in a circle", "a proud soldier marches", "an old woman bows", "a person jumps"]
@@ -36,7 +36,7 @@ def bulk(prompts_file: Path, out: Path, *extra: str, **popen) -> subprocess.Pope
 
 @pytest.fixture(scope="module")
 def pipe():
-    return PortablePipeline.from_pretrained(threads=1)
+    return MotionPipeline.from_pretrained(backend="onnx", threads=1)
 
 
 def expected(pipe, prompts: list[str], index: int, seed: int = 5, batch_size: int = 2) -> np.ndarray:
@@ -114,7 +114,7 @@ def test_a_worker_killed_mid_run_is_started_again_and_its_shard_made(tmp_path, p
             killed.append(pid)
         threading.Thread(target=later, daemon=True).start()
 
-    make = lambda: PortablePipeline.from_pretrained(threads=1)  # noqa: E731
+    make = lambda: MotionPipeline.from_pretrained(backend="onnx", threads=1)  # noqa: E731
     try:
         summary = ray_run.run(plan, out, make, workers=2, progress=False, on_started=kill_one)
     finally:

@@ -8,7 +8,7 @@ import pytest
 
 from stablemofusion.cli.main import main
 from stablemofusion.errors import SMFError
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.limits import SAMPLER, STEPS, STUDENT_SAMPLER
 
 

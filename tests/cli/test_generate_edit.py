@@ -10,7 +10,7 @@ from stablemofusion.edit_plan import source_features
 from stablemofusion.errors import SMFError
 from stablemofusion.motion.files import load_motion, save_bvh
 from stablemofusion.motion.skeleton import HUMANML3D
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 
 
@@ -144,7 +144,7 @@ def test_threads_default_to_the_idle_cores(monkeypatch):
 def test_a_prompts_file_is_written_batch_by_batch_as_one_call_makes_it(tmp_path, capsys):
     """Each batch's files are written before the next batch is made, numbered in file order, with the motions one
     library call of all the prompts makes (batch k: seed + k)."""
-    from stablemofusion.runtime.pipeline import PortablePipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     prompts = ["a person walks forward", "someone waves", "a man bows", "a person runs", "a woman jumps"]
     (tmp_path / "p.txt").write_text("\n".join(prompts) + "\n")
@@ -155,6 +155,6 @@ def test_a_prompts_file_is_written_batch_by_batch_as_one_call_makes_it(tmp_path,
     assert [ln.split(" (")[-1].split("seed ")[-1].rstrip(")") for ln in lines] == ["5", "5", "6", "6", "7"]
     files = sorted(out.glob("*_joints.npy"))
     assert [f.name[:3] for f in files] == ["000", "001", "002", "003", "004"]
-    want = PortablePipeline.from_pretrained(threads=1)(prompts, seconds=2, seed=5, batch_size=2)
+    want = MotionPipeline.from_pretrained(backend="onnx", threads=1)(prompts, seconds=2, seed=5, batch_size=2)
     for f, w in zip(files, want):
         assert np.abs(np.load(f) - w.joints).max() < 1e-4  # the .npy holds float32 joints

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from stablemofusion.errors import SMFError
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 _cxx = os.environ.get("CXX", "g++")
 pytestmark = [

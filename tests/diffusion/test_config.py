@@ -8,7 +8,7 @@ from stablemofusion.diffusion.config import CheckpointConfig, TrainConfig
 from stablemofusion.diffusion.schedule import ScheduleConfig
 from stablemofusion.errors import SMFError
 from stablemofusion.models.presets import get_preset
-from stablemofusion.pipeline import default_model_path
+from stablemofusion.pipelines.motion_pipeline import default_model_path
 
 
 def test_round_trips_through_json():

@@ -215,7 +215,7 @@ def test_regression_targets_and_predictions_are_the_pipelines_samples(teacher, s
     the student's consistency sample from the same noise (so the student learns the teacher's noise-to-motion map)."""
     from stablemofusion.diffusion.distil import student_sample, teacher_sample
     from stablemofusion.diffusion.sampling import Noise
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     prompts, lengths, seeds = ["a person walks", "a person runs"], [40, 48], [3, 4]
     for folder, w, sampler, steps in ((teacher, 1.0, "dpmsolver++-karras", 3), (teacher, 2.0, "ddim", 2),
@@ -254,7 +254,7 @@ def test_regression_distillation_moves_the_student_towards_the_teacher(teacher, 
 
     from safetensors.torch import load_file, save_file
 
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     far = tmp_path / "far"
     shutil.copytree(student, far)
@@ -369,7 +369,7 @@ def _count_forwards(model):
 
 
 def test_the_pipeline_samples_a_student_with_one_forward_per_step(student):
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     pipe = MotionPipeline.from_pretrained(student, device="cpu")
     assert pipe.student and pipe.settings().sampler == "lcm" and pipe.settings().steps == 2
@@ -387,7 +387,7 @@ def test_the_pipeline_samples_a_student_with_one_forward_per_step(student):
 
 
 def test_teacher_defaults_are_unchanged(teacher):
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     pipe = MotionPipeline.from_pretrained(teacher, device="cpu")
     assert not pipe.student and pipe.settings().steps == 10 and pipe.settings().sampler == "sde-dpmsolver++-karras"
@@ -411,7 +411,7 @@ def test_smf_generate_and_bench_use_the_students_defaults(student, tmp_path, cap
 
 def test_a_student_edits_streams_and_makes_timelines(student):
     """The tasks built on hooks (imputation in x_t, x0 constraints) run with the consistency sampler too."""
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     pipe = MotionPipeline.from_pretrained(student, device="cpu")
     calls = _count_forwards(pipe.model)

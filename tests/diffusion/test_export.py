@@ -46,7 +46,7 @@ def test_export_ships_a_student_with_its_teacher_inside(tmp_path, capsys, save_t
     import shutil
 
     from stablemofusion.diffusion.checkpoint import CONFIG, TEACHER_DIR, teacher_folder
-    from stablemofusion.pipeline import MotionPipeline, default_model_path
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline, default_model_path
     from stablemofusion.text import TEXT_SIDE_FILES
 
     teacher = save_tiny_checkpoint(tmp_path / "teacher", np.zeros(263), np.full(263, 0.1))
@@ -82,7 +82,7 @@ def test_export_ships_a_student_with_its_teacher_inside(tmp_path, capsys, save_t
 def test_export_carries_the_checkpoints_own_text_side(tmp_path, save_tiny_checkpoint):
     import shutil
 
-    from stablemofusion.pipeline import default_model_path
+    from stablemofusion.pipelines.motion_pipeline import default_model_path
     from stablemofusion.text import LENGTH_CONFIG, LENGTH_WEIGHTS
 
     src = save_tiny_checkpoint(tmp_path / "ck", np.zeros(263), np.full(263, 0.1))
@@ -118,7 +118,7 @@ def test_export_records_the_models_default_guidance(tmp_path, capsys, save_tiny_
     import json
 
     from stablemofusion.diffusion.checkpoint import TEACHER_DIR
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
     from stablemofusion.pipelines.settings import GUIDANCE
 
     src = save_tiny_checkpoint(tmp_path / "ck", np.zeros(263), np.full(263, 0.1))

@@ -10,7 +10,7 @@ from stablemofusion.diffusion.sampling import Noise, Step, cfg_batched, cfg_two_
 from stablemofusion.diffusion.solvers import solver_table
 from stablemofusion.models.base import build_denoiser
 from stablemofusion.models.presets import get_preset
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device (CUDA graphs)")
 

@@ -108,7 +108,7 @@ def test_bad_prompt_files(tmp_path, line, msg):
 
 
 def test_evaluate_prompts_cli(classifier_dir, eval_corpus, tiny_checkpoint, tmp_path, capsys, monkeypatch):
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     calls, call = [], MotionPipeline.__call__
     monkeypatch.setattr(MotionPipeline, "__call__", lambda self, *a, **kw: calls.append(kw) or call(self, *a, **kw))

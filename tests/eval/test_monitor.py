@@ -38,7 +38,7 @@ def test_monitor_samples_at_the_guidance_it_is_given(eval_corpus, classifier_dir
                                                      save_tiny_checkpoint, tmp_path, monkeypatch):
     import torch
 
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     torch.set_num_threads(1)
     labels = corpus_labels(eval_corpus)

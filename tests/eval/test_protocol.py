@@ -9,7 +9,7 @@ from stablemofusion.cli.main import main
 from stablemofusion.eval.ablation import min_steps_within
 from stablemofusion.eval.protocol import EmbeddingModel, EvalConfig, draw_items, evaluate, markdown_table
 from stablemofusion.data.dataset import MotionTextDataset
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.text.cache import TextEmbeddingCache
 
 CFG = dict(replications=2, batch_size=4, diversity_times=5, mm_captions=2, mm_repeats=4, mm_times=2, steps=2,

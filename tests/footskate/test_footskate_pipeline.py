@@ -9,7 +9,7 @@ import torch
 from stablemofusion.cli.main import main
 from stablemofusion.errors import SMFError
 from stablemofusion.footskate import FootskateOptions
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 
 @pytest.fixture(scope="module")

@@ -90,7 +90,7 @@ def http_body(**pipeline_kwargs) -> dict:
     """The JSON body of POST /v1/generate (FastAPI TestClient, a thread executor)."""
     from fastapi.testclient import TestClient
 
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
     from stablemofusion.serve.app import create_app
 
     pipe = MotionPipeline.from_pretrained(device="cpu", **pipeline_kwargs)
@@ -103,7 +103,7 @@ def http_body(**pipeline_kwargs) -> dict:
 
 
 def main() -> None:
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     torch.set_num_threads(1)
     arrays = outputs(MotionPipeline.from_pretrained(teacher=True, device="cpu"))

@@ -35,7 +35,7 @@ def _compare(new: dict, stored: dict) -> None:
 
 
 def test_teacher_outputs_match_the_stored_ones(golden):
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     torch.set_num_threads(1)
     new = outputs(MotionPipeline.from_pretrained(teacher=True, device="cpu"))
@@ -43,7 +43,7 @@ def test_teacher_outputs_match_the_stored_ones(golden):
 
 
 def test_student_outputs_match_the_stored_ones(golden):
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     torch.set_num_threads(1)
     new = student_outputs(MotionPipeline.from_pretrained(device="cpu"))

@@ -10,7 +10,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from stablemofusion.runtime.pipeline import PortablePipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.site import write_site
 
 NODE = shutil.which("node")
@@ -22,7 +22,7 @@ pytestmark = pytest.mark.skipif(NODE is None, reason="Node.js is not installed (
 
 @pytest.fixture(scope="module")
 def site(tmp_path_factory):
-    pipe = PortablePipeline.from_pretrained(threads=1)
+    pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
     return write_site(tmp_path_factory.mktemp("site") / "site", pipe.graphs), pipe
 
 

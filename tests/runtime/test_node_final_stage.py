@@ -24,7 +24,7 @@ from stablemofusion.motion.rigid import DEFAULT_FIT
 from stablemofusion.motion.rigid_batch import fit_joints, pose_joints
 from stablemofusion.motion.rotation import matrix_to_euler
 from stablemofusion.path_plan import KINDS, Waypoints, bend, follow_waypoints, parse_path
-from stablemofusion.runtime.pipeline import PortablePipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.site import FINAL_STAGE, final_stage_graph
 
 NODE = shutil.which("node")
@@ -70,7 +70,7 @@ def feed(**arrays) -> dict:
 @pytest.fixture(scope="module")
 def jobs():
     """(case, graph, inputs, the Python function's outputs) for every graph on every case it applies to."""
-    pipe = PortablePipeline.from_pretrained(threads=1)
+    pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
     lengths = np.asarray(pipe.skeleton.bone_lengths)[None]
     config = CleanupConfig()
     out = []

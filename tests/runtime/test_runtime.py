@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from stablemofusion.errors import SMFError
-from stablemofusion.runtime.pipeline import PortablePipeline, default_graphs_path
+from stablemofusion.backends.onnx_backend import default_graphs_path
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 PROMPTS = ["a person waves both hands happily", "an old man walks forward slowly", "a person kicks",
            "someone bows politely", "a tired woman walks backwards", "a person raises both hands"]
@@ -18,9 +19,9 @@ PROMPTS = ["a person waves both hands happily", "an old man walks forward slowly
 
 @pytest.fixture(scope="module")
 def shipped():
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
-    return PortablePipeline.from_pretrained(threads=1), MotionPipeline.from_pretrained(device="cpu")
+    return MotionPipeline.from_pretrained(backend="onnx", threads=1), MotionPipeline.from_pretrained(device="cpu")
 
 
 def test_exported_graphs_denoise_as_the_torch_models_for_any_batch_text_and_length(tmp_path, tiny_checkpoint,
@@ -28,13 +29,13 @@ def test_exported_graphs_denoise_as_the_torch_models_for_any_batch_text_and_leng
     import torch
 
     from stablemofusion.onnx_export import export_onnx
-    from stablemofusion.pipeline import MotionPipeline
-    from stablemofusion.runtime.sampling import sample
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
+    from stablemofusion.backends.onnx_sampling import sample
 
     torch.set_num_threads(1)
     student = save_tiny_student(tmp_path / "student", tiny_checkpoint)
     graphs = export_onnx(student, tmp_path / "onnx", text_encoder_from=default_graphs_path())
-    rt = PortablePipeline.from_pretrained(graphs, threads=1)
+    rt = MotionPipeline.from_pretrained(graphs, backend="onnx", threads=1)
     # where a graph holds every weight as such (the teacher here; the student's exporter folds one), the manifest
     # says where each lies, and reading them back gives the checkpoint's weights exactly
     from stablemofusion.diffusion.checkpoint import load_weights, weights_from_graphs
@@ -126,9 +127,9 @@ def test_edits_are_the_torch_paths_in_every_mode(shipped, tmp_path):
 
 
 def test_shipped_teacher_graphs_make_the_teachers_motions():
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
-    rt = PortablePipeline.from_pretrained(teacher=True, threads=1)
+    rt = MotionPipeline.from_pretrained(backend="onnx", teacher=True, threads=1)
     torch_pipe = MotionPipeline.from_pretrained(teacher=True, device="cpu")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -205,10 +206,10 @@ def test_commands_that_need_torch_say_which_extra_to_install(tmp_path):
 
 def test_a_folder_without_graphs_or_of_another_version_is_one_clear_error(tmp_path):
     with pytest.raises(SMFError, match="holds no portable graphs"):
-        PortablePipeline.from_pretrained(tmp_path)
+        MotionPipeline.from_pretrained(tmp_path, backend="onnx")
     (tmp_path / "graphs.json").write_text(json.dumps({"format": "stablemofusion-onnx", "version": 99}))
     with pytest.raises(SMFError, match="version"):
-        PortablePipeline.from_pretrained(tmp_path)
+        MotionPipeline.from_pretrained(tmp_path, backend="onnx")
 
 
 def test_predicted_lengths_agree_between_runtimes(shipped):

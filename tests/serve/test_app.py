@@ -12,7 +12,7 @@ import pytest
 from stablemofusion.cli.main import main
 from stablemofusion.motion.bvh import forward_kinematics, read_bvh
 from stablemofusion.motion.skeleton import HUMANML3D
-from stablemofusion.pipeline import MotionPipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.serve import create_app
 
 from serve_helpers import OCTETS, call
@@ -203,7 +203,7 @@ def test_generate_reports_the_out_of_domain_check(checkpoint, tmp_path):
 def test_generate_without_seconds_predicts_the_length(checkpoint, tmp_path):
     import shutil
 
-    from stablemofusion.pipeline import default_model_path
+    from stablemofusion.pipelines.motion_pipeline import default_model_path
 
     folder = tmp_path / "ck"
     shutil.copytree(checkpoint, folder)

@@ -178,7 +178,7 @@ def test_log_lines_are_escaped(checkpoint, tmp_path, caplog):
     import shutil
 
     from stablemofusion.data.lexicon import known_actions, load_lexicon
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     folder = tmp_path / "ck"
     shutil.copytree(checkpoint, folder)

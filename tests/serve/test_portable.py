@@ -13,7 +13,7 @@ import httpx
 import numpy as np
 import pytest
 
-from stablemofusion.runtime.pipeline import PortablePipeline
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.serve import create_app
 
 from serve_helpers import call, free_port, live_server
@@ -33,7 +33,7 @@ sys.meta_path.insert(0, Absent())
 
 @pytest.fixture(scope="module")
 def portable():
-    return PortablePipeline.from_pretrained(threads=1)
+    return MotionPipeline.from_pretrained(backend="onnx", threads=1)
 
 
 def first_frames(ws, n: int) -> np.ndarray:
@@ -47,7 +47,7 @@ def first_frames(ws, n: int) -> np.ndarray:
 
 
 def test_the_http_api_on_the_runtime_answers_as_the_torch_path(portable):
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     torch_pipe = MotionPipeline.from_pretrained(device="cpu")
     app = create_app(portable, max_streams=0)

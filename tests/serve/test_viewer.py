@@ -29,7 +29,7 @@ def server(tmp_path_factory, save_tiny_checkpoint, save_random_adapter):
     free loopback port."""
     import uvicorn
 
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
     from stablemofusion.serve import create_app
 
     torch.set_num_threads(1)

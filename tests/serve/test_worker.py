@@ -80,7 +80,7 @@ def test_serve_reads_the_config_and_loads_no_pipeline_in_the_parent(checkpoint, 
     import uvicorn
 
     from stablemofusion.cli.main import main
-    from stablemofusion.pipeline import MotionPipeline
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     def refuse(*a, **kw):
         raise AssertionError("the parent loaded a pipeline")

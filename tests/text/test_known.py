@@ -12,12 +12,12 @@ import torch
 from stablemofusion.cli.main import main
 from stablemofusion.data.lexicon import known_actions, load_lexicon
 from stablemofusion.errors import SMFError
-from stablemofusion.pipeline import MotionPipeline, OutOfDomainWarning
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline, OutOfDomainWarning
 from stablemofusion.text.cache import LRUTextCache
 from stablemofusion.text.frozen import load_text_encoder
 from stablemofusion.text.domain import DETECTOR_FILE, DomainDetector, train_classifier
 from stablemofusion.text.known import ACTIONS_FILE, KnownActions
-from stablemofusion.pipeline import default_model_path
+from stablemofusion.pipelines.motion_pipeline import default_model_path
 
 THRESHOLD = 0.56  # smf export's default
 

@@ -9,7 +9,7 @@ import torch
 
 from stablemofusion.cli.main import main
 from stablemofusion.errors import SMFError
-from stablemofusion.pipeline import MotionPipeline, default_model_path
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline, default_model_path
 from stablemofusion.text.length import LengthConfig, LengthEstimator
 
 

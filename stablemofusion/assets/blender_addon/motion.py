@@ -47,7 +47,7 @@ def local_pipeline(packages: str = "", required: bool = False, model: str = ""):
         site.addsitedir(packages)  # after Blender's own folders: Blender's numpy stays the one imported
     if model not in _PIPELINES:
         try:
-            from stablemofusion.runtime.pipeline import PortablePipeline
+            from stablemofusion.pipelines.motion_pipeline import MotionPipeline
         except ImportError as e:
             if not required:
                 return None
@@ -56,7 +56,7 @@ def local_pipeline(packages: str = "", required: bool = False, model: str = ""):
                               f"missing): install it for Python {v.major}.{v.minor} and set the add-on's Python "
                               "packages folder (docs/character.md)") from None
         try:
-            _PIPELINES[model] = PortablePipeline.from_pretrained(model or None, threads=1)
+            _PIPELINES[model] = MotionPipeline.from_pretrained(model or None, backend="onnx", threads=1)
         except Exception as e:  # noqa: BLE001 - the package's one-line errors (a folder without graphs)
             raise MotionError(str(e)) from None
     return _PIPELINES[model]

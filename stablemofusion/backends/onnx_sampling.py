@@ -1,5 +1,5 @@
 """The sampling call of the portable runtime, in numpy: the same steps as the torch path's
-(:func:`stablemofusion.pipelines.denoise.sample` with a coefficient table, :func:`~stablemofusion.diffusion.
+(:func:`stablemofusion.backends.torch_sampling.sample` with a coefficient table, :func:`~stablemofusion.diffusion.
 sampling.run_solver`) on the same portable noise, so both give the same motion."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from typing import Callable
 import numpy as np
 
 from ..noise import batch_noise, draws
-from .graphs import PortableModel, Table
+from .onnx_graphs import PortableModel, Table
 
 Denoiser = Callable[[np.ndarray, int], np.ndarray]  # (model input x (B, T, D), step k) -> x0 (B, T, D)
 

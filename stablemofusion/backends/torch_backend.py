@@ -1,5 +1,7 @@
-"""What every task pipeline shares: the model and its normalisation, the checkpoint config, the text cache,
-the length estimator, the known actions, the rigid final stage and the per-(sampler, steps) solver tables."""
+"""The torch backend: a loaded checkpoint (the model and its normalisation, the checkpoint config, the text cache,
+the length estimator, the known actions, the rigid final stage, the per-(sampler, steps) solver tables and
+engines) as the :class:`~stablemofusion.backends.base.Backend` the task pipelines run on, plus the batch-level
+calls (:meth:`TorchBackend.denoise`, :meth:`TorchBackend.sample`) that benchmarks, evaluation and training use."""
 
 from __future__ import annotations
 
@@ -10,10 +12,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..diffusion.checkpoint import companion_file, load_checkpoint, teacher_folder
+from ..core.folders import companion_file, model_folder
+from ..diffusion.checkpoint import load_checkpoint
 from ..diffusion.config import CheckpointConfig
 from ..diffusion.engine import SolverEngine, check_engine
+from ..diffusion.sampling import DenoiserFn, guided, replace_x0
+from ..diffusion.schedulers import sampler_spec
 from ..diffusion.solvers import SolverTable, solver_table
+from ..edit_plan import edit_hooks
 from ..errors import SMFError
 from ..models.base import TextCondition
 from ..motion.rigid import DEFAULT_FIT, RigidFitConfig, RigidMotion
@@ -21,27 +27,12 @@ from ..motion.skeleton import get_skeleton
 from ..text.known import ACTIONS_FILE, DomainCheck, KnownActions
 from ..text.length import WEIGHTS as LENGTH_WEIGHTS
 from ..text.length import LengthEstimator
-from ..limits import MAX_STEPS, STUDENT_MAX_STEPS
-from .final import OutOfDomainWarning, finish_many, frames_for
-from .settings import Settings, resolve_engine
+from ..limits import FOOTSKATE_MODES, MAX_STEPS, STUDENT_MAX_STEPS
+from ..pipelines.final import OutOfDomainWarning, finish_many, frames_for
+from ..pipelines.settings import Settings
+from .base import Known
+from .torch_sampling import resolve_engine, sample
 
-
-def default_model_path() -> Path | None:
-    """The default model shipped inside the package, if any (a distilled student; its teacher in ``teacher/``)."""
-    from importlib import resources
-
-    path = Path(str(resources.files("stablemofusion") / "assets" / "default_model"))
-    return path if (path / "config.json").is_file() else None
-
-
-def model_folder(path: str | Path | None = None, *, teacher: bool = False) -> Path:
-    """The one place that says which model folder a call means: ``path`` (``None``: the shipped default model),
-    or with ``teacher`` the teacher that model was distilled from (SMFError for a model without one)."""
-    if path is None:
-        path = default_model_path()
-        if path is None:
-            raise SMFError("no default model is shipped in this version; pass a checkpoint folder")
-    return teacher_folder(path) if teacher else Path(path)
 
 # the final stage's fit and cleanup run on the GPU from this many motions a call: there, on an H200 at 196 frames,
 # 32 motions took 10.2 instead of 16.0 ms a motion and 256 4.8 instead of 13.4, but one took 70.8 instead of 16.2
@@ -49,9 +40,12 @@ def model_folder(path: str | Path | None = None, *, teacher: bool = False) -> Pa
 DEVICE_FINAL_STAGE_MIN_MOTIONS = 32
 
 
-class Components:
+class TorchBackend:
     """A loaded checkpoint ready to sample: build with :meth:`from_pretrained`. ``rigid`` the rigid final
-    stage (docs/rigid.md; None only to measure what it changes); ``engine`` the default engine."""
+    stage (docs/rigid.md; None only to measure what it changes); ``engine`` the default engine (how this backend
+    runs its loop: 'auto', 'eager', 'fast', 'compiled' or 'graph')."""
+
+    name = "torch"
 
     def __init__(self, model, mean: np.ndarray, std: np.ndarray, config: CheckpointConfig, *,
                  device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32, text_cache_size: int = 1024,
@@ -80,7 +74,7 @@ class Components:
         self.length_estimator: LengthEstimator | None = None  # from the folder's length.safetensors
         self.adapters: tuple[str, ...] = ()  # names of the adapters merged into the weights
         self.path: Path | None = None  # the model folder it was loaded from
-        self.variants: dict[str, Components] = {}  # adapted copies offered by name (add_variants), e.g. by a server
+        self.variants: dict[str, TorchBackend] = {}  # adapted copies offered by name (add_variants), e.g. by a server
 
     @classmethod
     def from_pretrained(cls, path: str | Path | None = None, *, teacher: bool = False,
@@ -110,7 +104,7 @@ class Components:
                                f"{c.length_estimator.config.text_encoder}, the model uses {ck.config.text_encoder}")
         return c.with_adapters(adapter) if adapter else c
 
-    def with_adapters(self, adapters) -> "Components":
+    def with_adapters(self, adapters) -> "TorchBackend":
         """This model with adapters (``smf adapt`` files or loaded :class:`~stablemofusion.adapters.file.Adapter`)
         merged into a copy of its weights; text cache, length estimator and solver tables are shared. Their
         actions join the known actions. SMFError for an adapter of another base model."""
@@ -146,7 +140,7 @@ class Components:
                 raise SMFError(f"two adapters are named {a.info.name!r}")
             self.variants[a.info.name] = self.with_adapters([a])
 
-    def variant(self, name: str | None) -> "Components":
+    def variant(self, name: str | None) -> "TorchBackend":
         """The adapted copy named ``name`` (:meth:`add_variants`), or this model for None."""
         if name is None:
             return self
@@ -173,9 +167,85 @@ class Components:
             raise SMFError(f"steps must be at most {self.max_steps} for this model (a distilled student: more steps "
                            f"drift into motions no human makes), got {s.steps}; its teacher (--teacher) takes up to "
                            f"{MAX_STEPS}")
+        sampler_spec(s.sampler)  # SMFError for an unknown sampler
         engine = resolve_engine(s.engine or self.engine, self.device, s.sampler,
                                 hooks=hooks or s.footskate == "loop")
         return replace(s, engine=engine)
+
+    def check_continues(self, settings: Settings, what: str) -> None:
+        """SMFError unless the sampler has a precomputed form (its table loop applies the known part each step)."""
+        if not sampler_spec(settings.sampler).fast:
+            raise SMFError(f"{what} needs a sampler with a precomputed form, not {settings.sampler!r}")
+
+    footskate_modes = FOOTSKATE_MODES  # the footskate modes it runs
+
+    @property
+    def version(self) -> str | None:
+        """The model's version (a release's name), None for an unreleased checkpoint."""
+        return self.config.export.version if self.config.export is not None else None
+
+    @property
+    def dim(self) -> int:
+        """The feature size D."""
+        return int(self.mean.shape[0])
+
+    @property
+    def has_length_model(self) -> bool:
+        return self.length_estimator is not None
+
+    @torch.no_grad()
+    def raw_features(self, prompts: list[str], lengths: list[int], settings: Settings, seed: int | list[int], *,
+                     known: Known | None = None, progress: bool = False) -> np.ndarray:
+        """Raw features (B, max(lengths), D) float32 in dataset units (:func:`.torch_sampling.sample`), ``known``
+        imposed through hooks built once on the model's device."""
+        x0_hook = xt_hook = None
+        if known is not None and known.plan is not None:
+            x0_hook, xt_hook = edit_hooks(known.plan, self.mean, self.std, len(prompts), self.device, self.dtype,
+                                          known.impose)
+        elif known is not None:
+            if known.impose != "x0":
+                raise SMFError("a known start without an edit plan is imposed on x0")
+            x0_hook = replace_x0(self.normalise(torch.from_numpy(known.values)),
+                                 torch.from_numpy(known.mask).to(self.device))
+        return sample(self, prompts, lengths, settings, seed, x0_hook=x0_hook, xt_hook=xt_hook,
+                      progress=progress).numpy()
+
+    @torch.no_grad()
+    def denoise(self, prompts: list[str], lengths: list[int], *, guidance_scale: float | None = None,
+                steps: int | None = None, sampler: str | None = None, seed: int | list[int] | None = None,
+                batched_cfg: bool = True,
+                footskate: str = "off", footskate_options=None, engine: str | None = None) -> torch.Tensor:
+        """The model's raw features (B, max(lengths), D) of one batch in dataset units (CPU, float32), before
+        the final stage, as a tensor (:func:`.torch_sampling.sample`); for benchmarks, evaluation and training."""
+        settings = self.settings(Settings(guidance_scale=guidance_scale, steps=steps, sampler=sampler,
+                                          footskate=footskate, footskate_options=footskate_options, engine=engine))
+        return sample(self, prompts, lengths, settings, seed, batched_cfg=batched_cfg)
+
+    @torch.no_grad()
+    def sample(self, prompts: list[str], lengths: list[int], *, guidance_scale: float | None = None,
+               steps: int | None = None, sampler: str | None = None, seed: int | list[int] | None = None,
+               batched_cfg: bool = True,
+               footskate: str = "off", footskate_options=None, engine: str | None = None) -> torch.Tensor:
+        """Features (B, max(lengths), D) in dataset units (CPU, float32) of the final motions of one batch
+        (:meth:`denoise`, then :meth:`finish` on each; frames past an item's length are zero)."""
+        raw = self.denoise(prompts, lengths, guidance_scale=guidance_scale, steps=steps, sampler=sampler, seed=seed,
+                           batched_cfg=batched_cfg, footskate=footskate, footskate_options=footskate_options,
+                           engine=engine)
+        out = torch.zeros_like(raw)
+        for i, n in enumerate(lengths):
+            out[i, :n] = torch.from_numpy(self.finish(raw[i, :n].numpy(), footskate, footskate_options)[0])
+        return out
+
+    def engine_for(self, sampler: str | None, engine: str | None = None) -> str:
+        """The engine a call runs with: ``engine`` (default: this backend's) resolved for the sampler (None:
+        the model's)."""
+        return self.settings(Settings(sampler=sampler, engine=engine)).engine
+
+    def guided(self, cond: TextCondition, uncond: TextCondition | None, mask: torch.Tensor, scale: float,
+               batched: bool = True) -> DenoiserFn:
+        """The model under the text condition, with classifier-free guidance unless ``scale`` is 1 (or the
+        model is a student, whose ``cond`` already holds the scale and ``uncond`` is None)."""
+        return guided(self.model, cond, None if scale == 1.0 else uncond, mask, scale, batched)
 
     @property
     def max_steps(self) -> int:

@@ -1,5 +1,6 @@
-"""One sampling call shared by every task: text condition, noise, the denoiser (guidance, x0 hooks), the loop of
-the engine chosen once, back to dataset units. Tasks add constraints as generic hooks:
+"""The torch backend's sampling: the engine chosen once per call (:func:`resolve_engine`), and one call shared by
+every task (:func:`sample`): text condition, noise, the denoiser (guidance, x0 hooks), the loop of the engine, back
+to dataset units. Constraints come as generic hooks:
 
 - ``x0_hook(x0, step) -> x0`` on the model's prediction (normalised, model dtype and device);
 - ``xt_hook(eps, table) -> XHook``: builds the hook applied to x_t after each step from the call's initial
@@ -8,22 +9,28 @@ the engine chosen once, back to dataset units. Tasks add constraints as generic 
 
 from __future__ import annotations
 
+import warnings
 from typing import Callable
 
 import torch
+from tqdm import tqdm
 
-from ..diffusion.engine import COMPILED_ENGINES, GRAPH_ENGINES
+from ..diffusion.engine import COMPILED_ENGINES, GRAPH_ENGINES, check_engine, default_engine
 from ..diffusion.schedulers import make_sampler, sampler_spec
 from ..diffusion.sampling import Noise, Step, X0Hook, XHook, guided, run_diffusers, run_solver, with_x0_hook
 from ..diffusion.solvers import SolverTable
-from .components import Components
-from .settings import HOOK_ENGINES, Settings
+from ..errors import SMFError
+from ..footskate import FootskateOptions
+from ..footskate.cleanup import cleanup_features
+from ..pipelines.final import EngineWarning
+from ..pipelines.settings import Settings
 
 XtHookFactory = Callable[[torch.Tensor, SolverTable], XHook]
+HOOK_ENGINES = ("eager", "fast")  # the engines whose loop runs step by step on the host: they apply x0 / x_t hooks
 
 
 @torch.no_grad()
-def sample(c: Components, prompts: list[str], lengths: list[int], settings: Settings,
+def sample(c, prompts: list[str], lengths: list[int], settings: Settings,
            seed: int | list[int] | None, *, x0_hook: X0Hook | None = None, xt_hook: XtHookFactory | None = None,
            batched_cfg: bool = True, progress: bool = False) -> torch.Tensor:
     """The model's raw features (B, max(lengths), D) in dataset units (CPU, float32), before the final stage.
@@ -31,7 +38,7 @@ def sample(c: Components, prompts: list[str], lengths: list[int], settings: Sett
     it). In footskate 'loop' mode the last predicted x0 are cleaned (rigid body) inside the loop.
     ``progress``: a tqdm bar over the steps (loops that run step by step on the host: not CUDA graphs)."""
     if not settings.resolved:
-        raise ValueError("sample() takes settings resolved for the model: Components.settings(...)")
+        raise ValueError("sample() takes settings resolved for the model: TorchBackend.settings(...)")
     engine = settings.engine
     if (x0_hook is not None or xt_hook is not None or settings.footskate == "loop") and engine not in HOOK_ENGINES:
         raise ValueError(f"hooks need one of the engines {HOOK_ENGINES}, got {engine!r}: resolve with hooks=True")
@@ -64,10 +71,28 @@ def sample(c: Components, prompts: list[str], lengths: list[int], settings: Sett
     return c.denormalise(run_solver(denoiser, table, eps * table.init_sigma, step_noise, x_hook))
 
 
+def resolve_engine(name: str, device: torch.device, sampler: str, *, hooks: bool = False) -> str:
+    """The engine a call runs with, decided once: ``name`` ('auto' = the fastest that works here) for the
+    sampler. Calls with x0 / x_t hooks (edits, timelines, live streams, footskate 'loop') run with one of
+    HOOK_ENGINES: 'auto' picks 'fast'; another engine asked for by name runs them with 'fast' and says so
+    (:class:`EngineWarning`)."""
+    check_engine(name, device)
+    fast = sampler_spec(sampler).fast
+    requested = name
+    if name == "auto":
+        name = default_engine(device, fast)
+    elif name != "eager" and not fast:
+        raise SMFError(f"sampler {sampler!r} runs only with the eager engine (no precomputed form)")
+    if hooks and name not in HOOK_ENGINES:
+        if requested != "auto":
+            warnings.warn(f"engine {requested!r} cannot run edits, timelines, live streams or footskate 'loop' "
+                          "(hooks change every step); this call runs with 'fast'", EngineWarning, stacklevel=4)
+        return "fast"
+    return name
+
+
 def progress_hook(steps: int) -> X0Hook:
     """An x0 hook that only advances a tqdm bar of ``steps`` steps."""
-    from tqdm import tqdm
-
     bar = tqdm(total=steps, desc="denoise", unit="step")
 
     def hook(x0: torch.Tensor, step: Step) -> torch.Tensor:
@@ -79,12 +104,9 @@ def progress_hook(steps: int) -> X0Hook:
     return hook
 
 
-def footskate_hook(c: Components, lengths: list[int], options) -> X0Hook:
+def footskate_hook(c, lengths: list[int], options) -> X0Hook:
     """The in-loop footskate cleanup (on the rigid body) as an x0 hook, on the steps ``options.in_loop``
     selects: each item's first ``lengths[i]`` frames."""
-    from ..footskate import FootskateOptions
-    from ..footskate.cleanup import cleanup_features
-
     options = options or FootskateOptions()
 
     def hook(x0: torch.Tensor, step: Step) -> torch.Tensor:

@@ -15,11 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.folders import MANIFEST, TEACHER_INSTALL  # noqa: F401  (public here too)
 from ..errors import SMFError
 
-FORMAT, VERSION, MANIFEST = "stablemofusion-onnx", 1, "graphs.json"
-# the shipped model's teacher is a distribution of its own (packaging/teacher), installed into the same folders
-TEACHER_INSTALL = "pip install 'stablemofusion[teacher]'"
+FORMAT, VERSION = "stablemofusion-onnx", 1
 TABLE_FIELDS = ("t", "c_in", "a", "b", "c", "d", "level_x0", "level_eps")
 MAX_MANIFEST_BYTES = 4 * 2**20
 

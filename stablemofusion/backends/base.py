@@ -1,0 +1,97 @@
+"""The backend seam: what a task pipeline needs of whatever runs the network. Torch-free.
+
+A backend is a loaded model with its text side: its sizes and skeleton, the settings it resolves a request to, the
+length and domain of a prompt, one sampling call (:meth:`Backend.raw_features`: raw features in dataset units, as
+numpy) and the final stage.
+Every task (text to motion, timeline, edit, stream) is written once against it
+(:mod:`stablemofusion.pipelines`); :mod:`stablemofusion.backends.torch_backend` and
+:mod:`stablemofusion.backends.onnx_backend` implement it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from ..edit_plan import EditPlan
+from ..limits import IMPOSE
+from ..errors import SMFError
+from ..motion.rigid import RigidFitConfig, RigidMotion
+from ..motion.skeleton import Skeleton
+from ..pipelines.settings import Settings
+from ..text.known import DomainCheck
+
+
+@dataclass(frozen=True)
+class Known:
+    """What a sampling call keeps: ``values`` (B, T, D) features in dataset units imposed where ``mask`` (B, T, D)
+    is True, at every step (``impose`` 'x0': on the model's prediction; 'xt': on the noisy sample, a torch-only
+    way); ``plan`` an edit whose root constraints are projected on every prediction too (its known part is
+    ``values``)."""
+
+    values: np.ndarray
+    mask: np.ndarray
+    plan: EditPlan | None = None
+    impose: str = "x0"
+
+    @classmethod
+    def of_plan(cls, plan: EditPlan, impose: str = "x0") -> "Known":
+        """The known part and root constraints of one edit (a batch of one)."""
+        if impose not in IMPOSE:
+            raise SMFError(f"impose must be one of {', '.join(IMPOSE)}, got {impose!r}")
+        return cls(plan.known[None], plan.mask[None], plan, impose)
+
+    @classmethod
+    def prefix(cls, start: np.ndarray, frames: int) -> "Known":
+        """Windows (n, frames, D) whose first ``start.shape[1]`` frames are ``start`` (n, keep, D), whole."""
+        values = np.zeros((start.shape[0], frames, start.shape[2]))
+        values[:, :start.shape[1]] = start
+        mask = np.zeros(values.shape, bool)
+        mask[:, :start.shape[1]] = True
+        return cls(values, mask)
+
+
+class Backend(Protocol):
+    """A loaded model as the task pipelines see it. ``name`` 'torch' or 'onnx'; ``dim`` the feature size D;
+    ``rigid`` the rigid final stage (None: off); ``student`` whether it is a distilled few-step student."""
+
+    name: str
+    skeleton: Skeleton
+    fps: float
+    min_frames: int
+    max_frames: int
+    dim: int
+    rigid: RigidFitConfig | None
+    student: bool
+    has_length_model: bool
+    version: str | None  # the model's version (a release's name)
+    footskate_modes: tuple[str, ...]  # the footskate modes it runs
+    adapters: tuple[str, ...]  # names of the adapters merged into its weights
+
+    def settings(self, settings: Settings | None = None, *, edit: bool = False, hooks: bool = False) -> Settings:
+        """``settings`` resolved once for this model: every None filled in from its defaults, checked, the engine
+        decided. ``edit``: for an edit (a student samples it with more steps); ``hooks``: the call keeps a known
+        part (edits, timelines, streams)."""
+
+    def check_continues(self, settings: Settings, what: str) -> None:
+        """SMFError unless resolved ``settings`` can keep a known part at every step (``what`` names the task)."""
+
+    def predict_seconds(self, prompts: str | list[str]) -> list[float]:
+        """Each prompt's expected length in seconds (one text is one prompt); SMFError without a length model."""
+
+    def domains(self, prompts: list[str]) -> list[DomainCheck | None]:
+        """Each prompt's closest known action (None without known actions), warning once per out-of-domain one."""
+
+    def raw_features(self, prompts: list[str], lengths: list[int], settings: Settings, seed: int | list[int], *,
+               known: Known | None = None, progress: bool = False) -> np.ndarray:
+        """Raw features (B, max(lengths), D) float32 in dataset units, before the final stage; item k draws its
+        noise from ``seed`` (stream k) or ``seed[k]`` (:mod:`stablemofusion.noise`); ``known`` imposed."""
+
+    def finish_many(self, features: list[np.ndarray], footskate: str = "off",
+                    footskate_options=None) -> list[tuple[np.ndarray, RigidMotion | None]]:
+        """The final stage of motions' raw features (T_i, D) (:func:`stablemofusion.pipelines.final.finish_many`)."""
+
+
+__all__ = ["Backend", "Known"]

@@ -1,1 +1,0 @@
-"""The portable runtime: the exported graphs (``smf export --onnx``) on ONNX Runtime and numpy, no torch."""

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.folders import graphs_of, is_student, resolve, teacher_folder
 from ..errors import SMFError
 
 FORMAT = "stablemofusion-adapter"
@@ -193,10 +194,7 @@ def model_weight_shapes(folder: str | Path) -> dict[str, tuple[int, ...]] | None
     teacher inside it); None where neither is there (the PyTorch checks run when it loads)."""
     from safetensors import SafetensorError, safe_open
 
-    from ..backends.onnx_graphs import MANIFEST
-    from ..text.names import GRAPHS_DIR
-
-    folder = _run_folder(Path(folder))
+    folder = resolve(folder)
     for name in ("ema.safetensors", "model.safetensors"):
         if (folder / name).is_file():
             try:
@@ -204,16 +202,13 @@ def model_weight_shapes(folder: str | Path) -> dict[str, tuple[int, ...]] | None
                     return {k: tuple(f.get_slice(k).get_shape()) for k in f.keys()}
             except (SafetensorError, OSError):
                 return None
-    for graphs, entry in ((folder / GRAPHS_DIR, "model"), (folder.parent / GRAPHS_DIR, "teacher")):
-        try:
-            manifest = json.loads((graphs / MANIFEST).read_text(encoding="utf-8"))
-            e = manifest[entry]
-            if entry == "teacher" and e.get("folder") != folder.name:
-                continue
-            return {k: tuple(int(n) for n in w[3]) for k, w in e["weights"].items()}
-        except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError):
-            continue
-    return None
+    found = graphs_of(folder)
+    if found is None:
+        return None
+    try:
+        return {k: tuple(int(n) for n in w[3]) for k, w in found[1]["weights"].items()}
+    except (ValueError, KeyError, TypeError, IndexError, AttributeError):
+        return None
 
 
 def _finite(f, key: str, dtype: str) -> bool:
@@ -222,35 +217,18 @@ def _finite(f, key: str, dtype: str) -> bool:
     return dtype == "BF16" or bool(np.isfinite(f.get_tensor(key)).all())
 
 
-def _run_folder(folder: Path) -> Path:
-    """A model folder, or a training run's folder holding one in ``checkpoint/``."""
-    if not (folder / "config.json").is_file() and (folder / "checkpoint" / "config.json").is_file():
-        return folder / "checkpoint"
-    return folder
-
-
 def model_part(folder: str | Path) -> str:
     """Which part of an adapter fits the model in ``folder``: "student" for a distilled student (its config names
     what it was distilled from), else "teacher"."""
-    try:
-        config = json.loads((_run_folder(Path(folder)) / "config.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError) as e:
-        raise SMFError(f"not a readable model folder: {folder} ({e})") from None
-    return "student" if isinstance(config, dict) and config.get("distil") else "teacher"
+    return "student" if is_student(folder) else "teacher"
 
 
 def teacher_of(folder: str | Path) -> Path | None:
-    """The folder of the teacher a distilled student in ``folder`` names (``distil.teacher``, relative to the
-    student's folder unless absolute), where it is there; else None."""
-    folder = _run_folder(Path(folder))
+    """The folder of the teacher a distilled student in ``folder`` names, where it is there; else None."""
     try:
-        named = json.loads((folder / "config.json").read_text(encoding="utf-8"))["distil"]["teacher"]
-    except (OSError, ValueError, KeyError, TypeError):
+        return teacher_folder(folder)
+    except SMFError:
         return None
-    if not isinstance(named, str) or not named:
-        return None
-    teacher = _run_folder(Path(named) if Path(named).is_absolute() else folder / named)
-    return teacher if (teacher / "config.json").is_file() else None
 
 
 def check_adapter_files(paths, folder: str | Path, part: str | None = None) -> list[AdapterInfo]:

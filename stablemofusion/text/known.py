@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import SMFError
 from ..motion.arrays import to_numpy
-from ..backends.onnx_graphs import MANIFEST
+from ..core.folders import MANIFEST
 from .names import ACTIONS_FILE, DETECTOR_FILE, EMBEDDINGS_FILE, GRAPHS_DIR
 from .sentence import sentence_embedding
 MAX_EMBEDDINGS_BYTES = 64 * 2**20  # a larger embeddings file is not read (the examples are encoded instead)

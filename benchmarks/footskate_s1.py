@@ -23,7 +23,7 @@ from stablemofusion.footskate.contacts import (UP_FOOT_JOINTS, contact_f1, conta
                                                contacts_from_vgrf, kinematic_contacts)
 from stablemofusion.footskate.underpressure import (load_s1, load_underpressure, retarget_23_to_22,
                                                     vgrf_from_joints22, vgrf_from_joints23)
-from stablemofusion.motion.files import resample
+from stablemofusion.motion.resample import resample
 
 
 def _f1s(pred: np.ndarray, true: np.ndarray) -> dict:

@@ -17,7 +17,7 @@ import torch
 
 from stablemofusion.footskate.cleanup import CleanupConfig, cleanup_features
 from stablemofusion.motion.features import features_from_joints
-from stablemofusion.motion.files import resample
+from stablemofusion.motion.resample import resample
 
 
 def main() -> None:

@@ -8,7 +8,7 @@ import time
 
 import torch
 
-from stablemofusion.models.base import build_denoiser
+from stablemofusion.models.registry import build_denoiser
 from stablemofusion.models.presets import get_preset
 
 p = argparse.ArgumentParser()

@@ -24,7 +24,7 @@ import torch
 
 from stablemofusion.diffusion.schedule import make_train_scheduler
 from stablemofusion.diffusion.train import masked_mse
-from stablemofusion.models.base import build_denoiser
+from stablemofusion.models.registry import build_denoiser
 from stablemofusion.models.presets import get_preset
 
 p = argparse.ArgumentParser()

@@ -29,6 +29,7 @@ from .limits import EDIT_MODES, IMPOSE
 from .motion.arrays import device as array_device
 from .motion.arrays import namespace
 from .motion.features import feature_slices
+from .motion.resample import resample
 from .motion.rigid import RigidMotion
 from .motion.root import follow_path, headings, land_at, root_xz
 from .motion.skeleton import Skeleton, get_skeleton
@@ -101,37 +102,6 @@ class PlanTensors:
         return f
 
 
-def edit_hooks(plan: EditPlan, mean, std, batch: int, device, dtype, impose: str = "x0"):
-    """The sampling hooks imposing ``plan`` on a batch (:mod:`stablemofusion.backends.torch_sampling`), built once on
-    the torch side: (x0 hook or None, x_t hook factory or None). ``mean``/``std`` (D,) float32 the model's
-    normalisation; ``impose`` 'x0' (replace the prediction's known entries and project its root) or 'xt'
-    (impute the noisy sample; the root constraints still on x0)."""
-    import torch
-
-    from .diffusion.sampling import impute_xt, replace_x0
-
-    if impose not in IMPOSE:
-        raise SMFError(f"impose must be one of {', '.join(IMPOSE)}, got {impose!r}")
-    on = plan.on(device)
-    mean64, std64 = mean.double().to(device), std.double().to(device)
-    mean32, std32 = mean.to(device), std.to(device)
-
-    def normalise(f: torch.Tensor) -> torch.Tensor:
-        return ((f.float() - mean32) / std32).to(device, dtype)
-
-    known = normalise(on.known).expand(batch, -1, -1)
-    kmask = on.mask.expand(batch, -1, -1)
-    def constrain(x0: torch.Tensor) -> torch.Tensor:  # root constraints: not a fixed set of entries
-        feats = x0.double() * std64 + mean64
-        return normalise(torch.stack([on.project(f) for f in feats]))
-
-    project = None if plan.land is None and plan.path is None else constrain
-    if impose == "x0":
-        return replace_x0(known, kmask, project), None
-    x0_hook = None if project is None else (lambda x0, step: project(x0))
-    return x0_hook, lambda eps, table: impute_xt(known, kmask, eps, table)
-
-
 def check_edit_inputs(mode: str, keep_start: float, keep_end: float, seconds: float | None) -> None:
     """SMFError naming the flag: a bad mode, a negative length, or a mode without the length it needs."""
     if mode not in EDIT_MODES:
@@ -161,7 +131,7 @@ def plan_edit_for(mode: str, source: np.ndarray, skeleton: Skeleton, fps: float,
 
 
 def x0_constraint(plan: EditPlan, mean: np.ndarray, std: np.ndarray):
-    """The portable runtime's x0 hook imposing ``plan`` (``impose="x0"`` of :func:`edit_hooks`, in numpy): the known
+    """The portable runtime's x0 hook imposing ``plan`` (``impose="x0"`` of the torch backend's :func:`~stablemofusion.backends.torch_sampling.edit_hooks`, in numpy): the known
     entries replace the prediction's (B, T, D, normalised), then the root constraints are projected."""
     mean32, std32 = np.asarray(mean, np.float32), np.asarray(std, np.float32)
     known = ((plan.known.astype(np.float32) - mean32) / std32)[None]
@@ -249,7 +219,6 @@ def source_features(motion, skeleton: Skeleton, fps: float, given_fps: float | N
     features `.npy`, BVH): features as they are; joints resampled from ``given_fps`` (default: the file's) to
     ``fps`` and converted (canonical frame, the skeleton's bone lengths), one feature frame per joint frame."""
     from .motion.features import features_from_joints
-    from .motion.files import resample
 
     if motion.skeleton.name != skeleton.name:
         raise SMFError(f"the motion is on the {motion.skeleton.name} skeleton; this model uses {skeleton.name}")
@@ -334,5 +303,5 @@ def plan_edit(mode: str, source: np.ndarray, skeleton: Skeleton, *, keep_start: 
     return EditPlan(known=known, mask=mask, kept=mask.all(-1), source_frame=source_frame, **plan)
 
 
-__all__ = ["EDIT_MODES", "IMPOSE", "EditPlan", "PlanTensors", "check_edit_inputs", "edit_hooks", "plan_edit", "body_mask",
+__all__ = ["EDIT_MODES", "IMPOSE", "EditPlan", "PlanTensors", "check_edit_inputs", "plan_edit", "body_mask",
            "blend_seams", "plan_edit_for", "source_features", "splice_rigid", "x0_constraint"]

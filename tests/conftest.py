@@ -78,7 +78,7 @@ def _save_tiny_checkpoint(path: Path, mean: np.ndarray, std: np.ndarray) -> Path
 
     from stablemofusion.diffusion.checkpoint import save_checkpoint
     from stablemofusion.diffusion.config import CheckpointConfig
-    from stablemofusion.models.base import build_denoiser
+    from stablemofusion.models.registry import build_denoiser
     from stablemofusion.models.presets import get_preset
 
     torch.manual_seed(0)

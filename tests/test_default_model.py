@@ -12,7 +12,7 @@ from stablemofusion.cli.main import main
 from stablemofusion.diffusion.checkpoint import (TEACHER_DIR, graphs_of, load_weights, read_config, teacher_folder,
                                                  weights_from_graphs)
 from stablemofusion.errors import SMFError
-from stablemofusion.models.base import build_denoiser
+from stablemofusion.models.registry import build_denoiser
 from stablemofusion.motion.skeleton import HUMANML3D
 from stablemofusion.motion.features import joints_from_features
 from stablemofusion.motion.files import load_motion

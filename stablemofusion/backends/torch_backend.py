@@ -19,11 +19,11 @@ from ..diffusion.engine import SolverEngine, check_engine
 from ..diffusion.sampling import DenoiserFn, guided, replace_x0
 from ..diffusion.schedulers import sampler_spec
 from ..diffusion.solvers import SolverTable, solver_table
-from ..edit_plan import edit_hooks
 from ..errors import SMFError
 from ..models.base import TextCondition
 from ..motion.rigid import DEFAULT_FIT, RigidFitConfig, RigidMotion
 from ..motion.skeleton import get_skeleton
+from ..text.domain import DomainDetector
 from ..text.known import ACTIONS_FILE, DomainCheck, KnownActions
 from ..text.length import WEIGHTS as LENGTH_WEIGHTS
 from ..text.length import LengthEstimator
@@ -31,7 +31,7 @@ from ..limits import FOOTSKATE_MODES, MAX_STEPS, STUDENT_MAX_STEPS
 from ..pipelines.final import OutOfDomainWarning, finish_many, frames_for
 from ..pipelines.settings import Settings
 from .base import Known
-from .torch_sampling import resolve_engine, sample
+from .torch_sampling import edit_hooks, resolve_engine, sample
 
 
 # the final stage's fit and cleanup run on the GPU from this many motions a call: there, on an H200 at 196 frames,
@@ -95,7 +95,7 @@ class TorchBackend:
         c.path = ck.path
         actions = companion_file(ck.path, ACTIONS_FILE)
         if actions is not None:
-            c.known_actions = KnownActions.load(actions, c.text_cache)
+            c.known_actions = KnownActions.load(actions, c.text_cache, DomainDetector.load)
         length = companion_file(ck.path, LENGTH_WEIGHTS)
         if length is not None:
             c.length_estimator = LengthEstimator.load(length.parent)

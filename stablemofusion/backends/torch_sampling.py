@@ -17,9 +17,12 @@ from tqdm import tqdm
 
 from ..diffusion.engine import COMPILED_ENGINES, GRAPH_ENGINES, check_engine, default_engine
 from ..diffusion.schedulers import make_sampler, sampler_spec
-from ..diffusion.sampling import Noise, Step, X0Hook, XHook, guided, run_diffusers, run_solver, with_x0_hook
+from ..diffusion.sampling import (Noise, Step, X0Hook, XHook, guided, impute_xt, replace_x0, run_diffusers, run_solver,
+                                  with_x0_hook)
 from ..diffusion.solvers import SolverTable
+from ..edit_plan import EditPlan
 from ..errors import SMFError
+from ..limits import IMPOSE
 from ..footskate import FootskateOptions
 from ..footskate.cleanup import cleanup_features
 from ..pipelines.final import EngineWarning
@@ -89,6 +92,33 @@ def resolve_engine(name: str, device: torch.device, sampler: str, *, hooks: bool
                           "(hooks change every step); this call runs with 'fast'", EngineWarning, stacklevel=4)
         return "fast"
     return name
+
+
+def edit_hooks(plan: EditPlan, mean, std, batch: int, device, dtype, impose: str = "x0"):
+    """The sampling hooks imposing ``plan`` on a batch (:mod:`stablemofusion.backends.torch_sampling`), built once on
+    the torch side: (x0 hook or None, x_t hook factory or None). ``mean``/``std`` (D,) float32 the model's
+    normalisation; ``impose`` 'x0' (replace the prediction's known entries and project its root) or 'xt'
+    (impute the noisy sample; the root constraints still on x0)."""
+    if impose not in IMPOSE:
+        raise SMFError(f"impose must be one of {', '.join(IMPOSE)}, got {impose!r}")
+    on = plan.on(device)
+    mean64, std64 = mean.double().to(device), std.double().to(device)
+    mean32, std32 = mean.to(device), std.to(device)
+
+    def normalise(f: torch.Tensor) -> torch.Tensor:
+        return ((f.float() - mean32) / std32).to(device, dtype)
+
+    known = normalise(on.known).expand(batch, -1, -1)
+    kmask = on.mask.expand(batch, -1, -1)
+    def constrain(x0: torch.Tensor) -> torch.Tensor:  # root constraints: not a fixed set of entries
+        feats = x0.double() * std64 + mean64
+        return normalise(torch.stack([on.project(f) for f in feats]))
+
+    project = None if plan.land is None and plan.path is None else constrain
+    if impose == "x0":
+        return replace_x0(known, kmask, project), None
+    x0_hook = None if project is None else (lambda x0, step: project(x0))
+    return x0_hook, lambda eps, table: impute_xt(known, kmask, eps, table)
 
 
 def progress_hook(steps: int) -> X0Hook:

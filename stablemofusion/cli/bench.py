@@ -55,7 +55,7 @@ def _pipeline(args):
     import numpy as np
 
     from ..diffusion.config import CheckpointConfig
-    from ..models.base import build_denoiser
+    from ..models.registry import build_denoiser
     from ..models.presets import get_preset
 
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))

@@ -17,7 +17,7 @@ def add_parser(sub, name: str) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    from ..models.base import build_denoiser
+    from ..models.registry import build_denoiser
     from ..models.presets import PRESETS, describe, get_preset
 
     if args.adapter is not None:

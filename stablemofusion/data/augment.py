@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..motion.features import features_from_joints, joints_from_features
-from ..motion.files import resample
+from ..motion.resample import resample
 from ..motion.skeleton import Skeleton
 
 _WORD = re.compile(r"[A-Za-z']+")

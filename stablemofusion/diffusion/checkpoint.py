@@ -21,7 +21,8 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from ..errors import SMFError
-from ..models.base import Denoiser, build_denoiser
+from ..models.base import Denoiser
+from ..models.registry import build_denoiser
 from ..core.folders import (CHECKPOINT_DIR, CONFIG, companion_file, companion_files, graphs_of,  # noqa: F401
                             resolve, teacher_folder)
 from .config import CheckpointConfig, ExportInfo, check_guidance

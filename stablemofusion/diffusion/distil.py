@@ -141,7 +141,7 @@ def student_from_teacher(teacher, init_from: str | Path | None = None) -> torch.
     """A student: the teacher's architecture with the guidance input and the teacher's weights (the guidance
     embedding zero-initialised, so it starts as the teacher's conditional branch), or the (EMA) weights of the
     student folder ``init_from``."""
-    from ..models.base import build_denoiser
+    from ..models.registry import build_denoiser
 
     model = replace(teacher.config.model, guidance=True)
     student = build_denoiser(model)

@@ -23,7 +23,7 @@ from tqdm import tqdm
 from ..data.batches import TIME_WARP_CONTENTS, get_batch
 from ..data.dataset import MotionTextDataset
 from ..errors import SMFError
-from ..models.base import build_denoiser
+from ..models.registry import build_denoiser
 from ..models.presets import get_preset
 from .checkpoint import CHECKPOINT_DIR, MODEL, load_training_state, read_config, save_checkpoint
 from .config import CheckpointConfig, TrainConfig

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import SMFError
-from ..motion.files import resample
+from ..motion.resample import resample
 
 TOES = (10, 11)  # HumanML3D left/right toe ("foot") joints
 METRIC_FPS = 20.0

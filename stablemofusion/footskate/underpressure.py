@@ -20,7 +20,7 @@ from torch import nn
 
 from ..errors import SMFError
 from ..motion.arrays import numpy_edge, to_torch
-from ..motion.files import resample
+from ..motion.resample import resample
 from ..motion.rotation import qrot
 
 UP_FPS = 100.0

@@ -180,20 +180,3 @@ class ModelConfig:
         text = TextConfig(**{k: v for k, v in d.get("text", {}).items() if k in known})
         return ModelConfig(arch=d["arch"], motion_dim=d.get("motion_dim", 263), text=text,
                            options=dict(d.get("options", {})), guidance=bool(d.get("guidance", False)))
-
-
-def build_denoiser(config: ModelConfig) -> Denoiser:
-    """Instantiate the denoiser named by ``config.arch`` with ``config.options``."""
-    from . import dit, retnet, unet1d  # noqa: F401  (register the architectures)
-
-    if config.arch not in DENOISERS:
-        raise SMFError(f"unknown architecture {config.arch!r}; known: {', '.join(sorted(DENOISERS))}")
-    cls = DENOISERS[config.arch]
-    try:
-        arch_cfg = cls.config_class(**config.options)
-    except TypeError as e:
-        raise SMFError(f"bad options for {config.arch}: {e}") from None
-    model = cls(arch_cfg, config.motion_dim, config.text)
-    if config.guidance:
-        model.init_guidance_condition()
-    return model

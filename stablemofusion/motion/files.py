@@ -15,6 +15,8 @@ from ..errors import MotionFormatError, SMFError
 from ..io import atomic_path, save_npy
 from .bvh import format_bvh, forward_kinematics, read_bvh
 from .features import features_from_joints, joints_from_features
+from .resample import resample
+from .retarget import JointMap, retarget_bvh
 from .rigid import RigidMotion, pose_from_joints
 from .skeleton import Skeleton, get_skeleton, skeleton_for_shape
 
@@ -114,18 +116,6 @@ def check_bones(joints: np.ndarray, skeleton: Skeleton, where: str) -> None:
                                 "average): not a body's joints")
 
 
-def resample(x: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarray:
-    """Linearly resample a motion (T, ...) from ``src_fps`` to ``dst_fps`` over the same duration."""
-    if abs(src_fps - dst_fps) < 1e-9 or len(x) < 2:
-        return x
-    t_src = np.arange(len(x)) / src_fps
-    n = int(np.floor(t_src[-1] * dst_fps + 1e-9)) + 1
-    pos = np.arange(n) / dst_fps * src_fps
-    i0 = np.minimum(np.floor(pos).astype(int), len(x) - 2)
-    w = (pos - i0).reshape((-1,) + (1,) * (x.ndim - 1))
-    return x[i0] * (1 - w) + x[i0 + 1] * w
-
-
 def _kind_for(shape: tuple[int, ...], sk: Skeleton) -> tuple[Skeleton, str]:
     found, kind = skeleton_for_shape(shape)
     if found.name != sk.name:
@@ -141,7 +131,6 @@ def _load_bvh(path: Path, skeleton: str | Skeleton | None, joint_map: str | None
             order = [list(bvh.names).index(n) for n in sk.joint_names]
             return Motion(resample(forward_kinematics(bvh)[:, order], bvh.fps, sk.fps), sk, sk.fps)
     if joint_map is not None:
-        from .retarget import JointMap, retarget_bvh
 
         jm = JointMap.named(joint_map)
         sk = get_skeleton(jm.skeleton)

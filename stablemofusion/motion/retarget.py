@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import SMFError
 from .bvh import BVH, UNIT_SCALES, forward_kinematics, read_bvh
-from .files import resample
+from .resample import resample
 from .skeleton import Skeleton, get_skeleton
 
 

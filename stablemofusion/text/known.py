@@ -95,7 +95,10 @@ class KnownActions:
         return new
 
     @classmethod
-    def load(cls, path: str | Path, text_cache) -> "KnownActions":
+    def load(cls, path: str | Path, text_cache, load_detector=None) -> "KnownActions":
+        """The known actions of an actions file, their embeddings from beside it; ``load_detector(file)`` loads the
+        out-of-domain detector the file names (the torch backend's :meth:`~stablemofusion.text.domain.
+        DomainDetector.load`; None: no detector)."""
         path = Path(path)
         try:
             d = json.loads(path.read_text(encoding="utf-8"))
@@ -105,11 +108,10 @@ class KnownActions:
             raise SMFError(f"{path}: not an actions file ({e})") from None
         detector = None
         if detector_file is not None:
-            from .domain import DomainDetector
-
             if Path(detector_file).name != detector_file:
                 raise SMFError(f"{path}: the detector must be a file beside it, not {detector_file!r}")
-            detector = DomainDetector.load(path.parent / detector_file)
+            if load_detector is not None:
+                detector = load_detector(path.parent / detector_file)
         known = cls(actions, threshold, text_cache, detector=detector)
         known._emb = known._stored_embeddings(path.parent / EMBEDDINGS_FILE)
         if known._emb is None:

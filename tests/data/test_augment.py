@@ -44,7 +44,7 @@ def test_slowed_features_play_the_same_motion_slower(hml_ref):
 
     from stablemofusion.data.augment import slowed_features
     from stablemofusion.motion.features import joints_from_features
-    from stablemofusion.motion.files import resample
+    from stablemofusion.motion.resample import resample
 
     feats = np.load(hml_ref / "new_joint_vecs" / "012314.npy").astype(np.float64)
     T = len(feats)

@@ -10,7 +10,7 @@ from safetensors.torch import load_file
 from stablemofusion.cli.main import main
 from stablemofusion.diffusion.checkpoint import EMA, MODEL, STATE, load_checkpoint, save_checkpoint
 from stablemofusion.diffusion.config import CheckpointConfig
-from stablemofusion.models.base import build_denoiser
+from stablemofusion.models.registry import build_denoiser
 from stablemofusion.models.presets import get_preset
 
 

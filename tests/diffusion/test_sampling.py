@@ -8,7 +8,7 @@ from stablemofusion.diffusion.engine import FRAME_BUCKET, SolverEngine, batch_bu
 from stablemofusion.diffusion.sampling import Noise, Step, cfg_batched, cfg_two_pass, model_denoiser, \
     rescale_guidance, run_solver, with_x0_hook
 from stablemofusion.diffusion.solvers import solver_table
-from stablemofusion.models.base import build_denoiser
+from stablemofusion.models.registry import build_denoiser
 from stablemofusion.models.presets import get_preset
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 

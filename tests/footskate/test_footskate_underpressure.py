@@ -95,7 +95,7 @@ def test_network_shapes_without_weights():
 
 def test_retarget_23_to_22_and_back_keeps_the_port_close(net, s1):
     from stablemofusion.footskate.underpressure import retarget_23_to_22
-    from stablemofusion.motion.files import resample
+    from stablemofusion.motion.resample import resample
 
     j22 = retarget_23_to_22(s1["joints"][:1000])  # 100 -> 20 fps
     assert j22.shape == (200, 22, 3)

@@ -11,7 +11,8 @@ import pytest
 import torch
 
 from stablemofusion.errors import SMFError
-from stablemofusion.models.base import DENOISERS, ModelConfig, TextConfig, build_denoiser
+from stablemofusion.models.base import DENOISERS, ModelConfig, TextConfig
+from stablemofusion.models.registry import build_denoiser
 from stablemofusion.models.dit import DiT, DiTConfig
 from stablemofusion.models.retnet import RetNet, RetNetConfig
 

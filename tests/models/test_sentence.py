@@ -4,7 +4,8 @@ import dataclasses
 
 import torch
 
-from stablemofusion.models.base import ModelConfig, build_denoiser
+from stablemofusion.models.base import ModelConfig
+from stablemofusion.models.registry import build_denoiser
 from stablemofusion.models.presets import get_preset
 from stablemofusion.text.frozen import sentence_embedding
 

@@ -11,9 +11,10 @@ from dataclasses import asdict, replace
 import pytest
 import torch
 
-from stablemofusion.models.base import ModelConfig, TextConfig, build_denoiser
+from stablemofusion.models.base import ModelConfig, TextConfig
+from stablemofusion.models.registry import build_denoiser
 from stablemofusion.models.attention import CrossAttention
-from stablemofusion.models.base import build_denoiser
+from stablemofusion.models.registry import build_denoiser
 from stablemofusion.models.presets import get_preset
 from stablemofusion.models.unet1d import CondUNet1D, FrameGroupNorm, UNetConfig
 

@@ -115,7 +115,7 @@ def test_export_writes_actions_and_detector(checkpoint_with_actions, tmp_path, m
                  "--lexicon", "bandai", "--corpus", str(corpus)]) == 0
     assert set(json.loads((tmp_path / "labelled" / ACTIONS_FILE).read_text())["actions"]) == {"walk", "wave-both-hands"}
     assert d["detector"]["file"] == DETECTOR_FILE and (tmp_path / "rel" / DETECTOR_FILE).is_file()
-    known = KnownActions.load(tmp_path / "rel" / ACTIONS_FILE, cache)
+    known = KnownActions.load(tmp_path / "rel" / ACTIONS_FILE, cache, DomainDetector.load)
     assert known.detector is not None and 0 < known.check("a person walks forward").similarity < 1
 
 
@@ -151,7 +151,7 @@ def test_bad_detector_files(tmp_path, cache):
 def shipped(cache):
     """The default model's actions.json with its detector."""
     path = default_model_path() / ACTIONS_FILE
-    known = KnownActions.load(path, cache)
+    known = KnownActions.load(path, cache, DomainDetector.load)
     assert known.detector is not None
     return known
 

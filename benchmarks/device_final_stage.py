@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
-from stablemofusion.pipelines.final import finish_many
+from stablemofusion.core.final import finish_many
 from stablemofusion.text.cache import TextEmbeddingCache
 
 PROMPT = "a person walks forward and waves with the right hand"

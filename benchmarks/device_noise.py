@@ -33,9 +33,9 @@ import numpy as np
 import torch
 
 from stablemofusion.diffusion import sampling
-from stablemofusion.noise import draws
+from stablemofusion.core.noise import draws
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
-from stablemofusion.pipelines.settings import Settings
+from stablemofusion.core.settings import Settings
 from stablemofusion.text.cache import TextEmbeddingCache
 
 PROMPT = "a person walks forward and waves with the right hand"

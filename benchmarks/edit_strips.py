@@ -24,7 +24,7 @@ EDITS = [  # file name, prompt, mode, options
 
 
 def main() -> None:
-    from stablemofusion.edit_plan import source_features
+    from stablemofusion.core.edit_plan import source_features
     from stablemofusion.motion.features import joints_from_features
     from stablemofusion.motion.files import load_motion
     from stablemofusion.pipelines.motion_pipeline import MotionPipeline

@@ -6,7 +6,7 @@ Rows: baseline (DDPM 1000 steps, text encoded by the language model on every cal
 unconditional passes separately) -> + 10-step SDE DPM-Solver++ Karras -> + text embedding cache ->
 + batched CFG -> + float16 (only on CUDA). Prints a markdown table and JSON.
 
-The baseline's 1,000 steps are past what a request may ask (steps 1-50, stablemofusion/limits.py): this research
+The baseline's 1,000 steps are past what a request may ask (steps 1-50, stablemofusion/core/limits.py): this research
 benchmark resolves each row's settings with the model's own checks and then sets its step count, calling the
 sampler below the request checks (stablemofusion.backends.torch_sampling.sample), as the paper's baseline ran.
 """
@@ -23,7 +23,7 @@ import torch
 
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.backends.torch_sampling import sample as sample_raw
-from stablemofusion.pipelines.settings import GUIDANCE, Settings
+from stablemofusion.core.settings import GUIDANCE, Settings
 
 
 def aits(pipe: MotionPipeline, prompts, frames: int, *, sampler: str, steps: int, batched_cfg: bool, cached: bool,

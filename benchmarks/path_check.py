@@ -44,7 +44,7 @@ def main() -> None:
     args = ap.parse_args()
     from stablemofusion.footskate.metrics import mean_metrics
     from stablemofusion.motion.rigid import bone_length_deviation
-    from stablemofusion.path_plan import parse_path
+    from stablemofusion.core.path_plan import parse_path
     from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     warnings.simplefilter("ignore")

@@ -49,7 +49,7 @@ def main() -> None:
     if args.adapter is not None:
         import tempfile
 
-        from stablemofusion.onnx_export import export_onnx
+        from stablemofusion.backends.onnx_export import export_onnx
         from stablemofusion.backends.onnx_backend import default_graphs_path
 
         graphs = export_onnx(None, Path(tempfile.mkdtemp()) / "graphs", adapters=[args.adapter],

@@ -52,9 +52,9 @@ def main() -> None:
     args = ap.parse_args()
     from playwright.sync_api import sync_playwright
 
-    from stablemofusion.path_plan import parse_path
+    from stablemofusion.core.path_plan import parse_path
     from stablemofusion.pipelines.motion_pipeline import MotionPipeline
-    from stablemofusion.site import folder_size, write_site
+    from stablemofusion.serve.site import folder_size, write_site
 
     pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
     prompts = [json.loads(line)["prompt"] for line in (HERE / "prompts_freeform.jsonl").read_text().splitlines()]

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from stablemofusion.cli.main import main
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.serve import create_app
 

@@ -38,7 +38,7 @@ def measure(pipe, steps: int, args, classifier, labels, probes: dict, evaluator,
     from stablemofusion.eval.prompts import prompt_accuracy
     from stablemofusion.eval.protocol import EmbeddingModel, EvalConfig, evaluate
 
-    from stablemofusion.pipelines.settings import Settings
+    from stablemofusion.core.settings import Settings
 
     s = pipe.settings(Settings(guidance_scale=args.guidance, sampler=sampler))
     row: dict = {"steps": steps, "sampler": s.sampler, "guidance": s.guidance_scale}

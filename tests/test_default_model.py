@@ -11,13 +11,13 @@ from stablemofusion.adapters.file import weights_hash
 from stablemofusion.cli.main import main
 from stablemofusion.diffusion.checkpoint import (TEACHER_DIR, graphs_of, load_weights, read_config, teacher_folder,
                                                  weights_from_graphs)
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.models.registry import build_denoiser
 from stablemofusion.motion.skeleton import HUMANML3D
 from stablemofusion.motion.features import joints_from_features
 from stablemofusion.motion.files import load_motion
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline, default_model_path
-from stablemofusion.limits import SAMPLER, STEPS, STUDENT_SAMPLER
+from stablemofusion.core.limits import SAMPLER, STEPS, STUDENT_SAMPLER
 from stablemofusion.text import EMBEDDINGS_FILE, TEXT_SIDE_FILES
 
 

@@ -36,7 +36,7 @@ def _flat(text: str) -> str:
 def test_the_readme_states_the_defaults_limits_and_formats_the_code_has():
     """The README's checkable facts read from the code: generate's default formats (table and --help), the one
     set of rules (limits.py), the default footskate mode, what convert reads and writes."""
-    from stablemofusion import limits
+    from stablemofusion.core import limits
     from stablemofusion.motion.files import MOTION_SUFFIXES
 
     readme = _flat((ROOT / "README.md").read_text(encoding="utf-8"))

@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from stablemofusion.dropout import KEEP_BITS, Dropout, dropout
+from stablemofusion.models.dropout import KEEP_BITS, Dropout, dropout
 from stablemofusion.models.registry import build_denoiser
 from stablemofusion.models.presets import get_preset
 

@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from stablemofusion.cli.main import main
-from stablemofusion.edit_plan import blend_seams, body_mask, plan_edit, source_features
-from stablemofusion.errors import SMFError
+from stablemofusion.core.edit_plan import blend_seams, body_mask, plan_edit, source_features
+from stablemofusion.core.errors import SMFError
 from stablemofusion.motion.features import features_from_joints, joints_from_features
 from stablemofusion.motion.files import load_motion
 from stablemofusion.motion.root import follow_path, headings, land_at, place_like, root_xz

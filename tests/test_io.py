@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from stablemofusion.io import STALE_TEMP_S, write_bytes, write_text
+from stablemofusion.core.io import STALE_TEMP_S, write_bytes, write_text
 
 
 def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path):

@@ -1,14 +1,16 @@
 """The package's layers hold in the code: every import (at module top or inside a function) runs downward, no
 module imports itself back through others, and the core imports no PyTorch. Layers, lowest first:
 
-- core: errors, limits, settings, seeded noise, motion math, footskate cleanup, plans (edits, paths, timelines,
-  streams), the final stage's entry points, the result type, outputs, model folders; torch-free;
-- model: networks, diffusion, training data, the text encoders, adapters (PyTorch where it computes);
-- backends: the seam and the torch and ONNX backends;
-- pipelines: the tasks written once against the seam, and MotionPipeline;
-- training and evaluation: evaluation, adapter training and reports, graph export;
-- serving: the HTTP server, bulk runs on Ray, the static page;
-- cli: the `smf` command.
+- core (``core/``, ``motion/``, ``footskate/``, ``render/``, the text side's file names and known actions): errors,
+  limits, settings, seeded noise, motion math, footskate cleanup, plans (edits, paths, timelines, streams), the
+  final stage's entry points, the result type, outputs, model folders; it loads without PyTorch;
+- model (``models/``, ``diffusion/``, ``data/``, ``text/``, ``adapters/``): networks, diffusion, training data, the
+  text encoders, adapters (PyTorch where it computes);
+- backends (``backends/``): the seam, the torch and ONNX backends, the export of a model's graphs;
+- pipelines (``pipelines/``): the tasks written once against the seam, and MotionPipeline;
+- training and evaluation (``eval/``, adapter training and reports);
+- serving (``serve/``, ``bulk/``): the HTTP server, the static page, bulk runs on Ray;
+- cli (``cli/``): the `smf` command.
 
 The root package (``stablemofusion/__init__.py``) is the public face: it names the version and imports
 MotionPipeline on first use, so it belongs to no layer."""
@@ -21,15 +23,12 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "stablemofusion"
 
 LAYERS = {  # module prefix -> layer; a module takes the layer of its longest matching prefix
-    "core": ("core", "errors", "limits", "noise", "io", "output", "render", "motion", "edit_plan", "path_plan",
-             "timeline_plan", "motion_stream", "footskate", "text.names", "text.known", "text.sentence",
-             "pipelines.settings", "pipelines.final", "pipelines.result"),
-    "model": ("models", "diffusion", "data", "text", "adapters", "dropout", "footskate.vgrf",
-              "footskate.underpressure"),
+    "core": ("core", "motion", "footskate", "render", "text.names", "text.known", "text.sentence"),
+    "model": ("models", "diffusion", "data", "text", "adapters", "footskate.vgrf", "footskate.underpressure"),
     "backends": ("backends",),
     "pipelines": ("pipelines",),
-    "training and evaluation": ("eval", "adapters.train", "adapters.report", "onnx_export"),
-    "serving": ("serve", "bulk", "site"),
+    "training and evaluation": ("eval", "adapters.train", "adapters.report"),
+    "serving": ("serve", "bulk"),
     "cli": ("cli",),
 }
 ORDER = list(LAYERS)

@@ -10,7 +10,7 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from stablemofusion.noise import batch_noise, draw_key, draws, mix, noise, normal
+from stablemofusion.core.noise import batch_noise, draw_key, draws, mix, noise, normal
 
 
 def test_mix_is_the_published_bijection_on_known_values():
@@ -109,7 +109,7 @@ def test_a_sampling_call_draws_the_portable_noise_on_its_device():
 
 
 def test_a_large_batch_is_made_a_few_items_at_a_time_with_the_same_numbers(monkeypatch):
-    import stablemofusion.noise as module
+    import stablemofusion.core.noise as module
 
     want = draws(11, [20, 19, 18, 20, 5], 263, [0, 2])
     monkeypatch.setattr(module, "CHUNK", 263 * 20 * 2)  # two items a chunk

@@ -1,4 +1,4 @@
-"""stablemofusion.output: bytes and files of a MotionResult from one place; never overwrites silently."""
+"""stablemofusion.core.output: bytes and files of a MotionResult from one place; never overwrites silently."""
 
 import dataclasses
 import io
@@ -7,14 +7,14 @@ import json
 import numpy as np
 import pytest
 
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.footskate.cleanup import CLEANUP_CONTACTS
 from stablemofusion.footskate.contacts import kinematic_contacts
 from stablemofusion.motion.features import features_from_joints
 from stablemofusion.motion.files import load_motion
-from stablemofusion.output import (FORMATS, JSON_DECIMALS, OUTPUTS, WRITERS, bvh_text, free_stem, json_bytes,
+from stablemofusion.core.output import (FORMATS, JSON_DECIMALS, OUTPUTS, WRITERS, bvh_text, free_stem, json_bytes,
                                    json_payload, npy_bytes, parse_formats, write_result, write_results, writer)
-from stablemofusion.pipelines.result import MotionResult
+from stablemofusion.core.result import MotionResult
 
 
 @pytest.fixture(scope="module")

@@ -91,7 +91,7 @@ def without_teacher(tmp_path_factory):
 
 def test_without_the_teacher_the_student_runs_and_teacher_says_how_to_install_it(without_teacher, capsys):
     from stablemofusion.cli.main import main
-    from stablemofusion.errors import SMFError
+    from stablemofusion.core.errors import SMFError
     from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     motion = MotionPipeline.from_pretrained(without_teacher, backend="onnx", threads=1)("a person walks", seconds=2, seed=0)[0]

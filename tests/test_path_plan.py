@@ -1,4 +1,4 @@
-"""Paths from words (stablemofusion/path_plan.py): the words read, and motions bent to follow them on the shipped
+"""Paths from words (stablemofusion/core/path_plan.py): the words read, and motions bent to follow them on the shipped
 model (its portable graphs): the hips' facing turns as the words say (exactly without cleanup), a planted foot is
 turned about, circles close, timelines bend their own segments, and the torch path does the same."""
 
@@ -11,7 +11,7 @@ import pytest
 
 from stablemofusion.footskate.metrics import mean_metrics
 from stablemofusion.motion.features import joints_from_features
-from stablemofusion.path_plan import KINDS, bend, facing, heading_offset, parse_path
+from stablemofusion.core.path_plan import KINDS, bend, facing, heading_offset, parse_path
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 
@@ -152,7 +152,7 @@ def test_a_long_explicit_path_is_a_timeline_and_both_runtimes_agree(pipe):
                                            ({"points": [[0, 0], [0, 3]], "times": [0, 1e-9]}, "at most 12 m/s"),
                                            ({"points": SQUARE, "times": [0, 1, 2, 2.01]}, "between points 3 and 4")])
 def test_a_bad_path_is_one_clear_error(pipe, data, message):
-    from stablemofusion.errors import SMFError
+    from stablemofusion.core.errors import SMFError
 
     with pytest.raises(SMFError, match=message):
         pipe("a person walks", path=data)

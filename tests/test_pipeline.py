@@ -8,7 +8,7 @@ import torch
 
 from stablemofusion.cli.main import main
 from stablemofusion.diffusion.schedulers import make_sampler, sampler_names
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.pipelines.motion_pipeline import LengthClampedWarning, MotionPipeline, Settings
 
 
@@ -213,7 +213,7 @@ def test_the_final_stage_runs_its_functions_where_the_model_runs(device, footska
     its GPU): the same features, joints and held feet within 1e-9 m, motions of several lengths in one call."""
     from stablemofusion.motion.rigid import DEFAULT_FIT
     from stablemofusion.motion.skeleton import get_skeleton
-    from stablemofusion.pipelines.final import finish_many
+    from stablemofusion.core.final import finish_many
     from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     raw = MotionPipeline.from_pretrained(backend="onnx", threads=1)(["a person walks forward", "someone waves both hands",

@@ -24,7 +24,7 @@ from stablemofusion.cli.main import main
 from stablemofusion.motion.bvh import forward_kinematics, read_bvh
 from stablemofusion.motion.skeleton import HUMANML3D
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
-from stablemofusion.site import WEBGPU_FILES
+from stablemofusion.serve.site import WEBGPU_FILES
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
@@ -175,7 +175,7 @@ def test_a_site_that_cannot_be_written_is_one_line_and_leaves_nothing(tmp_path, 
     """A full disk while the model is copied: one line naming the reason, exit 2, no half-written folder."""
     import errno
 
-    import stablemofusion.site as site
+    import stablemofusion.serve.site as site
 
     def full(*_a, **_k):
         raise OSError(errno.ENOSPC, "No space left on device")

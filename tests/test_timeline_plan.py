@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from stablemofusion.cli.main import main
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
-from stablemofusion.timeline_plan import TAIL, check_timeline, parse_timeline, plan_windows
+from stablemofusion.core.timeline_plan import TAIL, check_timeline, parse_timeline, plan_windows
 
 
 def test_parse_timeline():

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.folders import graphs_of, is_student, resolve, teacher_folder
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 FORMAT = "stablemofusion-adapter"
 VERSION = 1

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 CAPTIONS_FILE = "captions.csv"
 MAX_CLIPS = 5000

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import torch
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .check import FORMAT, PARTS, VERSION, AdapterInfo, check_adapter_files, model_part, read_header  # noqa: F401
 from .lora import layer_deltas
 
@@ -92,7 +92,7 @@ class Adapter:
         """Write the adapter file atomically (float16 weights)."""
         from safetensors.torch import save_file
 
-        from ..io import atomic_path
+        from ..core.io import atomic_path
 
         tensors = {f"{part}/{k}": v.to(torch.float16).contiguous() for part, w in self.weights.items()
                    for k, v in w.items()}

@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from ..text.transformer import no_fast_path  # noqa: F401  (public here too: adapters train under it)
 from .check import LORA_A, LORA_B, MAX_SCALE, LoraConfig, fit_layers  # noqa: F401  (public here too)
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import write_text
+from ..core.io import write_text
 from .file import Adapter
 
 REPORT_CAPTIONS = 6

@@ -36,8 +36,8 @@ import numpy as np
 import torch
 
 from ..diffusion.config import LENGTH_MULTIPLE
-from ..errors import SMFError
-from ..limits import SEED_RANGE
+from ..core.errors import SMFError
+from ..core.limits import SEED_RANGE
 from .clips import Clip
 from .file import Adapter, AdapterInfo, weights_hash
 from .lora import LoraConfig, add_lora, load_lora_state, lora_state, no_fast_path
@@ -225,7 +225,7 @@ class _Run:
         self.seconds = float(self.state.get("seconds", 0.0)) if self.state else 0.0
 
     def save(self, **state) -> None:
-        from ..io import atomic_path
+        from ..core.io import atomic_path
 
         with atomic_path(self.work / STATE_FILE) as tmp:
             torch.save({"fingerprint": self.fingerprint, **state}, tmp)
@@ -263,7 +263,7 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
     from ..diffusion.schedule import make_train_scheduler
     from ..diffusion.solvers import solver_table
     from ..diffusion.train import masked_mse
-    from ..limits import STUDENT_SAMPLER
+    from ..core.limits import STUDENT_SAMPLER
     from ..core.folders import model_folder
     from ..pipelines.motion_pipeline import MotionPipeline
 

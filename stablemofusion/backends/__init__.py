@@ -7,8 +7,8 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
-from ..errors import SMFError
-from ..limits import PORTABLE_ENGINE
+from ..core.errors import SMFError
+from ..core.limits import PORTABLE_ENGINE
 from .base import Backend, Known
 
 BACKENDS = ("torch", "onnx")

@@ -15,12 +15,12 @@ from typing import Protocol
 
 import numpy as np
 
-from ..edit_plan import EditPlan
-from ..limits import IMPOSE
-from ..errors import SMFError
+from ..core.edit_plan import EditPlan
+from ..core.limits import IMPOSE
+from ..core.errors import SMFError
 from ..motion.rigid import RigidFitConfig, RigidMotion
 from ..motion.skeleton import Skeleton
-from ..pipelines.settings import Settings
+from ..core.settings import Settings
 from ..text.known import DomainCheck
 
 
@@ -87,11 +87,11 @@ class Backend(Protocol):
     def raw_features(self, prompts: list[str], lengths: list[int], settings: Settings, seed: int | list[int], *,
                known: Known | None = None, progress: bool = False) -> np.ndarray:
         """Raw features (B, max(lengths), D) float32 in dataset units, before the final stage; item k draws its
-        noise from ``seed`` (stream k) or ``seed[k]`` (:mod:`stablemofusion.noise`); ``known`` imposed."""
+        noise from ``seed`` (stream k) or ``seed[k]`` (:mod:`stablemofusion.core.noise`); ``known`` imposed."""
 
     def finish_many(self, features: list[np.ndarray], footskate: str = "off",
                     footskate_options=None) -> list[tuple[np.ndarray, RigidMotion | None]]:
-        """The final stage of motions' raw features (T_i, D) (:func:`stablemofusion.pipelines.final.finish_many`)."""
+        """The final stage of motions' raw features (T_i, D) (:func:`stablemofusion.core.final.finish_many`)."""
 
 
 __all__ = ["Backend", "Known"]

@@ -14,13 +14,13 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ..edit_plan import x0_constraint
-from ..errors import SMFError
-from ..limits import FOOTSKATE, PORTABLE_ENGINE, PORTABLE_FOOTSKATE, STUDENT_EDIT_STEPS
+from ..core.edit_plan import x0_constraint
+from ..core.errors import SMFError
+from ..core.limits import FOOTSKATE, PORTABLE_ENGINE, PORTABLE_FOOTSKATE, STUDENT_EDIT_STEPS
 from ..motion.rigid import DEFAULT_FIT, RigidMotion
 from ..motion.skeleton import get_skeleton
-from ..pipelines.final import OutOfDomainWarning, finish_many
-from ..pipelines.settings import Settings
+from ..core.final import OutOfDomainWarning, finish_many
+from ..core.settings import Settings
 from ..text.names import GRAPHS_DIR
 from .base import Known
 from .onnx_graphs import TEACHER_INSTALL, PortableGraphs

@@ -1,4 +1,4 @@
-"""The portable graphs of a model (``smf export --onnx``; :mod:`stablemofusion.onnx_export` says what each
+"""The portable graphs of a model (``smf export --onnx``; :mod:`stablemofusion.backends.onnx_export` says what each
 takes and gives) loaded into ONNX Runtime, with the tokenizer: no torch.
 
 :class:`PortableModel` is one model (the student, or its teacher): its text side and one denoising step as
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.folders import MANIFEST, TEACHER_INSTALL  # noqa: F401  (public here too)
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 FORMAT, VERSION = "stablemofusion-onnx", 1
 TABLE_FIELDS = ("t", "c_in", "a", "b", "c", "d", "level_x0", "level_eps")
@@ -148,7 +148,7 @@ class PortableGraphs:
         if m.get("format") != FORMAT or m.get("version") != VERSION:
             raise SMFError(f"{path}: not a graphs manifest of version {VERSION} (format {m.get('format')!r}, version "
                            f"{m.get('version')!r})")
-        from ..noise import NOISE_VERSION
+        from ..core.noise import NOISE_VERSION
 
         if m.get("noise_version") != NOISE_VERSION:
             raise SMFError(f"{path}: made for noise version {m.get('noise_version')}, this runtime draws version "

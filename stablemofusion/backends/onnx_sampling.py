@@ -8,7 +8,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..noise import batch_noise, draws
+from ..core.noise import batch_noise, draws
 from .onnx_graphs import PortableModel, Table
 
 Denoiser = Callable[[np.ndarray, int], np.ndarray]  # (model input x (B, T, D), step k) -> x0 (B, T, D)
@@ -57,9 +57,9 @@ def sample(model: PortableModel, tokens: np.ndarray, mask: np.ndarray, lengths: 
            guidance: float, sampler: str, steps: int,
            x0_hook: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """The model's raw features (B, max(lengths), D) in dataset units (float32), before the final stage: item k
-    draws its noise from ``seed`` (stream k) or ``seed[k]`` (:func:`stablemofusion.noise.batch_noise`).
+    draws its noise from ``seed`` (stream k) or ``seed[k]`` (:func:`stablemofusion.core.noise.batch_noise`).
     ``x0_hook``: applied to every prediction (normalised), e.g. an edit's known part
-    (:func:`stablemofusion.edit_plan.x0_constraint`)."""
+    (:func:`stablemofusion.core.edit_plan.x0_constraint`)."""
     table = model.table(sampler, steps)
     T = max(lengths)
     x = batch_noise(seed, lengths, model.dim, draw=0) * np.float32(table.init_sigma)

@@ -19,7 +19,7 @@ from ..diffusion.engine import SolverEngine, check_engine
 from ..diffusion.sampling import DenoiserFn, guided, replace_x0
 from ..diffusion.schedulers import sampler_spec
 from ..diffusion.solvers import SolverTable, solver_table
-from ..errors import SMFError
+from ..core.errors import SMFError
 from ..models.base import TextCondition
 from ..motion.rigid import DEFAULT_FIT, RigidFitConfig, RigidMotion
 from ..motion.skeleton import get_skeleton
@@ -27,9 +27,9 @@ from ..text.domain import DomainDetector
 from ..text.known import ACTIONS_FILE, DomainCheck, KnownActions
 from ..text.length import WEIGHTS as LENGTH_WEIGHTS
 from ..text.length import LengthEstimator
-from ..limits import FOOTSKATE_MODES, MAX_STEPS, STUDENT_MAX_STEPS
-from ..pipelines.final import OutOfDomainWarning, finish_many, frames_for
-from ..pipelines.settings import Settings
+from ..core.limits import FOOTSKATE_MODES, MAX_STEPS, STUDENT_MAX_STEPS
+from ..core.final import OutOfDomainWarning, finish_many, frames_for
+from ..core.settings import Settings
 from .base import Known
 from .torch_sampling import edit_hooks, resolve_engine, sample
 
@@ -294,7 +294,7 @@ class TorchBackend:
         return [int(f) / self.fps for f in frames]
 
     def frames_for(self, seconds: float | None, frames: int | None) -> int:
-        """A requested duration in frames (:func:`~stablemofusion.pipelines.final.frames_for`); lengths past
+        """A requested duration in frames (:func:`~stablemofusion.core.final.frames_for`); lengths past
         ``max_frames`` are kept: they are generated window by window (timelines)."""
         return frames_for(seconds, frames, self.fps, self.min_frames)
 

@@ -20,13 +20,13 @@ from ..diffusion.schedulers import make_sampler, sampler_spec
 from ..diffusion.sampling import (Noise, Step, X0Hook, XHook, guided, impute_xt, replace_x0, run_diffusers, run_solver,
                                   with_x0_hook)
 from ..diffusion.solvers import SolverTable
-from ..edit_plan import EditPlan
-from ..errors import SMFError
-from ..limits import IMPOSE
+from ..core.edit_plan import EditPlan
+from ..core.errors import SMFError
+from ..core.limits import IMPOSE
 from ..footskate import FootskateOptions
 from ..footskate.cleanup import cleanup_features
-from ..pipelines.final import EngineWarning
-from ..pipelines.settings import Settings
+from ..core.final import EngineWarning
+from ..core.settings import Settings
 
 XtHookFactory = Callable[[torch.Tensor, SolverTable], XHook]
 HOOK_ENGINES = ("eager", "fast")  # the engines whose loop runs step by step on the host: they apply x0 / x_t hooks

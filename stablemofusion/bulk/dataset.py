@@ -18,8 +18,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from .. import __version__
-from ..errors import SMFError
-from ..io import atomic_path, write_text
+from ..core.errors import SMFError
+from ..core.io import atomic_path, write_text
 
 MANIFEST = "_manifest.json"  # a leading underscore: Parquet readers (pyarrow, datasets) skip it
 FORMAT = 1  # bump when the columns change

@@ -15,7 +15,7 @@ import ray
 from ray.util import ActorPool
 from tqdm import tqdm
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .dataset import BulkPlan, make_shard, start, write_shard
 
 
@@ -85,7 +85,7 @@ def cause(error: Exception) -> str:
     lines = [ln.strip() for ln in str(error).splitlines() if ln.strip()]
     named = [ln for ln in lines if re.match(r"^[\w.]*(Error|Exception)\b(: |$)", ln)]
     line = named[-1] if named else (lines[0] if lines else type(error).__name__)
-    return line.removeprefix("stablemofusion.errors.").removeprefix("SMFError: ")
+    return line.removeprefix("stablemofusion.core.errors.").removeprefix("SMFError: ")
 
 
 __all__ = ["RESTARTS", "ShardWorker", "cause", "run"]

@@ -42,7 +42,7 @@ def add_parser(sub, name: str) -> None:
 
 
 def _ints(text: str, what: str) -> list[int]:
-    from ..errors import SMFError
+    from ..core.errors import SMFError
 
     try:
         vals = [int(x) for x in text.split(",") if x.strip()]
@@ -54,7 +54,7 @@ def _ints(text: str, what: str) -> list[int]:
 
 
 def _write(out: Path, result: dict, md: str) -> None:
-    from ..io import write_text
+    from ..core.io import write_text
 
     write_text(out, json.dumps(result, indent=2, default=float) + "\n")
     write_text(out.with_suffix(".md"), md + "\n")
@@ -62,10 +62,10 @@ def _write(out: Path, result: dict, md: str) -> None:
 
 def run_samplers(args: argparse.Namespace) -> None:
     from ..diffusion.schedulers import make_sampler
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..eval.ablation import ablate_samplers, sampler_markdown
     from ..pipelines.motion_pipeline import MotionPipeline
-    from ..pipelines.settings import Settings
+    from ..core.settings import Settings
     from .evaluate import eval_config, load_embedder, rigid_config
 
     if not args.data.is_dir():
@@ -93,10 +93,10 @@ def run_samplers(args: argparse.Namespace) -> None:
 
 def run_arch(args: argparse.Namespace) -> None:
     from ..diffusion.train import TrainConfig
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..eval.ablation import ARCH_PRESETS, ablate_arch, arch_markdown
     from ..models.presets import get_preset
-    from ..pipelines.settings import model_defaults
+    from ..core.settings import model_defaults
     from .evaluate import eval_config, load_embedder, rigid_config
 
     if not args.data.is_dir():

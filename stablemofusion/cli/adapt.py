@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> None:
     import sys
     import time
 
-    from ..errors import SMFError
+    from ..core.errors import SMFError
 
     cfg = config_from_args(AdaptConfig, args, _FLAGS).check()
     if args.out.exists() and not args.overwrite:

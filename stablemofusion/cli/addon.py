@@ -35,8 +35,8 @@ def addon_files() -> dict[str, bytes]:
 def write_addon(out: Path) -> Path:
     import zipfile
 
-    from ..errors import SMFError
-    from ..io import atomic_path
+    from ..core.errors import SMFError
+    from ..core.io import atomic_path
 
     if out.suffix.lower() != ".zip":
         raise SMFError(f"--out must be a .zip file, got {out}")

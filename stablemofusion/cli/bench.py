@@ -14,7 +14,7 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
-    from ..limits import SAMPLER, STEPS, STUDENT_SAMPLER
+    from ..core.limits import SAMPLER, STEPS, STUDENT_SAMPLER
     from .flags import add_teacher_flag
     from .options import add_adapter_flag
 
@@ -49,7 +49,7 @@ def _pipeline(args):
         return MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device,
                                               adapter=args.adapter)
     if args.teacher or args.checkpoint is not None or args.adapter:
-        from ..errors import SMFError
+        from ..core.errors import SMFError
 
         raise SMFError("--preset times an untrained preset: not with --checkpoint, --teacher or --adapter")
     import numpy as np
@@ -90,12 +90,12 @@ REST_BONE_M = 0.2  # bone length of the rest pose of a skeleton without target l
 def run(args: argparse.Namespace) -> None:
     import torch
 
-    from ..errors import SMFError
-    from ..io import write_text
+    from ..core.errors import SMFError
+    from ..core.io import write_text
 
     pipe = _pipeline(args)
     args.frames = args.frames or pipe.max_frames
-    from ..pipelines.settings import Settings
+    from ..core.settings import Settings
 
     # the model's guidance, steps and sampler (a student's own)
     defaults = pipe.settings(Settings(guidance_scale=args.guidance))

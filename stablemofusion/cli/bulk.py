@@ -11,7 +11,7 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
-    from ..limits import BATCH_SIZE, ENGINES, FOOTSKATE, FOOTSKATE_MODES, PORTABLE_ENGINE
+    from ..core.limits import BATCH_SIZE, ENGINES, FOOTSKATE, FOOTSKATE_MODES, PORTABLE_ENGINE
     from .flags import add_teacher_flag
 
     p = sub.add_parser(name, description="Generate one motion per line of a prompts file into a dataset folder of "
@@ -45,8 +45,8 @@ def run(args: argparse.Namespace) -> None:
     import os
 
     from .. import __version__
-    from ..errors import SMFError
-    from ..limits import check_seconds
+    from ..core.errors import SMFError
+    from ..core.limits import check_seconds
     from .generate import read_prompts_file
     from .options import check_sampling, choose_engine, load_pipeline
 

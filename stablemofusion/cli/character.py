@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 
 def add_character_arguments(p: argparse.ArgumentParser, *, reads_motion: bool) -> None:
@@ -23,11 +23,11 @@ def add_character_arguments(p: argparse.ArgumentParser, *, reads_motion: bool) -
 
 
 def load_rig(args: argparse.Namespace, motion_input: str | None = None):
-    """The :class:`~stablemofusion.output.Rig` of --rig/--joint-map (None without --rig), checked before any
+    """The :class:`~stablemofusion.core.output.Rig` of --rig/--joint-map (None without --rig), checked before any
     generation. ``motion_input``: the command's input motion, which may use --joint-map without --rig."""
     from ..motion.bvh import read_bvh
     from ..motion.retarget import JointMap
-    from ..output import Rig
+    from ..core.output import Rig
 
     if args.rig is None:
         if args.joint_map is not None and not str(motion_input or "").lower().endswith(".bvh"):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .character import add_character_arguments, load_rig
 from .flags import add_overwrite_flag, check_new_output
 
@@ -30,10 +30,10 @@ def add_parser(sub, name: str) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    from ..io import write_bytes
+    from ..core.io import write_bytes
     from ..motion.files import load_motion, rigid_pose, save_motion
-    from ..output import glb_bytes, rig_bvh_text
-    from ..pipelines.result import MotionResult
+    from ..core.output import glb_bytes, rig_bvh_text
+    from ..core.result import MotionResult
 
     suffix = args.output.suffix.lower()
     if suffix not in OUTPUTS:

@@ -22,7 +22,7 @@ def add_parser(sub, name: str) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..eval.curve import comparison_table, draw_comparison, draw_curve, read_run
 
     if args.out.suffix.lower() != ".png":

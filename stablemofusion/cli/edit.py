@@ -7,7 +7,7 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
-    from ..limits import EDIT_MODES, IMPOSE
+    from ..core.limits import EDIT_MODES, IMPOSE
     from .character import add_character_arguments
     from .options import add_sampling_arguments
 
@@ -38,10 +38,10 @@ def run(args: argparse.Namespace) -> None:
     check_sampling(args)  # before the heavy imports below: a bad flag is answered at once
     import numpy as np
 
-    from ..edit_plan import check_edit_inputs, source_features
-    from ..errors import SMFError
+    from ..core.edit_plan import check_edit_inputs, source_features
+    from ..core.errors import SMFError
     from ..motion.files import check_values, load_motion, npy_header
-    from ..output import parse_formats, write_results
+    from ..core.output import parse_formats, write_results
     from .character import load_rig
     from .options import choose_engine, load_pipeline, output_meta, sampling_kwargs, user_warnings
 

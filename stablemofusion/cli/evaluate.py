@@ -8,7 +8,7 @@ from pathlib import Path
 
 def add_eval_args(p: argparse.ArgumentParser) -> None:
     """Arguments shared by `smf evaluate` and `smf ablate`."""
-    from ..limits import SAMPLER, STEPS, STUDENT_SAMPLER
+    from ..core.limits import SAMPLER, STEPS, STUDENT_SAMPLER
 
     p.add_argument("--data", type=Path, required=True, help="corpus folder (HumanML3D layout) with a test split")
     p.add_argument("--evaluator", type=Path, default=None, help="evaluator folder from `smf train-evaluator`")
@@ -66,7 +66,7 @@ def add_parser(sub, name: str) -> None:
 
 
 def eval_config(args: argparse.Namespace, **kw):
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..eval.protocol import EvalConfig
 
     base = EvalConfig.quick() if args.quick else EvalConfig()
@@ -93,7 +93,7 @@ def eval_config(args: argparse.Namespace, **kw):
 def load_embedder(args: argparse.Namespace, pipe=None):
     """Our evaluator (sharing the pipeline's text cache when both use the same language model) or the
     original T2M one, from the CLI arguments."""
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..eval.protocol import EmbeddingModel, T2MEmbedding
 
     if args.t2m_evaluator is not None:
@@ -151,7 +151,7 @@ def rigid_config(args: argparse.Namespace):
 
 def write_results(result: dict, out: Path | None, title: str) -> str:
     from ..eval.protocol import markdown_table
-    from ..io import write_text
+    from ..core.io import write_text
 
     from ..eval.prompts import format_prompt_accuracy
 
@@ -171,7 +171,7 @@ def write_results(result: dict, out: Path | None, title: str) -> str:
 
 
 def run(args: argparse.Namespace) -> None:
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..eval.protocol import evaluate
     from ..pipelines.motion_pipeline import MotionPipeline
 

@@ -51,10 +51,10 @@ def add_parser(sub, name: str) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    from ..errors import SMFError
+    from ..core.errors import SMFError
 
     if args.final_stage:
-        from ..onnx_export import export_final_stage
+        from ..backends.onnx_export import export_final_stage
 
         for path in export_final_stage(args.out):
             print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)")
@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> None:
         from .options import check_adapter_flags
 
         check_adapter_flags(args, teacher_part=True)  # before PyTorch is imported
-        from ..onnx_export import export_onnx
+        from ..backends.onnx_export import export_onnx
 
         out = export_onnx(args.checkpoint, args.out, adapters=args.adapter,
                           text_encoder_from=_text_encoder_graphs(args.checkpoint) if args.adapter else None)
@@ -107,7 +107,7 @@ def text_side_files(folder: Path, *, required: bool) -> dict[str, Path]:
     """The text-side files (:data:`~stablemofusion.text.TEXT_SIDE_FILES`) that go with the model in ``folder``
     (name -> file); ``required``: SMFError when it has none."""
     from ..diffusion.checkpoint import companion_files, resolve
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..text import TEXT_SIDE_FILES
 
     if required and not resolve(folder).is_dir():
@@ -128,7 +128,7 @@ def build_known_actions(lexicon: str, encoder: str, *, corpus: Path | None = Non
     text encoder ``encoder``: its actions' example sentences and a trained, calibrated out-of-domain detector.
     With a labelled ``corpus`` (``clips.csv``), only the lexicon's actions that the corpus holds are known."""
     from ..data.lexicon import known_actions, load_lexicon
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..text.cache import LRUTextCache, TextEmbeddingCache
     from ..text.domain import FLAG_RATE, DomainDetector, build_detector, corpus_captions, lexicon_captions
     from ..text.frozen import load_text_encoder

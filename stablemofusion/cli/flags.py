@@ -34,7 +34,7 @@ def apply_threads(threads: int | None) -> None:
     if threads is None:
         return
     if threads < 1:
-        from ..errors import SMFError
+        from ..core.errors import SMFError
 
         raise SMFError(f"--threads must be at least 1, got {threads}")
     import torch
@@ -44,7 +44,7 @@ def apply_threads(threads: int | None) -> None:
 
 def add_teacher_flag(p: argparse.ArgumentParser) -> None:
     """``--teacher``: the model's teacher instead of the distilled student (commands that take ``--checkpoint``)."""
-    from ..limits import STEPS
+    from ..core.limits import STEPS
 
     p.add_argument("--teacher", action="store_true",
                    help=f"sample with the model's {STEPS}-step teacher instead of its distilled student (the teacher "
@@ -58,7 +58,7 @@ def add_overwrite_flag(p: argparse.ArgumentParser) -> None:
 
 def check_new_output(path, overwrite: bool) -> None:
     """SMFError if ``path`` exists and ``overwrite`` is off: an output named by the user is never replaced silently."""
-    from ..errors import SMFError
+    from ..core.errors import SMFError
 
     if not overwrite and path.exists():
         raise SMFError(f"{path} exists; give another output name, or --overwrite to replace it")

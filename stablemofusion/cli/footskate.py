@@ -39,7 +39,7 @@ def add_parser(sub, name: str) -> None:
 
 def vgrf_model_from_args(path: Path | None, underpressure: Path | None = None, required: bool = False):
     """The vGRF callable to use: UnderPressure (retargeted), a distilled file, the shipped one, or None."""
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..footskate.vgrf import load_vgrf_model, shipped_vgrf_model_path
 
     if underpressure is not None:
@@ -57,7 +57,7 @@ def vgrf_model_from_args(path: Path | None, underpressure: Path | None = None, r
 def run_distil(args: argparse.Namespace) -> None:
     import torch
 
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..footskate.vgrf import distil, load_corpus_joints, save_vgrf_model
     from ..footskate.underpressure import load_underpressure
 
@@ -79,7 +79,7 @@ def _load(motion: str):
 
     m = load_motion(motion)
     if m.skeleton.name != "humanml3d":
-        from ..errors import SMFError
+        from ..core.errors import SMFError
 
         raise SMFError("footskate tools need a HumanML3D (22-joint) motion")
     return m
@@ -100,7 +100,7 @@ def run_contacts(args: argparse.Namespace) -> None:
 def run_clean(args: argparse.Namespace) -> None:
     from ..footskate.cleanup import CleanupConfig, cleanup_features, cleanup_joints, features_from_cleaned
     from ..footskate.metrics import footskate_metrics, joint_change
-    from ..io import save_npy
+    from ..core.io import save_npy
 
     m = _load(args.motion)
     model = vgrf_model_from_args(args.vgrf_model, required=args.route == "vgrf")

@@ -6,14 +6,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..limits import MAX_PROMPT_CHARS
+from ..core.limits import MAX_PROMPT_CHARS
 
 MAX_PATH_FILE_BYTES = 256 * 1024  # the most a --path file may hold
 MAX_PROMPTS_FILE_BYTES = 64 * 2**20  # the most a --prompts file may hold (about 200,000 long prompts)
 
 
 def add_parser(sub, name: str) -> None:
-    from ..limits import BATCH_SIZE
+    from ..core.limits import BATCH_SIZE
     from .character import add_character_arguments
     from .options import add_sampling_arguments
 
@@ -38,8 +38,8 @@ def add_parser(sub, name: str) -> None:
 
 def read_prompts(args) -> list[str]:
     """The prompts of the command line (a text, --prompts FILE or --timeline), checked."""
-    from ..errors import SMFError
-    from ..limits import check_seconds
+    from ..core.errors import SMFError
+    from ..core.limits import check_seconds
 
     if sum(x is not None for x in (args.text, args.prompts, args.timeline)) != 1:
         raise SMFError("give one of: a prompt text, --prompts FILE, --timeline 'PROMPT:SECONDS; ...'")
@@ -49,7 +49,7 @@ def read_prompts(args) -> list[str]:
     if args.prompts is not None:
         return read_prompts_file(args.prompts)
     if args.timeline is not None:
-        from ..timeline_plan import check_timeline, parse_timeline
+        from ..core.timeline_plan import check_timeline, parse_timeline
 
         return [p for p, _ in check_timeline(parse_timeline(args.timeline))]  # refused before the model loads
     if not args.text.strip():
@@ -59,7 +59,7 @@ def read_prompts(args) -> list[str]:
 
 def read_prompts_file(path: Path) -> list[str]:
     """The prompts of a file, one a line (blank lines skipped), read bounded and checked."""
-    from ..errors import SMFError
+    from ..core.errors import SMFError
 
     if not path.is_file():
         raise SMFError(f"no such file: {path}")
@@ -82,8 +82,8 @@ def read_path(path: Path | None):
         return None
     import json
 
-    from ..errors import SMFError
-    from ..path_plan import Waypoints
+    from ..core.errors import SMFError
+    from ..core.path_plan import Waypoints
 
     if not path.is_file():
         raise SMFError(f"no such file: {path}")
@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> None:
     from .options import check_sampling
 
     check_sampling(args)  # before the heavy imports below: a bad flag is answered at once
-    from ..output import parse_formats, write_results
+    from ..core.output import parse_formats, write_results
     from .character import load_rig
     from .options import choose_engine, load_pipeline, output_meta, sampling_kwargs, user_warnings
 
@@ -113,14 +113,14 @@ def run(args: argparse.Namespace) -> None:
     prompts = read_prompts(args)
     path = read_path(args.path)
     if path is not None and args.timeline is not None:
-        from ..errors import SMFError
+        from ..core.errors import SMFError
 
         raise SMFError("--path does not apply to --timeline: give the path to a prompt")
     kwargs = sampling_kwargs(args)
     pipe = load_pipeline(args)
     meta = output_meta(args, pipe)
     if args.timeline is not None:
-        from ..timeline_plan import parse_timeline
+        from ..core.timeline_plan import parse_timeline
 
         with user_warnings():
             results = [pipe.timeline(parse_timeline(args.timeline), progress=None, **kwargs)]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import escape
+from ..core.errors import escape
 
 
 def add_parser(sub, name: str) -> None:
@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> None:
         return
     if args.checkpoint is not None:
         from ..diffusion.checkpoint import load_checkpoint
-        from ..pipelines.settings import model_defaults
+        from ..core.settings import model_defaults
 
         ck = load_checkpoint(args.checkpoint)
         c = ck.config

@@ -9,7 +9,7 @@ import importlib
 import sys
 
 from .. import __version__
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 # subcommand name -> (module under stablemofusion.cli, one-line help); users' commands first, then research ones
 COMMANDS = {

@@ -1,5 +1,5 @@
 """The flags `smf generate` and `smf edit` share (sampling, footskate, engine, output), with their defaults
-from :mod:`stablemofusion.pipelines.settings`, and the pipeline settings and writers built from them."""
+from :mod:`stablemofusion.core.settings`, and the pipeline settings and writers built from them."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
     """--out, --format, --overwrite, --guidance, --steps, --sampler, --seed, --checkpoint, --teacher, --device,
     --engine and the footskate flags."""
-    from ..limits import (DEFAULT_FORMATS, ENGINES, FOOTSKATE, FOOTSKATE_MODES, GUIDANCE, OUTPUT_FORMATS,
+    from ..core.limits import (DEFAULT_FORMATS, ENGINES, FOOTSKATE, FOOTSKATE_MODES, GUIDANCE, OUTPUT_FORMATS,
                           PORTABLE_ENGINE, SAMPLER, STEPS, STUDENT_EDIT_STEPS, STUDENT_SAMPLER)
     from .flags import add_teacher_flag
 
@@ -87,8 +87,8 @@ def choose_engine(args, *, portable: bool = True, what: str = "this") -> None:
     """``--engine auto`` without PyTorch installed: the portable runtime where the command runs on it
     (``portable``), else a one-line error naming the extra (``what`` needs PyTorch); a torch engine asked for by
     name without it: the same error."""
-    from ..errors import SMFError
-    from ..limits import PORTABLE_ENGINE
+    from ..core.errors import SMFError
+    from ..core.limits import PORTABLE_ENGINE
 
     if args.engine == PORTABLE_ENGINE or torch_installed():
         return
@@ -102,7 +102,7 @@ def choose_engine(args, *, portable: bool = True, what: str = "this") -> None:
 
 def check_sampling(args) -> None:
     """The flags of :func:`add_sampling_arguments` against the limits, before anything heavy is imported."""
-    from ..limits import check_footskate, check_guidance, check_seed, check_steps
+    from ..core.limits import check_footskate, check_guidance, check_seed, check_steps
 
     check_guidance(args.guidance)
     check_steps(args.steps)
@@ -225,8 +225,8 @@ class LoadingStatus:
 def output_meta(args, pipe, *, edit: bool = False) -> dict:
     """What the JSON output records of how a motion was made (the guidance, steps and sampler ``pipe`` resolves the
     flags to, on either backend; ``edit``: for an edit)."""
-    from ..output import made_by
-    from ..pipelines.settings import Settings
+    from ..core.output import made_by
+    from ..core.settings import Settings
 
     s = pipe.settings(Settings(guidance_scale=args.guidance, steps=args.steps, sampler=args.sampler), edit=edit)
     b = pipe.backend
@@ -241,7 +241,7 @@ def user_warnings():
     import sys
     import warnings
 
-    from ..pipelines.final import EngineWarning, LengthClampedWarning, OutOfDomainWarning
+    from ..core.final import EngineWarning, LengthClampedWarning, OutOfDomainWarning
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -36,7 +36,7 @@ def add_parser(sub, name: str) -> None:
 
 def run_bandai(args: argparse.Namespace) -> None:
     from ..data.corpus_bandai import build_corpus, format_stats
-    from ..errors import SMFError
+    from ..core.errors import SMFError
 
     if args.limit is not None and args.limit < 1:
         raise SMFError("--limit must be at least 1")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .flags import add_overwrite_flag, check_new_output
 
 

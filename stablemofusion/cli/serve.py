@@ -8,7 +8,7 @@ from pathlib import Path
 
 
 def add_parser(sub, name: str) -> None:
-    from ..limits import BATCH_SIZE, ENGINES, PORTABLE_ENGINE
+    from ..core.limits import BATCH_SIZE, ENGINES, PORTABLE_ENGINE
     from .flags import add_teacher_flag
 
     p = sub.add_parser(name,
@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> None:
         check_adapter_flags(args)  # a crafted adapter file: one line, before anything heavy is imported
     import uvicorn
 
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..serve import ProcessWorker, create_app
     from ..serve.server_limits import MAX_STREAMS
     from ..serve.server import uvicorn_config
@@ -120,7 +120,7 @@ def listening_socket(host: str, port: int):
     import errno
     import socket
 
-    from ..errors import SMFError
+    from ..core.errors import SMFError
 
     try:
         family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]

@@ -24,7 +24,7 @@ def add_parser(sub, name: str) -> None:
 
 def run(args: argparse.Namespace) -> None:
     from ..pipelines.motion_pipeline import MotionPipeline
-    from ..site import folder_size, vendored_ort_web_version, write_site
+    from ..serve.site import folder_size, vendored_ort_web_version, write_site
 
     graphs = MotionPipeline.from_pretrained(args.checkpoint, backend="onnx").graphs
     out = write_site(args.out, graphs, args.webgpu)

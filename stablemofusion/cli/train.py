@@ -62,7 +62,7 @@ def add_parser(sub, name: str) -> None:
 
 def run(args: argparse.Namespace) -> None:
     from ..diffusion.train import check_train_config, train
-    from ..errors import SMFError
+    from ..core.errors import SMFError
 
     cfg = config_from_args(TrainConfig, args, _FLAGS)
     check_train_config(cfg)

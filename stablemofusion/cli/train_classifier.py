@@ -25,7 +25,7 @@ def add_parser(sub, name: str) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..eval.classifier import train_classifier
 
     cfg = config_from_args(ClassifierTrainConfig, args, _HELP)

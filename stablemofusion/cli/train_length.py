@@ -33,7 +33,7 @@ def add_parser(sub, name: str) -> None:
 def run(args: argparse.Namespace) -> None:
     import numpy as np
 
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..data.layout import MotionLayout
     from ..diffusion.checkpoint import CONFIG, load_checkpoint, read_config
     from ..text.cache import TextEmbeddingCache

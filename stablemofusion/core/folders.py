@@ -8,7 +8,7 @@ import json
 from importlib import resources
 from pathlib import Path
 
-from ..errors import SMFError
+from .errors import SMFError
 from ..text.names import GRAPHS_DIR
 
 CONFIG = "config.json"  # a model folder's config

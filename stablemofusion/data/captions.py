@@ -20,7 +20,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Sequence
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .augment import AugmentConfig, augment_caption
 from .lexicon import Lexicon, load_lexicon, marked_verbs, verb_forms
 

@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ..errors import SMFError
-from ..io import save_npy, write_text
+from ..core.errors import SMFError
+from ..core.io import save_npy, write_text
 from ..motion.features import bone_lengths, features_from_joints, joints_from_features, mirror_joints
 from ..motion.retarget import JointMap, retarget_bvh
 from ..motion.skeleton import HUMANML3D

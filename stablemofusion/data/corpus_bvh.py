@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ..errors import SMFError
-from ..io import save_npy, write_text
+from ..core.errors import SMFError
+from ..core.io import save_npy, write_text
 from ..motion.features import features_from_joints, joints_from_features
 from ..motion.retarget import JointMap, retarget_bvh
 from .layout import CaptionLine, format_text_line, mean_std, parse_text_line

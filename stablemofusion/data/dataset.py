@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from ..motion.features import feature_slices
 from ..motion.skeleton import Skeleton
 from .augment import slowed_features

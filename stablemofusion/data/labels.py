@@ -6,7 +6,7 @@ import csv
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 
 @dataclass(frozen=True)

@@ -21,8 +21,8 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from ..errors import MotionFormatError, SMFError
-from ..io import save_npy, write_text
+from ..core.errors import MotionFormatError, SMFError
+from ..core.io import save_npy, write_text
 from ..motion.features import feature_slices
 from ..motion.skeleton import HUMANML3D, KIT, Skeleton, get_skeleton
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 STYLE_KINDS = ("adjectives", "adverbs", "manners", "personas")
 _MIRROR_RE_TEMPLATE = r"(?<![A-Za-z])({words})(?![A-Za-z])"

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import torch
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from ..models.base import TextCondition
 
 FRAME_MULTIPLE = 16  # the exported frame dim is 16 * k (what the engine pads to)

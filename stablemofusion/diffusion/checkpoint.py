@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from ..models.base import Denoiser
 from ..models.registry import build_denoiser
 from ..core.folders import (CHECKPOINT_DIR, CONFIG, companion_file, companion_files, graphs_of,  # noqa: F401
@@ -53,7 +53,7 @@ def save_checkpoint(path: str | Path, *, model: Denoiser, config: CheckpointConf
                     ema_state: dict[str, torch.Tensor] | None = None, training_state: dict | None = None,
                     dtype: torch.dtype | None = None, extra_files: dict[str, str] | None = None) -> Path:
     """Write a checkpoint folder atomically (replacing ``path`` if it exists); ``extra_files``: name -> text."""
-    from ..io import atomic_dir
+    from ..core.io import atomic_dir
 
     with atomic_dir(path) as tmp:
         _write_checkpoint(tmp, model=model, config=config, mean=mean, std=std, ema_state=ema_state,
@@ -162,7 +162,7 @@ def export_checkpoint(src: str | Path, dst: str | Path, *, dtype: torch.dtype = 
     ``distil.teacher`` then names (relative, so the release can move); it keeps its own default guidance.
     ``guidance``: the model's default guidance scale recorded in its config (None: the source's). One atomic
     folder."""
-    from ..io import atomic_dir
+    from ..core.io import atomic_dir
 
     ck = load_checkpoint(src, ema=True)
     config = _exported(ck.config, dtype)

@@ -12,8 +12,8 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-from ..errors import SMFError
-from ..limits import LENGTH_MULTIPLE  # noqa: F401  (public here too)
+from ..core.errors import SMFError
+from ..core.limits import LENGTH_MULTIPLE  # noqa: F401  (public here too)
 from ..models.base import ModelConfig
 from ..motion.skeleton import HUMANML3D, get_skeleton
 from .schedule import ScheduleConfig
@@ -159,7 +159,7 @@ class CheckpointConfig:
     export: ExportInfo | None = None
     distil: DistilConfig | None = None
     # the classifier-free guidance scale the model samples with by default (None: the package's, GUIDANCE of
-    # stablemofusion.pipelines.settings); chosen per model on held-out data and set by ``smf export --guidance``
+    # stablemofusion.core.settings); chosen per model on held-out data and set by ``smf export --guidance``
     guidance: float | None = None
 
     @property

@@ -44,11 +44,11 @@ from tqdm import tqdm
 
 from ..data.batches import get_batch
 from ..data.dataset import MotionTextDataset
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .checkpoint import CHECKPOINT_DIR, CONFIG, EMA, MODEL, STATE, companion_files, load_checkpoint, \
     load_training_state, read_config, resolve, save_checkpoint
 from .config import LENGTH_MULTIPLE, DistilConfig
-from ..limits import STUDENT_SAMPLER
+from ..core.limits import STUDENT_SAMPLER
 from .schedulers import CONSISTENCY_GRID, TIMESTEP_SCALING, parse_sampler
 from .sampling import guided, model_denoiser, run_solver
 from .solvers import consistency_scalings, solver_table

@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ..errors import SMFError
-from ..limits import ENGINES
+from ..core.errors import SMFError
+from ..core.limits import ENGINES
 from ..models.base import TextCondition
 from .sampling import Step, guided, run_solver
 from .solvers import SolverTable

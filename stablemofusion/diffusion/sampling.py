@@ -17,10 +17,10 @@ from typing import Callable, Protocol
 
 import torch
 
-from ..errors import SMFError
-from ..limits import fresh_seed
+from ..core.errors import SMFError
+from ..core.limits import fresh_seed
 from ..models.base import TextCondition
-from ..noise import draw_key, draws
+from ..core.noise import draw_key, draws
 from .schedulers import SamplerSpec, model_output_for
 from .solvers import SolverTable
 
@@ -154,7 +154,7 @@ def _cat_opt(a: torch.Tensor | None, b: torch.Tensor | None, like: torch.Tensor 
 
 class Noise:
     """The noise of one sampling call: (B, T, D) standard normal draws of the portable noise
-    (:mod:`stablemofusion.noise`, the same numbers on every runtime, made on the call's device), zeros past each
+    (:mod:`stablemofusion.core.noise`, the same numbers on every runtime, made on the call's device), zeros past each
     item's length.
 
     ``seed`` an int: item k draws from stream k of it. A list (one per item): item k from stream 0 of its own

@@ -13,7 +13,7 @@ from typing import Any
 
 import torch
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .schedule import ScheduleConfig
 
 

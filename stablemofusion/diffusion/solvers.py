@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .schedulers import SIGMA_DATA, make_sampler, parse_sampler
 from .schedule import ScheduleConfig
 

@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from ..data.batches import TIME_WARP_CONTENTS, get_batch
 from ..data.dataset import MotionTextDataset
-from ..errors import SMFError
+from ..core.errors import SMFError
 from ..models.registry import build_denoiser
 from ..models.presets import get_preset
 from .checkpoint import CHECKPOINT_DIR, MODEL, load_training_state, read_config, save_checkpoint
@@ -306,7 +306,7 @@ def _augmented_text(captions: list[str], cache, encoder, cfg: TrainConfig, synon
 def _init_weights(model: torch.nn.Module, source: str) -> None:
     """Load every weight of ``source`` into ``model``; parameters the model adds (e.g. a zero-initialised
     sentence conditioning map) keep their initial values. Every source weight must fit the model."""
-    from ..diffusion.checkpoint import load_weights
+    from .checkpoint import load_weights
 
     state = load_weights(source)
     own = model.state_dict()

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from ..motion.rigid import DEFAULT_FIT, RigidFitConfig
 from .protocol import EvalConfig, evaluate
 

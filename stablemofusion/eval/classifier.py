@@ -24,8 +24,8 @@ from torch.nn import functional as F
 
 from ..data.dataset import MotionTextDataset
 from ..data.labels import LabelInfo, corpus_labels
-from ..errors import SMFError
-from ..io import write_text
+from ..core.errors import SMFError
+from ..core.io import write_text
 
 WEIGHTS = "classifier.safetensors"
 CONFIG = "classifier.json"

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 MAX_LOG_BYTES = 512 * 1024 * 1024  # a log.csv of a very long run is still read whole; beyond this it is refused
 LOSS_WINDOW = 200  # steps of the loss's moving average
@@ -47,7 +47,7 @@ def draw_curve(evals: list[dict], log: dict[str, np.ndarray], out: str | Path, t
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..io import atomic_path
+    from ..core.io import atomic_path
 
     fig, axes = plt.subplots(2, 3, figsize=(15, 8))
     steps = np.array([e["step"] for e in evals])
@@ -94,7 +94,7 @@ def draw_comparison(runs: dict[str, list[dict]], out: str | Path, title: str) ->
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..io import atomic_path
+    from ..core.io import atomic_path
 
     fig, axes = plt.subplots(2, len(COMPARE_SERIES), figsize=(5 * len(COMPARE_SERIES), 8))
     for n, (name, evals) in enumerate(runs.items()):

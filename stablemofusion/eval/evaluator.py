@@ -20,7 +20,7 @@ import torch
 from torch import nn
 from torch.nn.utils.rnn import pack_padded_sequence
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 WEIGHTS = "evaluator.safetensors"
 CONFIG = "config.json"
@@ -124,7 +124,7 @@ def save_evaluator(path: str | Path, model: Evaluator, meta: dict) -> Path:
     """Write an evaluator folder atomically: weights, config.json (sizes + ``meta``), Mean.npy, Std.npy."""
     from safetensors.torch import save_file
 
-    from ..io import atomic_dir
+    from ..core.io import atomic_dir
 
     with atomic_dir(path) as tmp:
         state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import linalg
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 
 def activation_stats(emb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

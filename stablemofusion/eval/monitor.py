@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 PROBE_SECONDS = 4.0  # every probe prompt at one length: the accuracy then measures the action, not the length
 
@@ -59,7 +59,7 @@ class TrainingMonitor:
         """Figures of the checkpoint in ``run``: probe content/style accuracy overall and per dataset, and
         FID / top-3 on the validation subset."""
         from ..pipelines.motion_pipeline import MotionPipeline
-        from ..pipelines.settings import Settings
+        from ..core.settings import Settings
         from .prompts import prompt_accuracy
 
         pipe = MotionPipeline.from_pretrained(run)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .classifier import LabelInfo, MotionClassifier, dataset_labels, label_accuracy
 
 

@@ -21,7 +21,7 @@ import torch
 from tqdm import tqdm
 
 from ..data.dataset import MotionTextDataset
-from ..errors import SMFError
+from ..core.errors import SMFError
 from ..motion.features import joints_from_features
 from .metrics import activation_stats, diversity, frechet_distance, mean_ci, multimodality, r_precision
 
@@ -56,7 +56,7 @@ class EvalConfig:
 
     def for_pipeline(self, pipe) -> "EvalConfig":
         """This config with ``pipe``'s model's guidance, steps and sampler where it leaves them None."""
-        from ..pipelines.settings import Settings
+        from ..core.settings import Settings
 
         s = pipe.settings(Settings(guidance_scale=self.guidance_scale, steps=self.steps, sampler=self.sampler))
         return replace(self, guidance_scale=s.guidance_scale, steps=s.steps, sampler=s.sampler)

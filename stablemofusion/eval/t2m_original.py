@@ -53,7 +53,7 @@ import torch
 from torch import nn
 from torch.nn.utils.rnn import pack_padded_sequence
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 CONTACT_DIMS = 4  # last 4 feature dims (foot contacts) are not seen by the movement encoder
 UNIT_LENGTH = 4  # frames per motion-GRU step (two stride-2 convolutions)

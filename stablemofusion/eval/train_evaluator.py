@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from ..data.dataset import MotionTextDataset
 from ..data.batches import get_batch
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .evaluator import Evaluator, EvaluatorConfig, save_evaluator
 from .metrics import r_precision
 

@@ -19,7 +19,7 @@ features (:func:`~stablemofusion.motion.rigid.rigid_to_features`), so the featur
 
 Steps 1-5 are written once, against the array API, vectorised over motions and without loops over frames: numpy
 runs them here; traced in torch they are the ONNX graphs the page, Node.js and game engines run
-(:func:`~stablemofusion.onnx_export.export_final_stage`, shipped in ``assets/final_stage/``).
+(:func:`~stablemofusion.backends.onnx_export.export_final_stage`, shipped in ``assets/final_stage/``).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from ..motion import timeseries as ts
 from ..motion.arrays import device, namespace, on_like, to_numpy
 from ..motion.features import feature_slices, features_from_joints

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from ..motion.resample import resample
 
 TOES = (10, 11)  # HumanML3D left/right toe ("foot") joints

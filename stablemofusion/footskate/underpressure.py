@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from ..motion.arrays import numpy_edge, to_torch
 from ..motion.resample import resample
 from ..motion.rotation import qrot

@@ -17,8 +17,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..errors import SMFError
-from ..io import atomic_path, write_text
+from ..core.errors import SMFError
+from ..core.io import atomic_path, write_text
 from .underpressure import LICENCE_NOTE, UnderPressureNet, vgrf_from_joints22
 
 

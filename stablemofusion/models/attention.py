@@ -13,8 +13,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..dropout import Dropout
-from ..errors import SMFError
+from .dropout import Dropout
+from ..core.errors import SMFError
 
 
 def _masked_softmax(logits: torch.Tensor, mask: torch.Tensor, dim: int) -> torch.Tensor:

@@ -8,7 +8,7 @@ from typing import Any, ClassVar
 import torch
 from torch import nn
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from ..text.frozen import sentence_embedding
 from ..text.transformer import TextTransformer
 

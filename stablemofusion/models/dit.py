@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .attention import Attention, feed_forward, modulate, zero_linear
 from .base import Denoiser, TextCondition, TextConfig, register
 from .embeddings import TimestepEmbedding, sinusoidal_embedding

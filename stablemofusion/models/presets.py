@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import asdict
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .base import ModelConfig, TextConfig
 from .dit import DiTConfig
 from .retnet import RetNetConfig

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from . import dit, retnet, unet1d  # noqa: F401  (each registers its architecture)
 from .base import DENOISERS, Denoiser, ModelConfig
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 
 def build_denoiser(config: ModelConfig) -> Denoiser:

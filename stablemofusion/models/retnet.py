@@ -14,8 +14,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..dropout import Dropout
-from ..errors import SMFError
+from .dropout import Dropout
+from ..core.errors import SMFError
 from .base import Denoiser, TextCondition, TextConfig, register
 from .attention import Attention
 from .embeddings import TimestepEmbedding

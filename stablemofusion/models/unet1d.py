@@ -30,7 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..dropout import Dropout
+from .dropout import Dropout
 from .attention import ResidualCrossAttention
 from .base import Denoiser, TextCondition, TextConfig, register
 from .embeddings import TimestepEmbedding, sinusoidal_embedding

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import MotionFormatError, SMFError
-from ..io import atomic_path
-from ..limits import MAX_ABS_VALUE, MAX_FRAME_TIME_S, MIN_FRAME_TIME_S
+from ..core.errors import MotionFormatError, SMFError
+from ..core.io import atomic_path
+from ..core.limits import MAX_ABS_VALUE, MAX_FRAME_TIME_S, MIN_FRAME_TIME_S
 from .kinematics import forward_kinematics as forward_kinematics_of_tree
 from .rotation import matrix_to_euler, quat_to_matrix
 
@@ -278,7 +278,7 @@ def read_bvh(path: str | os.PathLike, *, unit: str = "auto") -> BVH:
 
 def _parse_motion(lines: list[str], start: int, n_chan: int, where: str) -> np.ndarray:
     """(F, n_chan) values of ``lines[start:]`` (blank lines skipped), each a finite number of at most
-    :data:`~stablemofusion.limits.MAX_ABS_VALUE`, parsed by one numpy call; on error a slow pass finds the offending
+    :data:`~stablemofusion.core.limits.MAX_ABS_VALUE`, parsed by one numpy call; on error a slow pass finds the offending
     line."""
     body = lines[start:]
     if not any(s.strip() for s in body):

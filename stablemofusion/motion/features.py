@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import MotionFormatError
+from ..core.errors import MotionFormatError
 from . import timeseries as ts
 from .arrays import device, float64_numpy, namespace
 from .kinematics import forward_kinematics

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import MotionFormatError, SMFError
-from ..io import atomic_path, save_npy
+from ..core.errors import MotionFormatError, SMFError
+from ..core.io import atomic_path, save_npy
 from .bvh import format_bvh, forward_kinematics, read_bvh
 from .features import features_from_joints, joints_from_features
 from .resample import resample
@@ -67,7 +67,7 @@ def npy_header(f, size: int, where: str) -> tuple[tuple[int, ...], np.dtype]:
 
 def check_values(values: np.ndarray, where: str) -> None:
     """MotionFormatError unless every number of a motion file is finite and at most MAX_ABS_VALUE in size."""
-    from ..limits import MAX_ABS_VALUE
+    from ..core.limits import MAX_ABS_VALUE
 
     values = np.asarray(values, dtype=np.float64)
     if not (np.isfinite(values).all() and np.abs(values).max(initial=0.0) <= MAX_ABS_VALUE):

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .kinematics import forward_kinematics
 from .rigid import RigidMotion
 from .rotation import matrix_to_quat
@@ -210,6 +210,6 @@ def rigid_to_glb(motion: RigidMotion, fps: float | None = None, *, body: bool = 
 
 def save_glb(motion: RigidMotion, path, fps: float | None = None, *, body: bool = True) -> None:
     """Write :func:`rigid_to_glb` of ``motion`` to ``path``, atomically."""
-    from ..io import write_bytes
+    from ..core.io import write_bytes
 
     write_bytes(path, rigid_to_glb(motion, fps, body=body))

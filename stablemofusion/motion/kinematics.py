@@ -26,7 +26,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .arrays import device, namespace
 
 

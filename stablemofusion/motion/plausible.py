@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 MAX_ROOT_SPEED = 12.0  # m/s, horizontal, over SPEED_WINDOW_S: faster than any human (sprinters peak near 12.4)
 SPEED_WINDOW_S = 0.25  # the speed is measured over this span (a one-frame spike of the root is not a run)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .bvh import BVH, UNIT_SCALES, forward_kinematics, read_bvh
 from .resample import resample
 from .skeleton import Skeleton, get_skeleton

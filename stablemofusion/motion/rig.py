@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 try:
-    from ..errors import SMFError
+    from ..core.errors import SMFError
 except ImportError:  # the Blender add-on's copy of this file, outside the package
     class SMFError(Exception):
         """Bad input (files, shapes, options)."""

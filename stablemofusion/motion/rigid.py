@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from . import rigid_batch
 from .features import bone_lengths, features_in_frames_of, joints_from_features, joints_from_rotations
 from .kinematics import forward_kinematics  # also public here: the rigid body's forward kinematics

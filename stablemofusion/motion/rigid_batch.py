@@ -30,7 +30,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .arrays import device, namespace, on_like, to_numpy
 from .kinematics import forward_kinematics
 from .rotation import quat_to_matrix

@@ -108,7 +108,7 @@ def matrix_to_euler(m, order: str):
     ``order`` (e.g. "ZXY": R = Rz(a) Rx(b) Ry(c), as BVH channels are written); numpy (float64) or a tensor. With the
     middle angle at +-90 degrees (gimbal lock) the third is 0 and the first carries the rest: the angles still give
     R."""
-    from ..errors import SMFError
+    from ..core.errors import SMFError
 
     axes = ["XYZ".index(a) for a in order.upper()] if len(order) == 3 and set(order.upper()) <= set("XYZ") else []
     if len(set(axes)) != 3:

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 
 @dataclass(frozen=True)

@@ -1,17 +1,17 @@
 """Editing: keep part of a source motion (its start, end, both, half of the body, or its root path) and generate
-the rest from text (:mod:`stablemofusion.edit_plan` plans the edit; the backend imposes it at every step)."""
+the rest from text (:mod:`stablemofusion.core.edit_plan` plans the edit; the backend imposes it at every step)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from ..backends.base import Backend, Known
-from ..edit_plan import check_edit_inputs, plan_edit_for, splice_rigid
-from ..limits import base_seed, check_prompt
+from ..core.edit_plan import check_edit_inputs, plan_edit_for, splice_rigid
+from ..core.limits import base_seed, check_prompt
 from ..motion.rigid import rigid_to_features
 from ..motion.root import headings, place_like, place_rigid_like, root_xz
-from .result import MotionResult
-from .settings import Settings
+from ..core.result import MotionResult
+from ..core.settings import Settings
 
 PROGRESS_SECONDS = 5.0  # edits longer than this show a progress bar by default
 
@@ -26,7 +26,7 @@ class EditPipeline:
     def __call__(self, prompt: str, source: np.ndarray, mode: str, *, keep_start: float = 0.0, keep_end: float = 0.0,
                  seconds: float | None = None, path: np.ndarray | None = None, seed: int | None = None,
                  settings: Settings = Settings(), impose: str = "x0", progress: bool | None = None) -> MotionResult:
-        """``source`` features (Ts, D) in dataset units (:func:`stablemofusion.edit_plan.source_features` converts
+        """``source`` features (Ts, D) in dataset units (:func:`stablemofusion.core.edit_plan.source_features` converts
         joints and BVH); ``keep_start`` / ``keep_end`` seconds; ``seconds`` the output length (default the
         source's: the output then has the source's frame count); ``path`` (T, 2) metres for 'trajectory';
         ``impose`` 'x0' or 'xt' (torch backend). ``progress``: a progress bar over the denoising steps (None: for

@@ -6,7 +6,7 @@ ONNX Runtime: :func:`~stablemofusion.backends.load_backend`) and offers one meth
 pipeline written once against that backend: ``__call__`` text to motion, ``timeline``, ``edit`` and ``stream``. The
 same call gives the same motion on either backend. ``guidance_scale``/``steps``/``sampler`` None mean the model's
 defaults (a distilled student: its distilled step count with consistency sampling, guidance as input); every
-result carries the :class:`~stablemofusion.pipelines.settings.Settings` it was made with.
+result carries the :class:`~stablemofusion.core.settings.Settings` it was made with.
 """
 
 from __future__ import annotations
@@ -18,12 +18,12 @@ import numpy as np
 from ..backends import load_backend
 from ..backends.base import Backend
 from ..core.folders import default_model_path
-from ..limits import BATCH_SIZE, DEFAULT_SECONDS, FOOTSKATE_MODES
-from ..timeline_plan import DEFAULT_OVERLAP
+from ..core.limits import BATCH_SIZE, DEFAULT_SECONDS, FOOTSKATE_MODES
+from ..core.timeline_plan import DEFAULT_OVERLAP
 from .edit import EditPipeline
-from .final import EngineWarning, LengthClampedWarning, OutOfDomainWarning
-from .result import MotionResult
-from .settings import Settings
+from ..core.final import EngineWarning, LengthClampedWarning, OutOfDomainWarning
+from ..core.result import MotionResult
+from ..core.settings import Settings
 from .stream import STREAM_CHUNK, STREAM_REWIND, MotionStream, StreamPipeline
 from .text_to_motion import TextToMotionPipeline
 from .timeline import TimelinePipeline
@@ -79,7 +79,7 @@ class MotionPipeline:
              footskate: str | None = None, footskate_options=None, engine: str | None = None,
              progress: bool | None = None) -> MotionResult:
         """Edit ``source`` features (Ts, D) with ``prompt`` (:class:`~stablemofusion.pipelines.edit.EditPipeline`):
-        ``mode`` one of :data:`stablemofusion.edit_plan.EDIT_MODES`, lengths in seconds."""
+        ``mode`` one of :data:`stablemofusion.core.edit_plan.EDIT_MODES`, lengths in seconds."""
         settings = Settings(guidance_scale=guidance_scale, steps=steps, sampler=sampler, footskate=footskate,
                             footskate_options=footskate_options, engine=engine)
         return EditPipeline(self.backend)(prompt, source, mode, keep_start=keep_start, keep_end=keep_end,

@@ -1,5 +1,5 @@
 """Live streams: :class:`StreamPipeline` checks a stream's settings and builds a
-:class:`~stablemofusion.motion_stream.MotionStream` whose windows a backend samples (:class:`BackendWindows`)."""
+:class:`~stablemofusion.core.motion_stream.MotionStream` whose windows a backend samples (:class:`BackendWindows`)."""
 
 from __future__ import annotations
 
@@ -8,15 +8,15 @@ from dataclasses import replace
 import numpy as np
 
 from ..backends.base import Backend, Known
-from ..errors import SMFError
-from ..limits import base_seed, check_prompt
-from ..motion_stream import (STREAM_CHUNK, STREAM_KEEP, STREAM_REWIND, Chunk, MotionStream, advance,
+from ..core.errors import SMFError
+from ..core.limits import base_seed, check_prompt
+from ..core.motion_stream import (STREAM_CHUNK, STREAM_KEEP, STREAM_REWIND, Chunk, MotionStream, advance,
                              check_window)
-from .settings import Settings
+from ..core.settings import Settings
 
 
 class BackendWindows:
-    """The :class:`~stablemofusion.motion_stream.WindowSampler` of a backend: windows sampled with their known start
+    """The :class:`~stablemofusion.core.motion_stream.WindowSampler` of a backend: windows sampled with their known start
     imposed on every prediction."""
 
     def __init__(self, backend: Backend):

@@ -5,11 +5,11 @@ from __future__ import annotations
 from tqdm import tqdm
 
 from ..backends.base import Backend
-from ..limits import base_seed
-from ..path_plan import PromptPaths, follow, placed
-from .final import check_batch_request, frames_for
-from .result import MotionResult
-from .settings import Settings
+from ..core.limits import base_seed
+from ..core.path_plan import PromptPaths, follow, placed
+from ..core.final import check_batch_request, frames_for
+from ..core.result import MotionResult
+from ..core.settings import Settings
 from .timeline import TimelinePipeline
 
 
@@ -23,7 +23,7 @@ class TextToMotionPipeline:
                  frames: int | list[int] | None = None, seed: int | list[int] | None = None,
                  settings: Settings = Settings(), progress: bool = False, path=None) -> list[MotionResult]:
         """``seconds``/``frames``: one value or one per prompt; with neither, the model's length estimate (or
-        the default length); ``path``: a root path to follow (:class:`~stablemofusion.path_plan.Waypoints` or its
+        the default length); ``path``: a root path to follow (:class:`~stablemofusion.core.path_plan.Waypoints` or its
         JSON form, one for all or one per prompt), its length the motion's unless one is given. ``seed``: one for
         all (batch k uses ``seed + k``, a long item i ``seed + i``) or one per prompt (each motion independent of
         those it is batched with); None: a fresh one, reported."""

@@ -1,5 +1,5 @@
 """Timelines: one continuous motion from (prompt, seconds) segments, window after window
-(:mod:`stablemofusion.timeline_plan` plans the windows; each later window is a prefix edit of the motion so far)."""
+(:mod:`stablemofusion.core.timeline_plan` plans the windows; each later window is a prefix edit of the motion so far)."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import numpy as np
 from tqdm import tqdm
 
 from ..backends.base import Backend, Known
-from ..edit_plan import plan_edit
-from ..limits import base_seed
-from ..path_plan import Waypoints, bend_segments, follow, path_segments, placed
-from ..timeline_plan import DEFAULT_OVERLAP, plan_windows, segment_frames
-from .result import MotionResult
-from .settings import Settings
+from ..core.edit_plan import plan_edit
+from ..core.limits import base_seed
+from ..core.path_plan import Waypoints, bend_segments, follow, path_segments, placed
+from ..core.timeline_plan import DEFAULT_OVERLAP, plan_windows, segment_frames
+from ..core.result import MotionResult
+from ..core.settings import Settings
 
 PROGRESS_WINDOWS = 3  # timelines of more windows than this show a progress bar by default
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 
 def check_encoder(suffix: str) -> None:

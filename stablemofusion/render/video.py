@@ -17,8 +17,8 @@ from typing import Iterator
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from ..errors import SMFError
-from ..io import atomic_path
+from ..core.errors import SMFError
+from ..core.io import atomic_path
 from ..motion.skeleton import Skeleton, get_skeleton
 from .encoders import check_encoder
 

@@ -31,8 +31,8 @@ from .checks import GenerateRequest, RequestChecks, TimelineRequest, check_forma
 from .convert import check_suffix, convert_upload
 from .http_errors import ServeError, log_event
 from .guard import Guard
-from .. import limits
-from ..output import made_by
+from ..core import limits
+from ..core.output import made_by
 from .server_limits import (MAX_BODY_BYTES, MAX_REQUEST_COST, MAX_STREAMS, QUEUED_REQUESTS, RECENT_RESULTS,
                             UPLOAD_BUDGET_BYTES)
 from .responses import motion_response

@@ -11,7 +11,7 @@ from __future__ import annotations
 import re
 from importlib import resources
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 
 CONFIG = ("assets", "deploy", "haproxy.cfg")
 _SERVER = re.compile(r'^(\s*)server r2 "\$\{SMF_REPLICA_2\}"(.*)$', re.M)

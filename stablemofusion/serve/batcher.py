@@ -16,7 +16,7 @@ import math
 import time
 from collections import defaultdict, deque
 
-from ..limits import BATCH_SIZE
+from ..core.limits import BATCH_SIZE
 from .http_errors import ServeError, log_event
 from .server_limits import LIGHT_COST, MAX_QUEUED_COST, MAX_REQUEST_COST
 from .worker import Failure, Job

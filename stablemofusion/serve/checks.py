@@ -8,8 +8,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from .. import limits
-from ..errors import SMFError
+from ..core import limits
+from ..core.errors import SMFError
 from .http_errors import ServeError
 from .responses import MOTION_FORMATS
 from .server_limits import MAX_REQUEST_COST
@@ -20,7 +20,7 @@ STRICT = ConfigDict(extra="forbid", strict=True)  # {"seed": true} and {"seconds
 
 
 class PathBody(BaseModel):
-    """A root path with times: {"points": [[x, z], ...], "times": [seconds, ...]} (stablemofusion/path_plan.py)."""
+    """A root path with times: {"points": [[x, z], ...], "times": [seconds, ...]} (stablemofusion/core/path_plan.py)."""
 
     model_config = STRICT
 
@@ -35,7 +35,7 @@ class GenerateRequest(BaseModel):
 
     prompt: str
     seconds: float | None = None  # None: predicted from the text (models with a length estimator), else 4 s
-    seed: int | None = None  # None: a fresh one, reported; ranges: stablemofusion/limits.py, checked in RequestChecks
+    seed: int | None = None  # None: a fresh one, reported; ranges: stablemofusion/core/limits.py, checked in RequestChecks
     guidance: float | None = None  # None: the model's
     steps: int | None = None  # None: the model's
     footskate: Literal["off", "post", "loop"] = limits.FOOTSKATE
@@ -106,7 +106,7 @@ def check_prompt(text: str, where: str) -> str:
 
 
 def checked(check, *args):
-    """``check(*args)`` of :mod:`stablemofusion.limits`, its SMFError as a 422."""
+    """``check(*args)`` of :mod:`stablemofusion.core.limits`, its SMFError as a 422."""
     try:
         return check(*args)
     except SMFError as e:
@@ -115,7 +115,7 @@ def checked(check, *args):
 
 class RequestChecks:
     """Turns request bodies into jobs for a model of frame rate ``fps``, with the limits of every door
-    (:mod:`stablemofusion.limits`)."""
+    (:mod:`stablemofusion.core.limits`)."""
 
     def __init__(self, model, max_cost: float = MAX_REQUEST_COST, adapters: tuple[str, ...] = ()):
         """``model``: the served model's :class:`~stablemofusion.serve.worker.ServedModel` (frame rate, window,
@@ -155,7 +155,7 @@ class RequestChecks:
         seed, guidance, steps = self._common(body)
         path = None
         if body.path is not None:
-            from ..path_plan import Waypoints
+            from ..core.path_plan import Waypoints
 
             data = body.path.model_dump() if isinstance(body.path, PathBody) else body.path
             path = checked(Waypoints.read, data)

@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from .http_errors import ServeError
-from ..limits import MAX_FRAME_TIME_S, MIN_FRAME_TIME_S
+from ..core.limits import MAX_FRAME_TIME_S, MIN_FRAME_TIME_S
 from .server_limits import (MAX_ABS_METRES, MAX_CONVERT_FRAMES, MAX_CONVERT_SECONDS, MAX_CONVERT_VALUES,
                             MAX_HIERARCHY_BYTES)
-from ..output import joints_json_bytes
+from ..core.output import joints_json_bytes
 
 SUFFIXES = (".bvh", ".npy")
 _MOTION = re.compile(rb"^[ \t]*MOTION[ \t]*\r?$", re.M)
@@ -72,7 +72,7 @@ def _check_npy(data: bytes, filename: str) -> None:
     """The header of an uploaded .npy (:func:`~stablemofusion.motion.files.npy_header`, as every door reads one): a
     real numeric array of a known skeleton's shape, at most MAX_CONVERT_SECONDS long, whose data is exactly as long
     as the header says; then its values (:func:`~stablemofusion.motion.files.check_values`)."""
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..motion.files import check_values, npy_header
     from ..motion.skeleton import skeleton_for_shape
 
@@ -91,7 +91,7 @@ def _check_npy(data: bytes, filename: str) -> None:
 
 
 def _check_values(values: np.ndarray, filename: str) -> None:
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..motion.files import check_values
 
     try:
@@ -102,7 +102,7 @@ def _check_values(values: np.ndarray, filename: str) -> None:
 
 def _load(data: bytes, suffix: str, filename: str) -> tuple[np.ndarray, float]:
     """Joints (T, 22, 3) of the upload, read by the package's own loader (never unpickled)."""
-    from ..errors import SMFError
+    from ..core.errors import SMFError
     from ..motion.files import load_motion
 
     with tempfile.TemporaryDirectory() as tmp:

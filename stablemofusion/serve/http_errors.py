@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 
-from ..errors import SMFError, escape
+from ..core.errors import SMFError, escape
 
 log = logging.getLogger("stablemofusion.serve")
 

@@ -36,14 +36,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 from pydantic import BaseModel
 
-from .. import limits
+from ..core import limits
 from .checks import STRICT, checked, check_prompt, parse_body
 from .http_errors import ServeError, log_event
 from .server_limits import (MAX_STREAM_MESSAGE_BYTES, MAX_STREAM_MESSAGES, MAX_STREAM_SECONDS,
                             MAX_STREAMS, STREAM_AHEAD_S, STREAM_DECIMALS, STREAM_GATHER_S, STREAM_JOIN_S,
                             STREAM_MESSAGE_FRAMES, STREAM_MESSAGE_WINDOW_S, STREAM_RECENT_WINDOWS, STREAM_SEND_LEAD_S,
                             STREAM_START_TIMEOUT_S, STREAM_SWITCH_FACTOR, WARM_STEPS)
-from ..motion_stream import advance
+from ..core.motion_stream import advance
 from .worker import Failure, ProcessWorker, child_loop
 
 def _now() -> float:
@@ -61,7 +61,7 @@ class StreamMessage(BaseModel):
     model_config = STRICT
 
     prompt: str | None = None
-    seed: int | None = None  # ranges: stablemofusion/limits.py
+    seed: int | None = None  # ranges: stablemofusion/core/limits.py
     guidance: float | None = None
     stop: bool | None = None
 
@@ -83,7 +83,7 @@ class StreamJob:
 @dataclass(frozen=True)
 class StreamFrames:
     """The outcome of a window: frames ``start`` .. of the stream, ``joints`` (n, 22, 3) float32 metres,
-    ``contacts`` (n, 4) bool the planted feet (:class:`~stablemofusion.motion_stream.Chunk`; None: not known)."""
+    ``contacts`` (n, 4) bool the planted feet (:class:`~stablemofusion.core.motion_stream.Chunk`; None: not known)."""
 
     start: int
     joints: np.ndarray

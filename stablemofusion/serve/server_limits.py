@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..limits import MAX_SECONDS
+from ..core.limits import MAX_SECONDS
 
 # request bodies (enforced while reading, for every transfer encoding: serve/guard.py)
 MAX_BODY_BYTES = 16 * 1024  # a JSON request
@@ -24,9 +24,9 @@ GRACEFUL_SHUTDOWN_S = 5  # after SIGTERM, requests in flight get this long befor
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")  # Host header names accepted by default (DNS rebinding)
 CLIENT_HEADER = "x-smf-client"  # a request with this header (or an octet-stream body) may POST a file
 
-# generation requests: the limits of every door, stablemofusion/limits.py (checked in serve/checks.py)
+# generation requests: the limits of every door, stablemofusion/core/limits.py (checked in serve/checks.py)
 
-# the most work one request may ask for (stablemofusion.limits.request_cost, step-seconds): a 120 s timeline of the
+# the most work one request may ask for (stablemofusion.core.limits.request_cost, step-seconds): a 120 s timeline of the
 # shipped student at 1 step with footskate 'loop' (1,920, about 2.6 s on one thread) is admitted, the same at 6
 # steps (2,520, 5.9 s) is refused with 422, so a light request never waits long behind a heavy one
 MAX_REQUEST_COST = 2000.0

@@ -19,8 +19,8 @@ import warnings
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
-from ..errors import SMFError
-from ..limits import FOOTSKATE, FOOTSKATE_MODES
+from ..core.errors import SMFError
+from ..core.limits import FOOTSKATE, FOOTSKATE_MODES
 from .http_errors import ServeError, log, log_event
 from .server_limits import (WARM_STEPS, WORKER_BEAT_S, WORKER_BEAT_TIMEOUT_S, WORKER_CALL_BASE_S,
                             WORKER_CALL_PER_WORK_S, WORKER_MAX_FAILED_STARTS, WORKER_POLL_S,
@@ -40,8 +40,8 @@ class Job:
     footskate: str = FOOTSKATE
     segments: tuple[tuple[str, float], ...] | None = None
     adapter: str | None = None  # None: the base model; else a loaded adapter's name
-    path: object = None  # a root path to follow (stablemofusion.path_plan.Waypoints), or None
-    cost: float = 0.0  # its work before it runs (stablemofusion.limits.request_cost): what the queue admits by
+    path: object = None  # a root path to follow (stablemofusion.core.path_plan.Waypoints), or None
+    cost: float = 0.0  # its work before it runs (stablemofusion.core.limits.request_cost): what the queue admits by
 
     @property
     def sampling(self) -> tuple:
@@ -67,7 +67,7 @@ class ServedModel:
     @classmethod
     def from_config(cls, config) -> "ServedModel":
         """From a torch checkpoint's CheckpointConfig."""
-        from ..limits import GUIDANCE, STEPS
+        from ..core.limits import GUIDANCE, STEPS
 
         return cls(config.fps, config.min_frames, config.max_frames, bool(config.student),
                    config.distil.sample_steps if config.student else STEPS,

@@ -31,8 +31,8 @@ from typing import Any, Iterable
 
 import torch
 
-from ..errors import SMFError
-from ..io import atomic_path, write_text
+from ..core.errors import SMFError
+from ..core.io import atomic_path, write_text
 from .frozen import MAX_TOKENS, FrozenTextEncoder, load_text_encoder
 
 INDEX_NAME = "index.json"

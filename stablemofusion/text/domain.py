@@ -22,7 +22,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from ..motion.arrays import numpy_edge
 from .frozen import sentence_embedding
 from .names import DETECTOR_FILE
@@ -114,7 +114,7 @@ class DomainDetector:
     def save(self, path: str | Path) -> None:
         from safetensors.torch import save_file
 
-        from ..io import atomic_path
+        from ..core.io import atomic_path
 
         tensors = {k: v.detach().to(torch.float16).contiguous() for k, v in self.classifier.state_dict().items()}
         meta = {"dim": str(self.classifier.dim), "hidden": str(self.classifier.hidden), "offset": repr(self.offset),

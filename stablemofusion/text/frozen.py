@@ -37,7 +37,7 @@ from typing import Any, Iterator
 import torch
 from torch import nn
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from .sentence import sentence_embedding  # noqa: F401  (public here too)
 
 DEFAULT_ENCODER = "minilm"

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from ..motion.arrays import to_numpy
 from ..core.folders import MANIFEST
 from .names import ACTIONS_FILE, DETECTOR_FILE, EMBEDDINGS_FILE, GRAPHS_DIR
@@ -157,7 +157,7 @@ class KnownActions:
 
     def save(self, folder: str | Path, about: str = "") -> Path:
         """Write ``actions.json`` (and the detector's file beside it) into ``folder``; returns the json path."""
-        from ..io import write_text
+        from ..core.io import write_text
 
         folder = Path(folder)
         d = {"about": about, "threshold": self.threshold, "actions": self.actions}
@@ -174,7 +174,7 @@ class KnownActions:
         ``folder/actions.safetensors``."""
         from safetensors.numpy import save_file
 
-        from ..io import atomic_path
+        from ..core.io import atomic_path
 
         path = Path(folder) / EMBEDDINGS_FILE
         with atomic_path(path) as tmp:

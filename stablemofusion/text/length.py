@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..errors import SMFError
+from ..core.errors import SMFError
 from ..motion.skeleton import HUMANML3D
 from .frozen import sentence_embedding
 from .names import LENGTH_CONFIG, LENGTH_WEIGHTS
@@ -134,7 +134,7 @@ class LengthEstimator(nn.Module):
         copied text transformer in float16 (as a shipped model holds it)."""
         from safetensors.torch import save_file
 
-        from ..io import write_text
+        from ..core.io import write_text
 
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)

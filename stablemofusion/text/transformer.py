@@ -7,7 +7,7 @@ import contextlib
 import torch
 from torch import nn
 
-from ..dropout import Dropout
+from ..models.dropout import Dropout
 
 
 @contextlib.contextmanager

@@ -15,7 +15,7 @@ import torch
 from stablemofusion.adapters.clips import caption_from_name, read_clips
 from stablemofusion.adapters.file import Adapter, weights_hash
 from stablemofusion.adapters.train import AdaptConfig, adapt
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 
 CLIPS = ("dataset-2_walk-turn-left_normal_001", "dataset-1_walk_normal_001", "dataset-2_wave-left-hand_active_001")
 CFG = AdaptConfig(rank=2, teacher_steps=4, student_steps=3, batch_size=4, pool=6, replay_prompts=4,

@@ -9,7 +9,7 @@ from stablemofusion.adapters.file import Adapter, load_adapters
 from stablemofusion.adapters.lora import (LoraConfig, add_lora, layer_deltas, lora_state, merge_into, no_fast_path,
                                           target_layers)
 from stablemofusion.diffusion.checkpoint import load_checkpoint
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 
 
 def _random_lora(model: torch.nn.Module, seed: int = 1) -> None:

@@ -18,7 +18,7 @@ import pytest
 
 from stablemofusion.bulk import ray_run
 from stablemofusion.bulk.dataset import BulkPlan, joints_of, read_dataset, start
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 PROMPTS = ["a person walks forward", "a tired man shuffles forward", "someone waves both hands",

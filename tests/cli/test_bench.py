@@ -8,7 +8,7 @@ import torch
 
 from stablemofusion.cli.bench import rest_features
 from stablemofusion.cli.main import main
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.motion.features import bone_lengths, joints_from_features
 from stablemofusion.motion.rigid import fit_rigid
 from stablemofusion.motion.skeleton import HUMANML3D

@@ -7,7 +7,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from stablemofusion.site import WEBGPU_FILES
+from stablemofusion.serve.site import WEBGPU_FILES
 from stablemofusion.cli.main import main
 from stablemofusion.motion.features import canonicalize, features_from_joints
 

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from stablemofusion.cli.main import main
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
-from stablemofusion.limits import SAMPLER, STEPS, STUDENT_SAMPLER
+from stablemofusion.core.limits import SAMPLER, STEPS, STUDENT_SAMPLER
 
 
 @pytest.fixture(scope="module")

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from stablemofusion.cli.main import main
-from stablemofusion.edit_plan import source_features
-from stablemofusion.errors import SMFError
+from stablemofusion.core.edit_plan import source_features
+from stablemofusion.core.errors import SMFError
 from stablemofusion.motion.files import load_motion, save_bvh
 from stablemofusion.motion.skeleton import HUMANML3D
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
@@ -47,7 +47,7 @@ def test_edit_with_the_student_takes_its_edit_steps_and_teacher_its_own(tmp_path
     --teacher edits with the teacher's defaults. The JSON records what was used."""
     import json
 
-    from stablemofusion.limits import SAMPLER, STEPS, STUDENT_SAMPLER, STUDENT_EDIT_STEPS
+    from stablemofusion.core.limits import SAMPLER, STEPS, STUDENT_SAMPLER, STUDENT_EDIT_STEPS
 
     for flags, expected in (([], (STUDENT_SAMPLER, STUDENT_EDIT_STEPS)), (["--teacher"], (SAMPLER, STEPS))):
         out = tmp_path / ("t" if flags else "s")
@@ -118,7 +118,7 @@ def test_threads_default_to_the_idle_cores(monkeypatch):
     import torch
 
     from stablemofusion.cli.options import idle_threads, set_threads
-    from stablemofusion.errors import SMFError
+    from stablemofusion.core.errors import SMFError
 
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
     for load, want in ((0.0, 4), (0.4, 4), (1.0, 3), (2.6, 1), (9.0, 1)):

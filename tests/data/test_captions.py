@@ -18,7 +18,7 @@ from stablemofusion.data.captions import (
                                           structures_for,
                                           )
 from stablemofusion.data.lexicon import STYLE_KINDS, load_lexicon, marked_verbs, parse_lexicon, verb_forms
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 
 LEX = load_lexicon("bandai")
 D1_CONTENTS = ("walk run dash walk-back walk-left walk-right bow bye guide byebye respond call punch kick slash "

@@ -11,7 +11,7 @@ import torch
 from torch.utils.data import DataLoader
 
 from stablemofusion.data import MotionLayout, MotionTextDataset, collate
-from stablemofusion.errors import MotionFormatError, SMFError
+from stablemofusion.core.errors import MotionFormatError, SMFError
 from stablemofusion.motion.features import feature_slices, mirror_features
 
 IDS = ("000000", "012314")

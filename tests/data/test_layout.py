@@ -10,7 +10,7 @@ import pytest
 
 from stablemofusion.data.layout import (CaptionLine, MotionLayout, format_text_line, mean_std, parse_text_line,
                                         read_texts)
-from stablemofusion.errors import MotionFormatError, SMFError
+from stablemofusion.core.errors import MotionFormatError, SMFError
 from stablemofusion.motion.features import feature_slices, mirror_features
 from stablemofusion.motion.skeleton import get_skeleton
 

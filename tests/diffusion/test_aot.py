@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 _cxx = os.environ.get("CXX", "g++")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from stablemofusion.diffusion.checkpoint import TEACHER_DIR, companion_file, teacher_folder
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.text import ACTIONS_FILE, LENGTH_WEIGHTS
 
 MEAN, STD = np.zeros(263), np.full(263, 0.1)

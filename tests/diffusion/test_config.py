@@ -6,7 +6,7 @@ import pytest
 
 from stablemofusion.diffusion.config import CheckpointConfig, TrainConfig
 from stablemofusion.diffusion.schedule import ScheduleConfig
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.models.presets import get_preset
 from stablemofusion.pipelines.motion_pipeline import default_model_path
 

@@ -15,8 +15,8 @@ from stablemofusion.diffusion.distil import distil, drawn_length, masked_huber, 
 from stablemofusion.diffusion.schedulers import make_sampler
 from stablemofusion.diffusion.solvers import solver_table
 from stablemofusion.diffusion.train import TrainConfig, train
-from stablemofusion.errors import SMFError
-from stablemofusion.pipelines.settings import STUDENT_EDIT_STEPS
+from stablemofusion.core.errors import SMFError
+from stablemofusion.core.settings import STUDENT_EDIT_STEPS
 
 
 @pytest.fixture(scope="module")

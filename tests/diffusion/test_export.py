@@ -119,7 +119,7 @@ def test_export_records_the_models_default_guidance(tmp_path, capsys, save_tiny_
 
     from stablemofusion.diffusion.checkpoint import TEACHER_DIR
     from stablemofusion.pipelines.motion_pipeline import MotionPipeline
-    from stablemofusion.pipelines.settings import GUIDANCE
+    from stablemofusion.core.settings import GUIDANCE
 
     src = save_tiny_checkpoint(tmp_path / "ck", np.zeros(263), np.full(263, 0.1))
     out = tmp_path / "release"

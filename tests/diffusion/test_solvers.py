@@ -6,7 +6,7 @@ import torch
 from stablemofusion.diffusion.schedulers import SAMPLERS, make_sampler, sampler_names, sampler_spec
 from stablemofusion.diffusion.sampling import Noise, run_diffusers, run_solver
 from stablemofusion.diffusion.solvers import solver_table
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 
 FAST = [n for n in sampler_names() if sampler_spec(n).fast]
 B, T, D = 3, 24, 8

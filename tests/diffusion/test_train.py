@@ -9,7 +9,7 @@ import torch
 from stablemofusion.cli.main import main
 from stablemofusion.diffusion.checkpoint import load_checkpoint
 from stablemofusion.diffusion.train import TrainConfig, masked_mse, train
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 
 
 @pytest.fixture(scope="module")

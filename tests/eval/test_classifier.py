@@ -100,7 +100,7 @@ def test_prompt_accuracy_counts_what_the_classifier_sees(classifier_dir, eval_co
     ('{"prompt": "walk"}', "p.jsonl:1: an in-domain prompt needs a 'content' label"),
 ])
 def test_bad_prompt_files(tmp_path, line, msg):
-    from stablemofusion.errors import SMFError
+    from stablemofusion.core.errors import SMFError
 
     (tmp_path / "p.jsonl").write_text(line + "\n")
     with pytest.raises(SMFError, match=msg):

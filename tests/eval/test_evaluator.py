@@ -8,7 +8,7 @@ import torch
 
 from stablemofusion.cli.main import main
 from stablemofusion.data.dataset import MotionTextDataset
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.eval.evaluator import Evaluator, EvaluatorConfig, load_evaluator, save_evaluator
 from stablemofusion.eval.train_evaluator import EvaluatorTrainConfig, contrastive_loss, embed_split, train_evaluator
 from stablemofusion.text.cache import TextEmbeddingCache

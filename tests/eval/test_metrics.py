@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.eval.metrics import diversity, fid, mean_ci, multimodality, r_precision
 
 

@@ -7,7 +7,7 @@ import pytest
 
 from stablemofusion.cli.main import main
 from stablemofusion.data.labels import corpus_labels
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.eval.monitor import MonitorConfig, TrainingMonitor
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.eval.t2m_original import (POS_CLASSES, MovementConvEncoder, T2MOriginalEvaluator,
                                               WordVectorizer, _load_part, official_paths, read_humanml_tokens)
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.footskate.cleanup import (CleanupConfig, align_yaw_xz, bridge, cleanup_features, cleanup_joints,
                                               cleanup_rigid, features_from_cleaned, hold_places, holds)
 from stablemofusion.footskate.metrics import joint_change, pop_frames, skate_ratio

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.footskate.metrics import (footskate_metrics, joint_change, penetration, pop_count, pop_frames,
                                              pose_change, skate_ratio, steps_after_stillness)
 

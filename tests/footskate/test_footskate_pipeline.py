@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from stablemofusion.cli.main import main
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.footskate import FootskateOptions
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
@@ -26,7 +26,7 @@ def pipe(checkpoint):
 
 
 def test_post_is_the_default_and_off_without_the_rigid_stage(pipe, checkpoint):
-    from stablemofusion.limits import FOOTSKATE
+    from stablemofusion.core.limits import FOOTSKATE
 
     assert FOOTSKATE == "post" and pipe.settings().footskate == "post"
     a = pipe(["a person walks"], frames=40, steps=3, seed=1)[0]

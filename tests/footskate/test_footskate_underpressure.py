@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.footskate.contacts import contact_f1, contacts_from_underpressure_labels, contacts_from_vgrf
 from stablemofusion.footskate.underpressure import (UP_PARENTS, UP_REST, TeacherOn22, UnderPressureNet,
                                                     forward_kinematics_23, load_underpressure, resample_time,

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from stablemofusion.cli.main import main
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.footskate.vgrf import VgrfStudent, load_vgrf_model, save_vgrf_model
 
 

@@ -10,7 +10,7 @@ from dataclasses import asdict
 import pytest
 import torch
 
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.models.base import DENOISERS, ModelConfig, TextConfig
 from stablemofusion.models.registry import build_denoiser
 from stablemofusion.models.dit import DiT, DiTConfig

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from stablemofusion.errors import MotionFormatError, SMFError
+from stablemofusion.core.errors import MotionFormatError, SMFError
 from stablemofusion.motion.bvh import BVH, forward_kinematics, read_bvh, write_bvh
 
 BANDAI_CHANNELS = ["Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation"]

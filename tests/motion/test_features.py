@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import torch
 
-from stablemofusion.errors import MotionFormatError
+from stablemofusion.core.errors import MotionFormatError
 from stablemofusion.motion.features import (
                                             bone_lengths, canonicalize, feature_slices, features_from_joints, joints_from_features, mirror_features,
                                             mirror_joints,

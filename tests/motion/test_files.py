@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from stablemofusion.cli.main import main
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.motion.files import load_motion
 
 WALK = np.cumsum(np.full((40, 22, 3), 0.01), axis=1)  # 40 frames of a 22-joint body with bones of 1.7 cm

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 import stablemofusion
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.motion import bvh as bvh_module
 from stablemofusion.motion.bvh import forward_kinematics as bvh_fk
 from stablemofusion.motion.bvh import read_bvh

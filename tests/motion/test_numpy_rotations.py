@@ -4,7 +4,7 @@ gimbal lock included), quaternions from matrices and Gaussian smoothing give sci
 import numpy as np
 import pytest
 
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.motion.features import gaussian_smooth
 from stablemofusion.motion.rotation import matrix_to_euler, matrix_to_quat
 

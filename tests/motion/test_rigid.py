@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from stablemofusion.errors import MotionFormatError, SMFError
+from stablemofusion.core.errors import MotionFormatError, SMFError
 from stablemofusion.motion.features import (bone_lengths, features_from_joints, features_in_frames_of,
                                             joints_from_features, joints_from_rotations)
 from stablemofusion.motion.files import bvh_round_trip_error, load_motion, save_rigid_bvh

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.motion.skeleton import HUMANML3D
 from stablemofusion.render import render_frame, render_video
 from stablemofusion.render import video as video_mod
@@ -168,7 +168,7 @@ def test_strip_grid_of_motions_and_frames(tmp_path: Path) -> None:
 def test_mp4_without_ffmpeg_is_one_clear_error(tmp_path: Path, monkeypatch) -> None:
     import importlib.util
 
-    from stablemofusion.output import parse_formats
+    from stablemofusion.core.output import parse_formats
 
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "imageio_ffmpeg" else real(name, *a))

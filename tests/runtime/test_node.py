@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
-from stablemofusion.site import write_site
+from stablemofusion.serve.site import write_site
 
 NODE = shutil.which("node")
 LONG_PROMPT = ("a tired old man in a heavy winter coat walks slowly forward along a quiet street, stops for a moment "

@@ -23,9 +23,9 @@ from stablemofusion.motion.features import joints_from_features
 from stablemofusion.motion.rigid import DEFAULT_FIT
 from stablemofusion.motion.rigid_batch import fit_joints, pose_joints
 from stablemofusion.motion.rotation import matrix_to_euler
-from stablemofusion.path_plan import KINDS, Waypoints, bend, follow_waypoints, parse_path
+from stablemofusion.core.path_plan import KINDS, Waypoints, bend, follow_waypoints, parse_path
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
-from stablemofusion.site import FINAL_STAGE, final_stage_graph
+from stablemofusion.serve.site import FINAL_STAGE, final_stage_graph
 
 NODE = shutil.which("node")
 ORT_WEB = Path(__file__).resolve().parents[2] / "stablemofusion" / "assets" / "site" / "vendor" / "onnxruntime-web"

@@ -9,7 +9,7 @@ import warnings
 import numpy as np
 import pytest
 
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.backends.onnx_backend import default_graphs_path
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
@@ -28,7 +28,7 @@ def test_exported_graphs_denoise_as_the_torch_models_for_any_batch_text_and_leng
                                                                                    save_tiny_student):
     import torch
 
-    from stablemofusion.onnx_export import export_onnx
+    from stablemofusion.backends.onnx_export import export_onnx
     from stablemofusion.pipelines.motion_pipeline import MotionPipeline
     from stablemofusion.backends.onnx_sampling import sample
 
@@ -102,7 +102,7 @@ EDITS = {"prefix": dict(keep_start=1.0, seconds=4.0), "suffix": dict(keep_end=1.
 def test_edits_are_the_torch_paths_in_every_mode(shipped, tmp_path):
     """Against the torch path's default CPU engine (the table loop): its eager engine runs the student's
     multi-step consistency sampling through diffusers, which draws its own step noise."""
-    from stablemofusion.edit_plan import source_features
+    from stablemofusion.core.edit_plan import source_features
     from stablemofusion.motion.files import load_motion
 
     rt, torch_pipe = shipped
@@ -142,7 +142,7 @@ def test_shipped_teacher_graphs_make_the_teachers_motions():
 def test_live_streams_are_the_torch_paths(shipped):
     """Windows, a new prompt with its seed and guidance, a cut back and two streams in one batch: the same joints
     as the torch path's streams."""
-    from stablemofusion.motion_stream import advance
+    from stablemofusion.core.motion_stream import advance
 
     def run(pipe):
         s = pipe.stream("a person walks forward", seed=3)

@@ -240,7 +240,7 @@ def test_timeline_endpoint(pipe):
 
 def test_a_request_over_the_work_budget_is_refused_before_it_runs(pipe):
     """A request's work (seconds x steps, guidance and cleanup) is known before it runs: past the budget, 422."""
-    from stablemofusion import limits
+    from stablemofusion.core import limits
     from stablemofusion.serve.server_limits import MAX_REQUEST_COST
 
     heavy = {"segments": [{"prompt": "a person walks", "seconds": 7.5}] * 16, "steps": 50, "footskate": "loop"}

@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.motion.features import joints_from_features
 from stablemofusion.serve import create_app
 from stablemofusion.serve.server_limits import STREAM_AHEAD_S, STREAM_SEND_LEAD_S

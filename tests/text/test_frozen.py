@@ -7,7 +7,7 @@ import json
 import pytest
 import torch
 
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.text.cache import LRUTextCache, TextEmbeddingCache, caption_key
 from stablemofusion.text.frozen import (CLIPTextEncoder, FrozenTextEncoder, MiniLMEncoder, load_text_encoder,
                                         minilm_folder)

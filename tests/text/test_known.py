@@ -11,7 +11,7 @@ import torch
 
 from stablemofusion.cli.main import main
 from stablemofusion.data.lexicon import known_actions, load_lexicon
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline, OutOfDomainWarning
 from stablemofusion.text.cache import LRUTextCache
 from stablemofusion.text.frozen import load_text_encoder

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from stablemofusion.cli.main import main
-from stablemofusion.errors import SMFError
+from stablemofusion.core.errors import SMFError
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline, default_model_path
 from stablemofusion.text.length import LengthConfig, LengthEstimator
 

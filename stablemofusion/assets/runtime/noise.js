@@ -1,4 +1,4 @@
-// One seeded noise for every runtime: the JavaScript twin of stablemofusion/noise.py (its docstring is the
+// One seeded noise for every runtime: the JavaScript twin of stablemofusion/core/noise.py (its docstring is the
 // definition). noise(seed, frames, dims, {stream, draw}) -> Float32Array of frames * dims standard normals,
 // the same numbers numpy gives (to the last float32 bit, up to one unit where Math.log/cos/sin round differently).
 

@@ -1,4 +1,4 @@
-// Paths in JavaScript: the path words read as stablemofusion/path_plan.py's parse_path reads them, on the same
+// Paths in JavaScript: the path words read as stablemofusion/core/path_plan.py's parse_path reads them, on the same
 // lexicon (assets/lexicons/paths.json, given in the site's web.json as "paths", its patterns in JavaScript's syntax),
 // and explicit paths checked as its Waypoints.read checks them (the limits from web.json's "path_limits"). Bending
 // and following a path are not here: they are the graphs bend.onnx and follow.onnx.

@@ -28,8 +28,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .motion.arrays import device as device_of
-from .motion.arrays import namespace, on_like
+from ..motion.arrays import device as device_of
+from ..motion.arrays import namespace, on_like
 
 NOISE_VERSION = 1  # bump when any number above changes
 _MASK = 0xFFFFFFFF

@@ -18,13 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import SMFError
-from .motion.bvh import BVH_ORDER
-from .motion.gltf import BODY_COLOUR, BONE_RADIUS, DEFAULT_RADIUS, HAND_LENGTH, HEAD_RADIUS
-from .path_plan import KINDS, MAX_PATH_METRES, MAX_PATH_SPEED, MAX_WAYPOINTS, MIN_TRAVEL
-from .limits import LENGTH_MULTIPLE, MAX_PROMPT_CHARS
-from .motion.rigid import DEFAULT_FIT
-from .motion.skeleton import get_skeleton
+from ..core.errors import SMFError
+from ..motion.bvh import BVH_ORDER
+from ..motion.gltf import BODY_COLOUR, BONE_RADIUS, DEFAULT_RADIUS, HAND_LENGTH, HEAD_RADIUS
+from ..core.path_plan import KINDS, MAX_PATH_METRES, MAX_PATH_SPEED, MAX_WAYPOINTS, MIN_TRAVEL
+from ..core.limits import LENGTH_MULTIPLE, MAX_PROMPT_CHARS
+from ..motion.rigid import DEFAULT_FIT
+from ..motion.skeleton import get_skeleton
 
 SITE_GRAPHS = ("text_encoder", "condition", "denoise", "length", "ood")  # what the page runs: the student's path
 FINAL_STAGE = ("rigid", "bend", "follow", "contacts", "cleanup", "pose")  # and the final stage's graphs (the package's, any model: final_stage_graph)
@@ -84,7 +84,7 @@ def path_lexicon() -> dict:
 
 
 def final_stage_graph(name: str) -> Path:
-    """The package's graph ``name`` (one of FINAL_STAGE) of the final stage (:func:`~stablemofusion.onnx_export.
+    """The package's graph ``name`` (one of FINAL_STAGE) of the final stage (:func:`~stablemofusion.backends.onnx_export.
     export_final_stage`: the Python functions themselves, exported)."""
     return Path(str(resources.files("stablemofusion") / "assets" / "final_stage" / f"{name}.onnx"))
 

@@ -9,8 +9,8 @@ import warnings
 
 import numpy as np
 
-from ..errors import SMFError
-from ..limits import DEFAULT_SECONDS, LENGTH_MULTIPLE, check_footskate, check_prompt, check_seconds, check_seed
+from .errors import SMFError
+from .limits import DEFAULT_SECONDS, LENGTH_MULTIPLE, check_footskate, check_prompt, check_seconds, check_seed
 from ..motion.rigid import RigidFitConfig, RigidMotion, rigid_from_features_many, rigid_to_features
 from ..motion.skeleton import Skeleton
 

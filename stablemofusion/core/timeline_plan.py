@@ -1,7 +1,7 @@
 """Long and multi-prompt motions: a timeline of (prompt, seconds) segments generated as one continuous motion.
 
 The motion is built window by window. The first window is generated from its prompt; every later window
-keeps the last ``overlap`` frames made so far as its known start (prefix editing, :mod:`stablemofusion.edit_plan`)
+keeps the last ``overlap`` frames made so far as its known start (prefix editing, :mod:`stablemofusion.core.edit_plan`)
 and generates what follows from its own prompt, so each join continues the motion before it: features are
 relative to the body, so appending a window's new frames continues the root path and heading exactly, and
 the seam blending of editing keeps the velocity continuous. A segment longer than one window (the model's

@@ -27,17 +27,17 @@ import numpy as np
 import torch
 from torch import nn
 
-from .errors import SMFError
-from .footskate.cleanup import CleanupConfig, clean_joints, detect_contacts
-from .footskate.contacts import HML_FOOT_JOINTS, contacts_of_feet
-from .motion.features import joints_from_features
-from .motion.rigid import DEFAULT_FIT
-from .motion.bvh import BVH_ORDER
-from .motion.rigid_batch import fit_joints, pose_joints
-from .motion.rotation import matrix_to_euler
-from .path_plan import bend_features, follow_features
+from ..core.errors import SMFError
+from ..footskate.cleanup import CleanupConfig, clean_joints, detect_contacts
+from ..footskate.contacts import HML_FOOT_JOINTS, contacts_of_feet
+from ..motion.features import joints_from_features
+from ..motion.rigid import DEFAULT_FIT
+from ..motion.bvh import BVH_ORDER
+from ..motion.rigid_batch import fit_joints, pose_joints
+from ..motion.rotation import matrix_to_euler
+from ..core.path_plan import bend_features, follow_features
 
-from .backends.onnx_graphs import FORMAT, MANIFEST, TABLE_FIELDS, VERSION
+from .onnx_graphs import FORMAT, MANIFEST, TABLE_FIELDS, VERSION
 
 OPSET = 18
 
@@ -48,7 +48,7 @@ class _TextEncoderGraph(nn.Module):
         self.bert = bert
 
     def forward(self, input_ids, attention_mask):
-        from .text.frozen import sentence_embedding
+        from ..text.frozen import sentence_embedding
 
         hidden = self.bert(input_ids=input_ids, attention_mask=attention_mask).last_hidden_state
         mask = attention_mask.bool()
@@ -75,7 +75,7 @@ class _DenoiseGraph(nn.Module):
         self.model, self.sentence = model, sentence
 
     def forward(self, x, t, features, text_mask, keep, a, b=None):
-        from .models.base import TextCondition
+        from ..models.base import TextCondition
 
         sentence, motion_mask = (a, b) if self.sentence else (None, a)  # (sentence,) motion_mask
         return self.model.denoise(x, t, TextCondition(features, text_mask, keep, sentence), motion_mask)
@@ -107,7 +107,7 @@ def _export(module: nn.Module, args: tuple, path: Path, inputs: list[str], outpu
     holds exactly as float16, "all" every large one."""
     import onnx
 
-    from .text.transformer import no_fast_path
+    from ..text.transformer import no_fast_path
 
     dims = {name: torch.export.Dim(name, min=1, max=4096) for axes in dynamic.values() for name in axes.values()}
     for name, m in (multiples or {}).items():
@@ -131,7 +131,7 @@ def _store_fp16(model, exact: bool) -> None:
     those that float16 holds exactly (a shipped model's weights are float16)."""
     from onnx import TensorProto, helper, numpy_helper
 
-    from .text.frozen import FP16_MIN_ELEMENTS
+    from ..text.frozen import FP16_MIN_ELEMENTS
 
     graph = model.graph
     casts, keep = [], []
@@ -184,7 +184,7 @@ def weight_map(state: dict[str, torch.Tensor], folder: Path, files: tuple[str, .
 def _tables(sampler: str, steps_range: range, schedule, arrays: dict[str, np.ndarray]) -> dict:
     """The tables of one sampler for each step count it takes: their arrays into ``arrays`` (key
     ``sampler/steps/field``), returns {steps: {init_sigma, stochastic}}."""
-    from .diffusion.solvers import solver_table
+    from ..diffusion.solvers import solver_table
 
     out = {}
     for k in steps_range:
@@ -201,8 +201,8 @@ def _tables(sampler: str, steps_range: range, schedule, arrays: dict[str, np.nda
 def export_model_graphs(components, out: Path) -> dict:
     """The condition and denoise graphs, the sampler tables and the settings of one loaded model
     (:class:`~stablemofusion.backends.torch_backend.TorchBackend`) into ``out``; returns its manifest entry."""
-    from .limits import LENGTH_MULTIPLE
-    from .diffusion.schedulers import parse_sampler, sampler_names
+    from ..core.limits import LENGTH_MULTIPLE
+    from ..diffusion.schedulers import parse_sampler, sampler_names
 
     model = components.model.float().eval()
     out.mkdir(parents=True, exist_ok=True)
@@ -251,7 +251,7 @@ def export_model_graphs(components, out: Path) -> dict:
 
 def export_text_encoder(out: Path) -> dict:
     """MiniLM and its tokenizer into ``out`` (the encoder the shipped models use)."""
-    from .text.frozen import MiniLMEncoder, minilm_folder
+    from ..text.frozen import MiniLMEncoder, minilm_folder
 
     enc = MiniLMEncoder()
     ids = torch.tensor([[101, 1037, 2711, 10427, 102, 0], [101, 2619, 3216, 102, 0, 0]])
@@ -271,9 +271,9 @@ def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder_
     atomically); returns ``out``. ``text_encoder_from``: a graphs folder whose text encoder and tokenizer are
     copied instead of exported again (the same MiniLM). ``adapters`` (``smf adapt`` files): merged into the
     weights first, their actions known: the graphs of the adapted model, as fast as the base's."""
-    from .io import atomic_dir
-    from .backends.torch_backend import TorchBackend
-    from .core.folders import model_folder
+    from ..core.io import atomic_dir
+    from .torch_backend import TorchBackend
+    from ..core.folders import model_folder
 
     path = model_folder(model_path)
     student = TorchBackend.from_pretrained(path, device="cpu", dtype=torch.float32, adapter=adapters or None)
@@ -313,7 +313,7 @@ def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder_
             manifest["actions"] = {"threshold": known.threshold, "actions": known.actions, "top": known.top,
                                    "embeddings": "actions.npy"}
             if known.taught:  # adapters' actions: in domain close to one of their captions (text.known)
-                from .text.known import TAUGHT_SIMILARITY
+                from ..text.known import TAUGHT_SIMILARITY
 
                 np.save(tmp / "taught.npy", known.embed([c for caps in known.taught.values() for c in caps]))
                 manifest["actions"].update(taught=known.taught, taught_embeddings="taught.npy",
@@ -344,7 +344,7 @@ def _readme(model: Path, manifest: dict) -> str:
 
 
 def _noise_version() -> int:
-    from .noise import NOISE_VERSION
+    from ..core.noise import NOISE_VERSION
 
     return NOISE_VERSION
 
@@ -420,12 +420,12 @@ def export_final_stage(out: Path, fps: float = 20.0) -> list[Path]:
     - ``rigid.onnx``: ``features`` (B, T, 263) raw HumanML3D features (dataset units), ``bone_lengths`` (B, 22)
       metres -> ``joints`` (B, T, 22, 3) metres: decoded, then one skeleton of those bone lengths fitted to them
       (:func:`~stablemofusion.motion.rigid_batch.fit_joints`, the default sweeps);
-    - ``bend.onnx``: ``features``, ``kind`` (B,) int64 (an index into :data:`~stablemofusion.path_plan.KINDS`),
+    - ``bend.onnx``: ``features``, ``kind`` (B,) int64 (an index into :data:`~stablemofusion.core.path_plan.KINDS`),
       ``angle`` (B,) radians -> ``features`` bent to the path words' path
-      (:func:`~stablemofusion.path_plan.bend_features`);
+      (:func:`~stablemofusion.core.path_plan.bend_features`);
     - ``follow.onnx``: ``features``, ``points`` (B, K, 2) metres, ``times`` (B, K) seconds, ``timed`` (B,) bool ->
       ``features`` whose root follows the points, the ``start`` facing (B,) radians and ``origin`` (B, 2) metres
-      that place the finished motion on them (:func:`~stablemofusion.path_plan.follow_features`);
+      that place the finished motion on them (:func:`~stablemofusion.core.path_plan.follow_features`);
     - ``contacts.onnx``: ``joints`` (B, T, 22, 3) metres -> ``contacts`` (B, T, 4) bool, the cleanup's kinematic
       contacts (:func:`~stablemofusion.footskate.contacts.contacts_of_feet`);
     - ``cleanup.onnx``: ``joints`` (B, T, 22, 3) rigid, ``bone_lengths`` (B, 22) metres -> ``joints`` cleaned and

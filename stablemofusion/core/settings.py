@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from ..errors import SMFError
+from .errors import SMFError
 from .final import EngineWarning, LengthClampedWarning, OutOfDomainWarning  # noqa: F401  (public here too)
-from ..limits import (BATCH_SIZE, FOOTSKATE, GUIDANCE, SAMPLER, STEPS, STUDENT_EDIT_STEPS, STUDENT_SAMPLER,
+from .limits import (BATCH_SIZE, FOOTSKATE, GUIDANCE, SAMPLER, STEPS, STUDENT_EDIT_STEPS, STUDENT_SAMPLER,
                       check_batch_size, check_footskate, check_guidance, check_steps)
 
 

@@ -4,7 +4,7 @@ runtimes: a window is sampled by the stream's :class:`WindowSampler` (the torch 
 runtime's), everything else happens here.
 
 Every window after the first keeps the last second of the motion so far as its known start (imposed on every
-x0 prediction, then its seam blended, as timelines do: :mod:`stablemofusion.timeline_plan`) and adds ``chunk``
+x0 prediction, then its seam blended, as timelines do: :mod:`stablemofusion.core.timeline_plan`) and adds ``chunk``
 frames from the prompt current when it starts; it generates ``TAIL`` frames more and drops them (a motion's last
 frames are its least settled). Features are relative to the body, so the new frames continue the root path and
 heading; the stream keeps the world heading and position of its kept frames and places each window's joints
@@ -29,13 +29,13 @@ import numpy as np
 
 from .edit_plan import blend_seams
 from .errors import SMFError
-from .footskate.cleanup import CLEANUP_CONTACTS
-from .footskate.contacts import kinematic_contacts
+from ..footskate.cleanup import CLEANUP_CONTACTS
+from ..footskate.contacts import kinematic_contacts
 from .limits import check_prompt
-from .motion.features import joints_from_features, root_from_features
-from .motion.root import headings
-from .motion.rotation import qinv, qrot, yaw_quat
-from .motion.skeleton import get_skeleton
+from ..motion.features import joints_from_features, root_from_features
+from ..motion.root import headings
+from ..motion.rotation import qinv, qrot, yaw_quat
+from ..motion.skeleton import get_skeleton
 from .timeline_plan import TAIL
 
 STREAM_KEEP = 20  # frames of the motion so far each window keeps as its start (1 s at 20 fps)

@@ -26,13 +26,13 @@ import numpy as np
 
 from .errors import SMFError
 from .limits import EDIT_MODES, IMPOSE
-from .motion.arrays import device as array_device
-from .motion.arrays import namespace
-from .motion.features import feature_slices
-from .motion.resample import resample
-from .motion.rigid import RigidMotion
-from .motion.root import follow_path, headings, land_at, root_xz
-from .motion.skeleton import Skeleton, get_skeleton
+from ..motion.arrays import device as array_device
+from ..motion.arrays import namespace
+from ..motion.features import feature_slices
+from ..motion.resample import resample
+from ..motion.rigid import RigidMotion
+from ..motion.root import follow_path, headings, land_at, root_xz
+from ..motion.skeleton import Skeleton, get_skeleton
 
 SEAM_FRAMES = 10  # generated frames next to a kept block over which a seam is blended (0.5 s at 20 fps)
 MODE_FLAGS = {"prefix": ("keep_start",), "suffix": ("keep_end",), "inbetween": ("keep_start", "keep_end")}
@@ -218,7 +218,7 @@ def source_features(motion, skeleton: Skeleton, fps: float, given_fps: float | N
     """Features (T, D) in dataset units of a loaded :class:`~stablemofusion.motion.files.Motion` (joints or
     features `.npy`, BVH): features as they are; joints resampled from ``given_fps`` (default: the file's) to
     ``fps`` and converted (canonical frame, the skeleton's bone lengths), one feature frame per joint frame."""
-    from .motion.features import features_from_joints
+    from ..motion.features import features_from_joints
 
     if motion.skeleton.name != skeleton.name:
         raise SMFError(f"the motion is on the {motion.skeleton.name} skeleton; this model uses {skeleton.name}")

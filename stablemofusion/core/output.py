@@ -1,4 +1,4 @@
-"""Output of a :class:`~stablemofusion.pipelines.result.MotionResult`, the one place motions become files or
+"""Output of a :class:`~stablemofusion.core.result.MotionResult`, the one place motions become files or
 HTTP bodies: bytes for each format (the server answers with them), and file writers built on them (the CLI).
 
 Formats (:data:`WRITERS`): ``npy`` (joints and features), ``bvh`` (the rigid body), ``json`` (joints and
@@ -19,14 +19,14 @@ from typing import Callable
 import numpy as np
 import orjson
 
-from . import __version__
+from .. import __version__
 from .errors import SMFError
-from .footskate.cleanup import CLEANUP_CONTACTS
-from .footskate.contacts import kinematic_contacts
+from ..footskate.cleanup import CLEANUP_CONTACTS
+from ..footskate.contacts import kinematic_contacts
 from .io import write_bytes
 from .limits import OUTPUT_FORMATS
-from .motion.files import rigid_bvh_text, rigid_pose
-from .pipelines.result import MotionResult
+from ..motion.files import rigid_bvh_text, rigid_pose
+from .result import MotionResult
 
 JSON_DECIMALS = 5  # joint coordinates in JSON: 0.01 mm
 SLUG_CHARS = 48  # characters of the prompt in a file name
@@ -75,7 +75,7 @@ def glb_bytes(result: MotionResult, **meta) -> bytes:
     """The result as a binary glTF 2.0 file (pygltflib): named joint nodes with a skin and a capsule body, one
     animation (a rotation per joint, the root's translation) at the result's frame rate; metres, Y up; ``meta``
     (how it was made: :func:`made_by` and the settings) in the file's extras."""
-    from .motion.gltf import rigid_to_glb
+    from ..motion.gltf import rigid_to_glb
 
     return rigid_to_glb(_rigid(result), result.fps, extras=meta)
 
@@ -97,7 +97,7 @@ class Rig:
 def rig_bvh_text(result: MotionResult, rig: Rig) -> str:
     """The result retargeted onto ``rig``: a BVH with the rig's joints, order, names, offsets and channels;
     unmapped joints keep their rest pose; root height and stride scaled to the rig's legs."""
-    from .motion.retarget import retarget_onto_bvh, rig_bvh_text as rig_text
+    from ..motion.retarget import retarget_onto_bvh, rig_bvh_text as rig_text
 
     if result.joints.shape[1:] != (22, 3):
         raise SMFError(f"retargeting onto a rig needs a 22-joint (HumanML3D) motion, got {result.joints.shape[1]} joints")
@@ -184,7 +184,7 @@ def write_rig(result: MotionResult, stem: Path, rig: Rig) -> Path:
 
 def _video(fmt: str) -> Writer:
     def write_video(result: MotionResult, stem: Path, meta: dict) -> list[Path]:
-        from .render import render_video
+        from ..render import render_video
 
         return [render_video(result.joints, OUTPUTS[fmt](stem)[0], skeleton=_skeleton(result), fps=result.fps,
                              title=result.prompt)]
@@ -204,7 +204,7 @@ def parse_formats(text: str) -> list[str]:
     bad = [f for f in formats if f not in WRITERS]
     if bad or not formats:
         raise SMFError(f"unknown format(s) {bad or text!r}; choose from {', '.join(WRITERS)}")
-    from .render.encoders import check_encoder
+    from ..render.encoders import check_encoder
 
     for f in formats:
         check_encoder(f)
@@ -253,6 +253,6 @@ def write_results(results: list[MotionResult], out: Path, formats: list[str], me
 
 def _skeleton(result: MotionResult) -> str:
     """The skeleton of a result: its rigid body's, else the one with its number of joints."""
-    from .motion.skeleton import skeleton_for_shape
+    from ..motion.skeleton import skeleton_for_shape
 
     return result.motion.skeleton if result.motion is not None else skeleton_for_shape(result.joints.shape)[0].name

@@ -30,13 +30,13 @@ from importlib import resources
 
 import numpy as np
 
-from .footskate.cleanup import CLEANUP_CONTACTS
-from .footskate.contacts import HML_FOOT_JOINTS, contacts_of_feet
-from .motion import timeseries as ts
-from .motion.arrays import namespace
-from .motion.features import joints_from_features
-from .motion.root import follow_path, headings
-from .motion.skeleton import get_skeleton
+from ..footskate.cleanup import CLEANUP_CONTACTS
+from ..footskate.contacts import HML_FOOT_JOINTS, contacts_of_feet
+from ..motion import timeseries as ts
+from ..motion.arrays import namespace
+from ..motion.features import joints_from_features
+from ..motion.root import follow_path, headings
+from ..motion.skeleton import get_skeleton
 
 ZIGZAG_DEGREES = 45.0  # heading of a zigzag's legs either side of its direction
 ZIGZAG_LEGS = 4  # legs of a zigzag
@@ -352,7 +352,7 @@ def waypoints_for(path, n: int) -> list["Waypoints | None"]:
 def place(motion, start: float, origin: np.ndarray):
     """A rigid motion made along a path's features (its first frame at the floor's origin, facing +Z) turned by
     ``start`` radians (positive: left) and moved to ``origin`` (2,): into the path's frame."""
-    from .motion.root import place_rigid_like
+    from ..motion.root import place_rigid_like
 
     return place_rigid_like(motion, 0, 0.0, np.zeros(2), -start / 2.0, origin)
 
@@ -372,7 +372,7 @@ def placed(features: np.ndarray, motion, placing: tuple[float, np.ndarray] | Non
     is without one), its features written for the placed body (``rigid``: the pipeline's rigid fit settings)."""
     if placing is None:
         return features, motion
-    from .motion.rigid import rigid_to_features
+    from ..motion.rigid import rigid_to_features
 
     motion = place(motion, *placing)
     return rigid_to_features(motion, features, rigid)[1], motion

@@ -35,7 +35,7 @@ def write_report(adapter: Adapter, base: str | Path | None, out: str | Path, see
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     info, t = adapter.info, adapter.info.training
-    base_pipe = MotionPipeline.from_pretrained(base)
+    base_pipe = MotionPipeline.from_pretrained(base, backend="torch")
     pipes = {"base": base_pipe, "adapted": base_pipe.with_adapters([adapter])}
     captions = [c for caps in info.actions.values() for c in caps][:REPORT_CAPTIONS]
     lines = [f"# Adapter {info.name!r}", "",

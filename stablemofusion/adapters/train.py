@@ -276,11 +276,11 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
     folder = model_folder(base)
     accelerator = Accelerator(cpu=not torch.cuda.is_available())
     device = accelerator.device
-    student_pipe = MotionPipeline.from_pretrained(folder, device="cpu")
+    student_pipe = MotionPipeline.from_pretrained(folder, backend="torch", device="cpu")
     if not student_pipe.student:
         raise SMFError(f"{folder} is not a distilled student with a teacher; adapt the model folder the default "
                        "path runs (a student with its teacher/)")
-    teacher_pipe = MotionPipeline.from_pretrained(folder, teacher=True, device="cpu")
+    teacher_pipe = MotionPipeline.from_pretrained(folder, backend="torch", teacher=True, device="cpu")
     hashes = {"student": weights_hash(folder), "teacher": weights_hash(model_folder(folder, teacher=True))}
     run = _Run(work, _fingerprint(clips, hashes, cfg), resume)
     state = run.state or {"stage": 1, "step": 0}

@@ -75,7 +75,7 @@ def run_samplers(args: argparse.Namespace) -> None:
         raise SMFError("--samplers is empty")
     grid = _ints(args.grid, "--grid")
     extra = _ints(args.ddpm_steps, "--ddpm-steps") if args.ddpm_steps else []
-    pipe = MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device,
+    pipe = MotionPipeline.from_pretrained(args.checkpoint, backend="torch", teacher=args.teacher, device=args.device,
                                           rigid=rigid_config(args))
     for s in samplers:
         make_sampler(s, pipe.schedule)  # unknown names fail before any work

@@ -43,11 +43,12 @@ def add_parser(sub, name: str) -> None:
 def _pipeline(args):
     import torch
 
+    from ..backends.torch_backend import TorchBackend
     from ..pipelines.motion_pipeline import MotionPipeline
 
     if args.preset is None:
-        return MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher, device=args.device,
-                                              adapter=args.adapter)
+        return MotionPipeline.from_pretrained(args.checkpoint, backend="torch", teacher=args.teacher,
+                                              device=args.device, adapter=args.adapter)
     if args.teacher or args.checkpoint is not None or args.adapter:
         from ..core.errors import SMFError
 
@@ -64,7 +65,7 @@ def _pipeline(args):
     config = CheckpointConfig.for_skeleton(cfg)
     dtype = torch.float16 if device.type == "cuda" else torch.float32
     mean = rest_features(config.skeleton)
-    return MotionPipeline(model, mean, np.ones_like(mean), config, device=device, dtype=dtype)
+    return MotionPipeline(TorchBackend(model, mean, np.ones_like(mean), config, device=device, dtype=dtype))
 
 
 def rest_features(skeleton: str):

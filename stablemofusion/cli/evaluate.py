@@ -181,7 +181,7 @@ def run(args: argparse.Namespace) -> None:
     real_only = args.checkpoint is not None and str(args.checkpoint).lower() == "none"
     if real_only and args.teacher:
         raise SMFError("--teacher needs a model: not with --checkpoint none")
-    pipe = None if real_only else MotionPipeline.from_pretrained(args.checkpoint, teacher=args.teacher,
+    pipe = None if real_only else MotionPipeline.from_pretrained(args.checkpoint, backend="torch", teacher=args.teacher,
                                                                  device=args.device, rigid=rigid_config(args))
     if pipe is not None:
         cfg = cfg.for_pipeline(pipe)  # the model's guidance, steps and sampler where the flags leave them

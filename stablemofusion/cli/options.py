@@ -73,31 +73,20 @@ def footskate_options_from_args(args):
     return FootskateOptions(config=CleanupConfig(contacts=args.contacts), vgrf_model=model)
 
 
-def torch_installed() -> bool:
-    """Whether PyTorch is installed (the [train] extra), found without importing it."""
-    import importlib.util
-
-    try:
-        return importlib.util.find_spec("torch") is not None
-    except (ImportError, ValueError):  # found but unusable (or blocked)
-        return False
-
-
 def choose_engine(args, *, portable: bool = True, what: str = "this") -> None:
-    """``--engine auto`` without PyTorch installed: the portable runtime where the command runs on it
+    """``--engine auto`` without PyTorch installed: the ONNX backend (``--engine onnx``) where the command runs on it
     (``portable``), else a one-line error naming the extra (``what`` needs PyTorch); a torch engine asked for by
-    name without it: the same error."""
+    name without it: the same kind of error (:func:`~stablemofusion.backends.backend_for`)."""
+    from ..backends import backend_for
     from ..core.errors import SMFError
     from ..core.limits import PORTABLE_ENGINE
 
-    if args.engine == PORTABLE_ENGINE or torch_installed():
+    if backend_for(None, args.engine) == "torch" or args.engine != "auto":
         return
-    if args.engine == "auto" and portable:
-        args.engine = PORTABLE_ENGINE
-        return
-    what = what if args.engine == "auto" else f"--engine {args.engine}"
-    raise SMFError(f"{what} needs PyTorch, which this install lacks: pip install 'stablemofusion[train]' (the portable "
-                   f"runtime, --engine {PORTABLE_ENGINE}, makes text to motion and timelines)")
+    if not portable:
+        raise SMFError(f"{what} needs PyTorch, which this install lacks: pip install 'stablemofusion[train]' (the "
+                       f"ONNX backend, --engine {PORTABLE_ENGINE}, makes text to motion and timelines)")
+    args.engine = PORTABLE_ENGINE
 
 
 def check_sampling(args) -> None:

@@ -36,7 +36,7 @@ PORTABLE_FOOTSKATE = ("off", "post")  # what the portable runtime runs: 'loop' r
 # motion's skate ratio is 0.213 against 0.070 for the real clips of those captions; after 'post' 0.049 and no foot
 # ever jumps, for about 3-4 ms more per motion. docs/footskate.md.
 FOOTSKATE = "post"
-PORTABLE_ENGINE = "onnx"  # the portable graphs on ONNX Runtime (stablemofusion.runtime), no torch
+PORTABLE_ENGINE = "onnx"  # the command line's engine that means the ONNX backend (stablemofusion.backends), no torch
 ENGINES = ("eager", "fast", "compiled", "graph", "compiled-graph", "aot")  # diffusion/engine.py: what each does
 OUTPUT_FORMATS = ("npy", "json", "bvh", "glb", "mp4", "gif")  # output.py: one writer each
 DEFAULT_FORMATS = "npy,bvh,glb"  # no rendering: mp4 needs the [video] extra, gif and mp4 take about 1 s

@@ -88,7 +88,7 @@ def ablate_arch(data, out: Path, embedder, cfg: EvalConfig, presets, train_cfg, 
         with open(run / "log.csv") as f:
             rows = list(csv.DictReader(f))
         seconds = float(rows[-1]["seconds"]) if rows else float("nan")
-        pipe = MotionPipeline.from_pretrained(run, device="cpu", rigid=rigid)
+        pipe = MotionPipeline.from_pretrained(run, backend="torch", device="cpu", rigid=rigid)
         res = evaluate(pipe, embedder, data, cfg, progress=progress)
         params = sum(p.numel() for p in pipe.model.parameters())
         table[preset] = {"label": ARCH_LABELS.get(preset, preset), "params": params, "train_seconds": seconds,

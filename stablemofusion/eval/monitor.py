@@ -62,7 +62,7 @@ class TrainingMonitor:
         from ..core.settings import Settings
         from .prompts import prompt_accuracy
 
-        pipe = MotionPipeline.from_pretrained(run)
+        pipe = MotionPipeline.from_pretrained(run, backend="torch")
         guidance = pipe.settings(Settings(guidance_scale=self.cfg.guidance)).guidance_scale
         acc = prompt_accuracy(pipe, self.classifier, self.items, self.labels, samples=1, seconds=PROBE_SECONDS,
                               seed=self.cfg.seed, guidance_scale=guidance)

@@ -105,6 +105,15 @@ class MotionPipeline:
         """The length each prompt's motion is expected to have (seconds); one text is one prompt."""
         return self.backend.predict_seconds(prompts)
 
+    def with_adapters(self, adapters) -> "MotionPipeline":
+        """A pipeline of this model with adapters merged into a copy of its weights (the torch backend's
+        ``with_adapters``)."""
+        return MotionPipeline(self.backend.with_adapters(adapters))
+
+    def variant(self, name: str | None) -> "MotionPipeline":
+        """The pipeline of the adapted copy named ``name`` (``add_variants``), or this one for None."""
+        return self if name is None else MotionPipeline(self.backend.variant(name))
+
     def __getattr__(self, name: str):
         """What only one backend has (the torch backend's model, config, text cache, batch-level ``denoise``; the
         onnx backend's graphs), read through to it."""

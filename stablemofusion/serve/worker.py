@@ -184,7 +184,7 @@ class ThreadWorker:
 @dataclass(frozen=True)
 class WorkerSpec:
     """What the worker process loads: checkpoint (None: the shipped model; with the portable engine, a graphs folder
-    or a model folder holding one), device, threads, engine (PORTABLE_ENGINE: the portable runtime, no torch)."""
+    or a model folder holding one), device, threads, engine ('onnx': the ONNX backend, no torch)."""
 
     checkpoint: str | None
     device: str | None = None

@@ -155,6 +155,6 @@ def test_a_workers_failure_is_named_in_one_line():
     from stablemofusion.bulk.ray_run import cause
 
     said = ("The actor died because of an error raised in its creation task\n  File \"x.py\", line 3, in f\n"
-            "    raise SMFError(...)\nstablemofusion.errors.SMFError: /m holds no portable graphs (graphs.json)\n")
+            "    raise SMFError(...)\nstablemofusion.core.errors.SMFError: /m holds no portable graphs (graphs.json)\n")
     assert cause(RuntimeError(said)) == "/m holds no portable graphs (graphs.json)"
     assert cause(RuntimeError("ValueError: bad\nmore")) == "ValueError: bad"

@@ -38,6 +38,7 @@ def test_monitor_samples_at_the_guidance_it_is_given(eval_corpus, classifier_dir
                                                      save_tiny_checkpoint, tmp_path, monkeypatch):
     import torch
 
+    from stablemofusion.backends.torch_backend import TorchBackend
     from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
     torch.set_num_threads(1)
@@ -49,9 +50,10 @@ def test_monitor_samples_at_the_guidance_it_is_given(eval_corpus, classifier_dir
     run = tmp_path / "run"
     save_tiny_checkpoint(run / "checkpoint", np.load(eval_corpus / "Mean.npy"), np.load(eval_corpus / "Std.npy"))
     seen = {"__call__": [], "denoise": []}
+    owner = {"__call__": MotionPipeline, "denoise": TorchBackend}  # the task's call, the backend's batch call
 
     def spy(name):
-        method = getattr(MotionPipeline, name)
+        method = getattr(owner[name], name)
 
         def wrapped(self, *args, **kwargs):
             seen[name].append(kwargs.get("guidance_scale"))
@@ -59,7 +61,7 @@ def test_monitor_samples_at_the_guidance_it_is_given(eval_corpus, classifier_dir
         return wrapped
 
     for name in seen:
-        monkeypatch.setattr(MotionPipeline, name, spy(name))
+        monkeypatch.setattr(owner[name], name, spy(name))
     monitor = TrainingMonitor(eval_corpus, MonitorConfig(probe, classifier_dir, evaluator_dir, fid_items=4,
                                                          batch_size=4, split="test", guidance=1.0))
     figures = monitor(run, 10)

@@ -1,4 +1,4 @@
-"""The portable runtime (ONNX graphs, numpy, no torch) gives the torch path's motions: exported graphs of any
+"""The ONNX backend (ONNX graphs, numpy, no torch) gives the torch backend's motions: exported graphs of any
 shape, the shipped graphs against the shipped weights, the command line with torch absent."""
 
 import json
@@ -9,6 +9,7 @@ import warnings
 import numpy as np
 import pytest
 
+from stablemofusion.cli.main import COMMANDS
 from stablemofusion.core.errors import SMFError
 from stablemofusion.backends.onnx_backend import default_graphs_path
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
@@ -201,6 +202,18 @@ def test_commands_that_need_torch_say_which_extra_to_install(tmp_path):
                  ["train-classifier", "--help"]):
         run = _smf_without_torch(*args)
         assert run.returncode == 2 and "stablemofusion[train]" in run.stderr and "Traceback" not in run.stderr, args
+        assert len(run.stderr.strip().splitlines()) == 1, run.stderr
+
+
+@pytest.mark.parametrize("command", list(COMMANDS))
+def test_every_command_answers_help_without_torch_or_names_the_extra(command):
+    """On the runtime install every command's --help works, or (its options come from the [train] extra) says in one
+    line which extra it needs, exit 2, no traceback."""
+    run = _smf_without_torch(command, "--help")
+    if run.returncode == 0:
+        assert f"usage: smf {command}" in run.stdout
+    else:
+        assert run.returncode == 2 and "stablemofusion[" in run.stderr and "Traceback" not in run.stderr, run.stderr
         assert len(run.stderr.strip().splitlines()) == 1, run.stderr
 
 

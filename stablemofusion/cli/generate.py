@@ -138,6 +138,11 @@ def run(args: argparse.Namespace) -> None:
         with user_warnings():
             results = pipe(batch, seconds=args.seconds, batch_size=args.batch_size, progress=1 < n <= args.batch_size,
                            path=path, seed=None if seed is None else seed + k, **kwargs)
+        for r in results:
+            if r.sequence:
+                parts = "; ".join(f"{p!r} {s:.1f} s" for p, s in r.sequence)
+                print(f"smf: note: {r.prompt!r} asks for one thing after another: made as a timeline of {parts}",
+                      file=sys.stderr)
         write_results(results, args.out, formats, meta, overwrite=args.overwrite, rig=rig, first=start)
         bar.update(len(batch))
     bar.close()

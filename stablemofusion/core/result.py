@@ -20,7 +20,8 @@ class MotionResult:
     the rigid body (skeleton, rotations, root path) the joints and features come from (None with the rigid
     stage off); ``seed`` the seed that makes it again; ``domain`` the closest known action (models with
     actions.json); ``settings`` the settings it was sampled with (resolved: guidance, steps, sampler, footskate,
-    engine)."""
+    engine); ``sequence`` how a prompt that asks for one thing after another was split (its parts and their
+    seconds, made as a timeline; None for a prompt of one part)."""
 
     prompt: str
     features: np.ndarray
@@ -30,6 +31,7 @@ class MotionResult:
     motion: RigidMotion | None = None
     domain: DomainCheck | None = None
     settings: Settings | None = None
+    sequence: list[tuple[str, float]] | None = None  # a prompt of several parts: how it was split, (part, seconds)
 
     @classmethod
     def build(cls, prompt: str, features: np.ndarray, motion: RigidMotion | None, skeleton: Skeleton, fps: float,

@@ -1,12 +1,14 @@
-"""Text to motion: one motion per prompt, batched; motions longer than one window are one-segment timelines."""
+"""Text to motion: one motion per prompt, batched; motions longer than one window are one-segment timelines, and a
+prompt that asks for one thing after another ("... then ...") is a timeline of its parts."""
 
 from __future__ import annotations
 
 from tqdm import tqdm
 
 from ..backends.base import Backend
-from ..core.limits import base_seed
+from ..core.limits import DEFAULT_SECONDS, base_seed
 from ..core.path_plan import PromptPaths, follow, placed
+from ..core.sequence_plan import share_seconds, split_sequence
 from ..core.final import check_batch_request, frames_for
 from ..core.result import MotionResult
 from ..core.settings import Settings
@@ -32,11 +34,12 @@ class TextToMotionPipeline:
         prompts, secs, frs, per_item = check_batch_request(prompts, seconds, frames, seed)
         settings = b.settings(request)
         n = len(prompts)
-        # 2. prepare: paths from words (the model is given the prompt without them), lengths (a path's, else the
-        # model's estimate where none is given), seeds, domains
+        # 2. prepare: each prompt's parts ("... then ..."), paths from words (the model is given the prompt without
+        # them), lengths (a path's, else the model's estimate where none is given), seeds, domains
+        parts = [split_sequence(p) for p in prompts]
         paths = PromptPaths.read(prompts, path)
-        asked, secs = paths.asked, paths.seconds(prompts, secs, frs)
-        unknown = [i for i in range(n) if secs[i] is None and frs[i] is None]
+        given, (asked, secs) = list(secs), (paths.asked, paths.seconds(prompts, secs, frs))
+        unknown = [i for i in range(n) if secs[i] is None and frs[i] is None and len(parts[i]) == 1]
         if unknown and b.has_length_model:
             for i, s in zip(unknown, b.predict_seconds([prompts[i] for i in unknown])):
                 secs[i] = s
@@ -44,14 +47,22 @@ class TextToMotionPipeline:
         base = None if per_item else base_seed(seed)
         domains = b.domains(asked)
         results: list[MotionResult | None] = [None] * n
-        # 3. motions longer than one window: one-segment timelines
-        for i in (i for i in range(n) if lengths[i] > b.max_frames):
+        # 3. timelines: prompts of several parts, each part its own segment, and motions longer than one window
+        for i in (i for i in range(n) if len(parts[i]) > 1):
+            segments = self.segments(parts[i], given[i], frs[i])
+            r = TimelinePipeline(b)(segments, seed=seed[i] if per_item else base + i, settings=request,
+                                    path=paths.explicit[i])
+            checks = b.domains(PromptPaths.read(parts[i]).asked)
+            r.prompt, r.sequence = prompts[i], segments
+            r.domain = min(checks, key=lambda d: d.similarity) if None not in checks else None
+            results[i] = r
+        for i in (i for i in range(n) if lengths[i] > b.max_frames and len(parts[i]) == 1):
             r = TimelinePipeline(b)([(prompts[i], lengths[i] / b.fps)], seed=seed[i] if per_item else base + i,
                                     settings=request, path=paths.explicit[i])
             r.prompt, r.domain = prompts[i], domains[i]
             results[i] = r
         # 4. denoise the others in batches
-        short = [i for i in range(n) if lengths[i] <= b.max_frames]
+        short = [i for i in range(n) if results[i] is None]
         starts = range(0, len(short), settings.batch_size)
         for k, start in enumerate(tqdm(starts, desc="generate", unit="batch", disable=not progress)):
             idx = short[start:start + settings.batch_size]
@@ -65,3 +76,17 @@ class TextToMotionPipeline:
                 results[i] = MotionResult.build(prompts[i], f, motion, b.skeleton, b.fps,
                                                 seed[i] if per_item else batch_seed, domains[i], settings)
         return results
+
+    def segments(self, parts: list[str], seconds: float | None, frames: int | None) -> list[tuple[str, float]]:
+        """The (prompt, seconds) segments of a prompt's parts: each part as long as its path words say, else as the
+        length model predicts (else the default length); a length given for the whole prompt shared among them in
+        those proportions."""
+        b = self.b
+        own = PromptPaths.read(parts).seconds(parts, [None] * len(parts), [None] * len(parts))
+        todo = [k for k, s in enumerate(own) if s is None]
+        if todo and b.has_length_model:
+            for k, s in zip(todo, b.predict_seconds([parts[k] for k in todo])):
+                own[k] = s
+        own = [DEFAULT_SECONDS if s is None else s for s in own]
+        total = frames / b.fps if frames is not None else seconds
+        return list(zip(parts, own if total is None else share_seconds(total, own)))

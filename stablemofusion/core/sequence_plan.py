@@ -1,0 +1,51 @@
+"""Prompts that ask for one thing after another ("a tired man walks in a circle then waves"): split at their
+sequence words into the parts of a timeline, each part with the subject of the first, each part's length its own.
+
+The model was trained on one action per caption: given "walks in a circle then waves" whole it draws the walk and
+drops the wave. Split, each part is a segment of a timeline (:mod:`~stablemofusion.core.timeline_plan`), generated
+after the one before it and continuing it; path words apply to their own part.
+"""
+
+from __future__ import annotations
+
+import re
+
+# sequence words, with the commas and "and" around them; "A before B" is A, then B
+SEQUENCE = re.compile(r"\s*,?\s*\b(?:and\s+then|and\s+after\s+that|after\s+that|and\s+afterwards|afterwards|then|"
+                      r"and\s+finally|finally|followed\s+by|before)\b\s*,?\s*", re.IGNORECASE)
+SUBJECT = re.compile(r"^\s*(?:(?:a|an|the|this|that|some|one)\s+(?:[\w'-]+\s+){0,3}?(?:person|man|woman|boy|girl|guy|"
+                     r"lady|gentleman|figure|character|human|child|kid|teenager|dancer|runner|athlete|soldier|player|"
+                     r"someone|somebody|people|adult|elder|worker)|someone|somebody|he|she|they|it|i|you)\b",
+                     re.IGNORECASE)
+PRONOUN = re.compile(r"^\s*(?:he|she|they|it)\b\s*", re.IGNORECASE)
+MAX_PARTS = 8  # parts of one prompt at most; a prompt of more sequence words is left whole
+
+
+def split_sequence(prompt: str) -> list[str]:
+    """The parts of a prompt that asks for one thing after another, in order (one part: the prompt as it is). A part
+    without a subject takes the first part's ("a man bows, then runs" -> ["a man bows", "a man runs"]); a
+    pronoun is replaced by it. Empty parts are dropped."""
+    parts = [p.strip(" ,;.") for p in SEQUENCE.split(prompt)]
+    parts = [p for p in parts if p]
+    if len(parts) < 2 or len(parts) > MAX_PARTS:
+        return [prompt]
+    found = SUBJECT.match(parts[0])
+    subject = found.group(0).strip() if found and not PRONOUN.match(found.group(0)) else "a person"
+    out = [parts[0]]
+    for p in parts[1:]:
+        p = re.sub(r"^(?:and|to)\s+", "", p, flags=re.IGNORECASE)
+        if PRONOUN.match(p):
+            p = PRONOUN.sub(subject + " ", p, count=1)
+        elif not SUBJECT.match(p):
+            p = f"{subject} {p}"
+        out.append(p)
+    return out
+
+
+def share_seconds(total: float, own: list[float]) -> list[float]:
+    """``total`` seconds shared among parts in proportion to their ``own`` lengths."""
+    whole = sum(own)
+    return [total * s / whole for s in own]
+
+
+__all__ = ["MAX_PARTS", "split_sequence", "share_seconds"]

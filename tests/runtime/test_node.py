@@ -14,9 +14,10 @@ from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.serve.site import write_site
 
 NODE = shutil.which("node")
+# one prompt of 300 characters (no sequence words: those make a timeline in Python, which the page does not)
 LONG_PROMPT = ("a tired old man in a heavy winter coat walks slowly forward along a quiet street, stops for a moment "
-               "to catch his breath, looks around at the houses and the trees on both sides, then raises his right "
-               "hand to wave at a neighbour across the road and carries on walking with small careful steps home now")
+               "to catch his breath, looks around at the houses and the trees on both sides, and raises his right "
+               "hand to wave at a neighbour across the road and carries on walking with small careful steps home, now")
 pytestmark = pytest.mark.skipif(NODE is None, reason="Node.js is not installed (apt-get install nodejs)")
 
 
@@ -59,6 +60,16 @@ def test_node_reproduces_the_python_runtime(site, prompt, seconds, seed, footska
     assert got["outOfDomain"] == want.domain.out_of_domain
     assert [c[0] for c in got["closest"]] == [c[0] for c in want.domain.closest]
     assert abs(got["similarity"] - want.domain.similarity) < 1e-4
+
+
+def test_node_says_it_makes_a_sequence_prompt_as_one_motion(site):
+    """The Python runtimes make "... then ..." as a timeline of its parts; the JavaScript runtime makes one motion of
+    the whole prompt and says so in its warnings (the page shows them); a prompt of one part has none."""
+    folder, _ = site
+    two = json.loads(node_generate(folder, "a person bows and then runs forward", "--seconds", "3").stdout)
+    one = json.loads(node_generate(folder, "a person bows politely", "--seconds", "3").stdout)
+    assert len(two["warnings"]) == 1 and "2 things one after another" in two["warnings"][0]
+    assert one["warnings"] == []
 
 
 def test_node_gives_one_clear_error_for_bad_input(site):

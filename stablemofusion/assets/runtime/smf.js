@@ -204,7 +204,15 @@ export class MotionRuntime {
       joints.push(frame);
     }
     // contacts: the frames the cleanup held each foot joint (left ankle, left toe, right ankle, right toe), 4 x T 0/1
-    const motion = { joints, frames: n, fps: i.fps, prompt, seed, ...domain,
+    // a prompt that asks for one thing after another: the Python runtimes make it as a timeline of its parts; this
+    // runtime makes one motion of the whole prompt, and says so
+    const warnings = [];
+    const parts = i.sequence_words ? prompt.split(new RegExp(i.sequence_words, 'i')).filter((p) => p && p.trim()) : [];
+    if (parts.length > 1) {
+      warnings.push(`"${prompt}" asks for ${parts.length} things one after another; this page makes one motion of the ` +
+        'whole prompt, which may draw only the first (smf generate and smf serve make each part in turn)');
+    }
+    const motion = { joints, frames: n, fps: i.fps, prompt, seed, ...domain, warnings,
       ...(contacts ? { contacts: contacts.map((c) => Array.from(c)) } : {}) };
     Object.defineProperty(motion, 'flat', { value: flat }); // (T x J x 3) as one array, not serialised
     Object.defineProperty(motion, 'planted', { value: planted }); // the feet the cleanup held or would count planted

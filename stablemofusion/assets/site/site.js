@@ -124,9 +124,9 @@ function show(motion, ms) {
   for (const id of ['scrub', 'play', ...Object.keys(DOWNLOADS)]) $(id).disabled = false;
   setFrame(0);
   status(`${motion.prompt}: ${motion.frames} frames, seed ${motion.seed}, made in ${ms.toFixed(0)} ms`);
-  $('warning').textContent = motion.outOfDomain
-    ? `"${motion.prompt}" is unlike the actions this model knows (closest: ${motion.closest.map((c) => c[0]).join(', ')}); the motion may not follow it.`
-    : '';
+  $('warning').textContent = [...(motion.outOfDomain
+    ? [`"${motion.prompt}" is unlike the actions this model knows (closest: ${motion.closest.map((c) => c[0]).join(', ')}); the motion may not follow it.`]
+    : []), ...(motion.warnings ?? [])].join(' ');
 }
 let last = performance.now(), clock = 0;
 function loop(now) {

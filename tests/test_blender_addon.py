@@ -205,6 +205,9 @@ for f in range(1, len(result['joints']) + 1):
     scene.frame_set(f)
     got.append({b.name: list(ours.matrix_world @ b.head) for b in ours.pose.bones})
 result['ours'] = got
+scene.smf.prompt, scene.smf.seconds = 'a tired man walks in a circle then waves', 6  # a prompt of two parts
+bpy.ops.smf.generate_motion()
+result['sequence'] = addon.motion.LAST_JOINTS.tolist()
 json.dump(result, open(out, 'w'))
 """
 
@@ -231,3 +234,8 @@ def test_addon_generates_in_blender_without_a_server(tmp_path, blender_shares_py
     assert np.abs(np.asarray(got["joints"]) - want).max() < 1e-3
     ours = np.stack([_to_ours(h, list(HUMANML3D.joint_names)) for h in got["ours"]])  # every frame's bone heads
     assert np.abs(ours - want).max() < 1e-3  # the skeleton it created takes every pose of the motion exactly
+    # a prompt of two parts in Blender: made part after part, as the CLI makes it (the walk, then the wave)
+    assert main(["generate", "a tired man walks in a circle then waves", "--seconds", "6", "--seed", "7", "--engine",
+                 "onnx", "--format", "npy", "--out", str(tmp_path / "seq")]) == 0
+    want = np.load(next((tmp_path / "seq").glob("*_joints.npy")))
+    assert np.abs(np.asarray(got["sequence"]) - want).max() < 1e-3

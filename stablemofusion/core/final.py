@@ -35,9 +35,19 @@ def frames_for(seconds: float | None, frames: int | None, fps: float, min_frames
     check_seconds(frames / fps, "the length")  # more than 0 frames, at most MAX_SECONDS
     n = max(frames, min_frames) // LENGTH_MULTIPLE * LENGTH_MULTIPLE
     if n != frames:
-        warnings.warn(f"length {frames} frames ({frames / fps:.2f} s) clamped to {n} frames ({n / fps:.2f} s), the "
-                      "range this model was trained on", LengthClampedWarning, stacklevel=4)
+        warnings.warn(clamp_message(frames, n, fps), LengthClampedWarning, stacklevel=4)
     return n
+
+
+def clamp_message(asked: int, made: int, fps: float) -> str:
+    """The warning of a length of ``asked`` frames made as ``made`` (:func:`frames_for`)."""
+    return (f"length {asked} frames ({asked / fps:.2f} s) clamped to {made} frames ({made / fps:.2f} s), the range "
+            "this model was trained on")
+
+
+def asked_frames(seconds: float | None, frames: int | None, fps: float) -> int | None:
+    """The frames a request asked for (None: none asked, the model's estimate or the default decides)."""
+    return frames if frames is not None else None if seconds is None else int(round(seconds * fps))
 
 
 def check_batch_request(prompts, seconds, frames, seed) -> tuple[list[str], list, list, bool]:
@@ -90,5 +100,5 @@ def finish_many(features: list[np.ndarray], skeleton: Skeleton, fps: float, rigi
     return out
 
 
-__all__ = ["EngineWarning", "LengthClampedWarning", "OutOfDomainWarning", "check_batch_request", "finish_many",
-           "frames_for"]
+__all__ = ["EngineWarning", "LengthClampedWarning", "OutOfDomainWarning", "asked_frames", "check_batch_request",
+           "clamp_message", "finish_many", "frames_for"]

@@ -117,12 +117,13 @@ def json_payload(result: MotionResult, **meta) -> dict:
     with actions.json), the joints (T, J, 3) rounded to :data:`JSON_DECIMALS` and ``contacts``: the frames the
     footskate cleanup held each foot joint, or without a cleanup those its detector counts as planted
     (:func:`planted_feet`), 4 lists (left ankle, left toe, right ankle, right toe) of T 0/1; for a prompt of
-    several parts ``sequence``, how it was split (each part's prompt and seconds); the HTTP response body."""
+    several parts ``sequence``, how it was split (each part's prompt and seconds); ``warnings``, what the user should
+    know of how it was made (a prompt out of domain, a length clamped), where there is any; the HTTP response body."""
     held = result.contacts if result.contacts is not None else planted_feet(result.joints, result.fps)
     sequence = [{"prompt": p, "seconds": round(float(s), 3)} for p, s in result.sequence or ()]
     return {"prompt": result.prompt, "fps": result.fps, "frames": result.frames, "seed": result.seed, **meta,
             **(result.domain.to_dict(result.prompt) if result.domain else {}),
-            **({"sequence": sequence} if sequence else {}),
+            **({"sequence": sequence} if sequence else {}), **({"warnings": result.warnings} if result.warnings else {}),
             **({} if held is None else {"contacts": np.asarray(held, int).T.tolist()}),
             "joints": _rounded(result.joints)}
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -21,7 +21,8 @@ class MotionResult:
     stage off); ``seed`` the seed that makes it again; ``domain`` the closest known action (models with
     actions.json); ``settings`` the settings it was sampled with (resolved: guidance, steps, sampler, footskate,
     engine); ``sequence`` how a prompt that asks for one thing after another was split (its parts and their
-    seconds, made as a timeline; None for a prompt of one part)."""
+    seconds, made as a timeline; None for a prompt of one part); ``warnings`` one line each of what the user should
+    know (a prompt out of domain, a length clamped, a prompt split), carried into every answer."""
 
     prompt: str
     features: np.ndarray
@@ -32,6 +33,7 @@ class MotionResult:
     domain: DomainCheck | None = None
     settings: Settings | None = None
     sequence: list[tuple[str, float]] | None = None  # a prompt of several parts: how it was split, (part, seconds)
+    warnings: list[str] = field(default_factory=list)  # what the user should know of how it was made, one line each
 
     @classmethod
     def build(cls, prompt: str, features: np.ndarray, motion: RigidMotion | None, skeleton: Skeleton, fps: float,

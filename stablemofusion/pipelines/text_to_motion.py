@@ -6,10 +6,10 @@ from __future__ import annotations
 from tqdm import tqdm
 
 from ..backends.base import Backend
-from ..core.limits import DEFAULT_SECONDS, base_seed
+from ..core.limits import DEFAULT_SECONDS, LENGTH_MULTIPLE, base_seed
 from ..core.path_plan import PromptPaths, follow, placed
 from ..core.sequence_plan import share_seconds, split_sequence
-from ..core.final import check_batch_request, frames_for
+from ..core.final import asked_frames, check_batch_request, clamp_message, frames_for
 from ..core.result import MotionResult
 from ..core.settings import Settings
 from .timeline import TimelinePipeline
@@ -55,6 +55,7 @@ class TextToMotionPipeline:
             checks = b.domains(PromptPaths.read(parts[i]).asked)
             r.prompt, r.sequence = prompts[i], segments
             r.domain = min(checks, key=lambda d: d.similarity) if None not in checks else None
+            r.warnings = [d.message(p) for d, p in zip(checks, parts[i]) if d is not None and d.out_of_domain]
             results[i] = r
         for i in (i for i in range(n) if lengths[i] > b.max_frames and len(parts[i]) == 1):
             r = TimelinePipeline(b)([(prompts[i], lengths[i] / b.fps)], seed=seed[i] if per_item else base + i,
@@ -75,6 +76,16 @@ class TextToMotionPipeline:
                 f, motion = placed(f, motion, placing, b.rigid)
                 results[i] = MotionResult.build(prompts[i], f, motion, b.skeleton, b.fps,
                                                 seed[i] if per_item else batch_seed, domains[i], settings)
+        # 6. what each result carries for the user, one line each: its prompt out of domain, the length it asked
+        # for clamped to the model's range (a prompt of several parts: its parts out of domain, step 3)
+        for i, r in enumerate(results):
+            if len(parts[i]) > 1:
+                continue
+            if domains[i] is not None and domains[i].out_of_domain:
+                r.warnings.append(domains[i].message(asked[i]))
+            wanted = asked_frames(given[i], frs[i], b.fps)
+            if wanted is not None and abs(wanted - r.frames) >= LENGTH_MULTIPLE:  # not a rounding to whole steps
+                r.warnings.append(clamp_message(wanted, r.frames, b.fps))
         return results
 
     def segments(self, parts: list[str], seconds: float | None, frames: int | None) -> list[tuple[str, float]]:

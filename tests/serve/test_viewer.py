@@ -206,6 +206,27 @@ def test_the_out_of_domain_warning_is_shown(page):
         page.unroute("**/v1/generate")
 
 
+def test_the_answers_warnings_and_parts_are_shown(page):
+    """Every warning of the answer, and how a prompt of several parts was split, are shown with the motion."""
+    page.route("**/v1/generate", lambda route: route.fulfill(
+        status=200, content_type="application/json",
+        body=__import__("json").dumps({"prompt": "a man walks then waves", "fps": 20.0, "frames": 40, "seed": 3,
+                                       "warnings": ["length 20 frames (1.00 s) clamped to 40 frames (2.00 s)"],
+                                       "sequence": [{"prompt": "a man walks", "seconds": 1.0},
+                                                    {"prompt": "a man waves", "seconds": 1.0}],
+                                       "joints": np.zeros((40, 22, 3)).tolist()})))
+    try:
+        page.set_checked("#body", False)
+        page.fill("#prompt", "a man walks then waves")
+        page.click("#generate")
+        page.wait_for_function("document.getElementById('status').className === 'error'", timeout=30_000)
+        text = page.inner_text("#status")
+        assert "Warning: length 20 frames (1.00 s) clamped" in text
+        assert 'made part after part: "a man walks" 1.0 s, then "a man waves" 1.0 s' in text
+    finally:
+        page.unroute("**/v1/generate")
+
+
 def test_dropping_a_local_npy_shows_it_and_bad_files_show_an_error(page):
     from stablemofusion.motion.files import load_motion
 

@@ -177,7 +177,10 @@ $('form').addEventListener('submit', async (ev) => {
     setMotion(m.joints, m.frames, m.fps, `"${m.prompt}": ${m.frames} frames, seed ${m.seed}`, m.contacts);
     for (const f of Object.keys(DOWNLOADS)) $(f).disabled = false;
     await showCharacter();  // the server converts the motion it just made (no second generation)
-    if (m.warning) status(`${$('status').textContent}. Warning: ${m.warning}`, true);
+    // the answer's warnings (out of domain, a length clamped) and how a prompt of several parts was split
+    const notes = [...(m.warnings ?? (m.warning ? [m.warning] : [])).map((w) => `Warning: ${w}`),
+      ...(m.sequence ? [`made part after part: ${m.sequence.map((p) => `"${p.prompt}" ${p.seconds.toFixed(1)} s`).join(', then ')}`] : [])];
+    if (notes.length) status(`${$('status').textContent}. ${notes.join('. ')}`, Boolean(m.warnings ?? m.warning));
   } catch (e) {
     status(e.message, true);
   } finally {

@@ -24,7 +24,7 @@ from ..core.errors import SMFError
 from ..models.base import Denoiser
 from ..models.registry import build_denoiser
 from ..core.folders import (CHECKPOINT_DIR, CONFIG, companion_file, companion_files, graphs_of,  # noqa: F401
-                            resolve, teacher_folder)
+                            read_config_json, resolve, teacher_folder)
 from .config import CheckpointConfig, ExportInfo, check_guidance
 
 MODEL = "model.safetensors"
@@ -79,15 +79,10 @@ def _write_checkpoint(folder: Path, *, model: Denoiser, config: CheckpointConfig
 
 
 def read_config(path: str | Path) -> CheckpointConfig:
-    """The config of a checkpoint, run or exported folder."""
+    """The config of a checkpoint, run or exported folder (its raw JSON read by
+    :func:`~stablemofusion.core.folders.read_config_json`)."""
     path = resolve(path)
-    if not (path / CONFIG).is_file():
-        raise SMFError(f"not a checkpoint folder (no {CONFIG}): {path}")
-    try:
-        config = json.loads((path / CONFIG).read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise SMFError(f"{path / CONFIG}: invalid JSON ({e})") from None
-    return CheckpointConfig.from_dict(config, where=str(path / CONFIG))
+    return CheckpointConfig.from_dict(read_config_json(path), where=str(path / CONFIG))
 
 
 def weights_from_graphs(folder: Path, entry: dict) -> dict[str, torch.Tensor]:

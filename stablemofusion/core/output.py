@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import io
 import re
+import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -215,8 +216,12 @@ def parse_formats(text: str) -> list[str]:
 
 
 def slug(text: str, index: int) -> str:
-    """A file name stem from a prompt: ``000_a_person_walks``."""
-    words = re.sub(r"[^a-z0-9]+", "_", text.lower()).strip("_")[:SLUG_CHARS].rstrip("_")
+    """A file name stem from a prompt: ``000_a_person_walks``; letters of any script kept (``001_一个人向前走``), at
+    most SLUG_CHARS characters cut at a word's end."""
+    words = re.sub(r"[\W_]+", "_", unicodedata.normalize("NFC", text).lower()).strip("_")
+    if len(words) > SLUG_CHARS:
+        cut = words[:SLUG_CHARS + 1].rfind("_")
+        words = words[:cut if cut > 0 else SLUG_CHARS].rstrip("_")
     return f"{index:03d}_{words or 'motion'}"
 
 

@@ -3,13 +3,16 @@ prompt that asks for one thing after another ("... then ...") is a timeline of i
 
 from __future__ import annotations
 
+import warnings
+
 from tqdm import tqdm
 
 from ..backends.base import Backend
+from ..core.final import NotEnglishWarning, asked_frames, check_batch_request, clamp_message, frames_for
+from ..core.language import language_message, not_english
 from ..core.limits import DEFAULT_SECONDS, LENGTH_MULTIPLE, base_seed
 from ..core.path_plan import PromptPaths, follow, placed
 from ..core.sequence_plan import share_seconds, split_sequence
-from ..core.final import asked_frames, check_batch_request, clamp_message, frames_for
 from ..core.result import MotionResult
 from ..core.settings import Settings
 from .timeline import TimelinePipeline
@@ -45,6 +48,9 @@ class TextToMotionPipeline:
                 secs[i] = s
         lengths = [frames_for(s, f, b.fps, b.min_frames) for s, f in zip(secs, frs)]
         base = None if per_item else base_seed(seed)
+        foreign = {p: why for p in dict.fromkeys(prompts) if (why := not_english(p)) is not None}
+        for p, why in foreign.items():
+            warnings.warn(language_message(p, why), NotEnglishWarning, stacklevel=3)
         domains = b.domains(asked)
         results: list[MotionResult | None] = [None] * n
         # 3. timelines: prompts of several parts, each part its own segment, and motions longer than one window
@@ -76,9 +82,11 @@ class TextToMotionPipeline:
                 f, motion = placed(f, motion, placing, b.rigid)
                 results[i] = MotionResult.build(prompts[i], f, motion, b.skeleton, b.fps,
                                                 seed[i] if per_item else batch_seed, domains[i], settings)
-        # 6. what each result carries for the user, one line each: its prompt out of domain, the length it asked
-        # for clamped to the model's range (a prompt of several parts: its parts out of domain, step 3)
+        # 6. what each result carries for the user, one line each: its prompt not English, out of domain, the length
+        # it asked for clamped to the model's range (a prompt of several parts: its parts out of domain, step 3)
         for i, r in enumerate(results):
+            if prompts[i] in foreign:
+                r.warnings.insert(0, language_message(prompts[i], foreign[prompts[i]]))
             if len(parts[i]) > 1:
                 continue
             if domains[i] is not None and domains[i].out_of_domain:

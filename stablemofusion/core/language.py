@@ -1,0 +1,53 @@
+"""Prompts that are not English, told apart without a model: the model's text encoder and its captions are English,
+so a prompt in another language or script gets a motion unrelated to it. A prompt is taken for another language
+when it holds letters of another script than the Latin one, holds no letters at all, or holds more of another
+language's common words than of English's (at least two), or some of them and no English one in three words or
+more (the word lists are data, ``assets/lexicons/languages.json``)."""
+
+from __future__ import annotations
+
+import json
+import re
+import unicodedata
+from functools import lru_cache
+from importlib import resources
+
+
+@lru_cache(maxsize=1)
+def _lexicon() -> dict:
+    text = (resources.files("stablemofusion") / "assets" / "lexicons" / "languages.json").read_text("utf-8")
+    data = json.loads(text)
+    return {"names": data["names"], "words": {k: frozenset(v) for k, v in data["words"].items()}}
+
+
+def _script(ch: str) -> str:
+    """The script of a letter, from its Unicode name ('LATIN', 'CJK', 'CYRILLIC', ...)."""
+    name = unicodedata.name(ch, "")
+    return "CJK" if name.startswith(("CJK", "HIRAGANA", "KATAKANA", "HANGUL")) else name.split(" ")[0]
+
+
+def not_english(prompt: str) -> str | None:
+    """Why ``prompt`` is not English (a short phrase: 'Cyrillic script', 'French words', 'no words'), or None."""
+    letters = [c for c in prompt if c.isalpha()]
+    if not letters:
+        return "no words"
+    scripts = {_script(c) for c in letters} - {"LATIN"}
+    if scripts:
+        script = sorted(scripts)[0]
+        return "Chinese, Japanese or Korean script" if script == "CJK" else f"{script.title()} script"
+    lex = _lexicon()
+    words = re.findall(r"[^\W\d_]+", prompt.lower())
+    english = sum(w in lex["words"]["en"] for w in words)
+    best, language = max((sum(w in ws for w in words), code) for code, ws in lex["words"].items() if code != "en")
+    if (best >= 2 and best > english) or (best >= 1 and english == 0 and len(words) >= 3):
+        return f"{lex['names'][language]} words"
+    return None
+
+
+def language_message(prompt: str, why: str) -> str:
+    """One warning line for a prompt that is not English."""
+    return (f"{prompt!r} does not look like English ({why}): the model knows English prompts only, so the motion may "
+            "not follow it")
+
+
+__all__ = ["language_message", "not_english"]

@@ -1,0 +1,54 @@
+"""Prompts that are not English are told apart: the ten written before the check and ten more written after it
+(five languages or more, three scripts), and none of the English prompt sets; the result carries the warning."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from stablemofusion.core.language import not_english
+from stablemofusion.core.output import slug
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def _prompts(name: str) -> list[str]:
+    return [json.loads(line)["prompt"] for line in (BENCH / name).read_text(encoding="utf-8").splitlines() if line]
+
+
+@pytest.mark.parametrize("name", ["prompts_foreign.jsonl", "prompts_foreign_heldout.jsonl"])
+def test_every_prompt_in_another_language_or_script_is_told(name):
+    assert [p for p in _prompts(name) if not_english(p) is None] == []
+
+
+def test_no_english_prompt_is_taken_for_another_language():
+    english = [p for name in ("prompts_freeform.jsonl", "prompts_plain.jsonl", "prompts_heldout_lexicon.jsonl",
+                              "prompts_sequences.jsonl") for p in _prompts(name)]
+    assert len(english) > 600 and [p for p in english if not_english(p)] == []
+
+
+def test_why_is_named():
+    assert not_english("человек идёт") == "Cyrillic script"
+    assert not_english("一个人向前走") == "Chinese, Japanese or Korean script"
+    assert not_english("🕺💃") == "no words"
+    assert not_english("ein Mann geht langsam nach vorne") == "German words"
+    assert not_english("a person dances 🕺") is None
+
+
+def test_file_names_keep_any_script_and_end_at_a_word():
+    assert slug("一个人向前走", 1) == "001_一个人向前走"
+    assert slug("a person walks forward and turns left 90 degrees then waves", 0) == \
+        "000_a_person_walks_forward_and_turns_left_90_degrees"
+    assert slug("🕺", 2) == "002_motion"
+
+
+def test_the_result_and_the_answer_carry_the_warning():
+    from stablemofusion.core.final import NotEnglishWarning
+    from stablemofusion.core.output import json_payload
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
+
+    pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
+    with pytest.warns(NotEnglishWarning, match="French words"):
+        r = pipe("une personne marche lentement vers l'avant", seconds=2, seed=0)[0]
+    assert "does not look like English (French words)" in json_payload(r)["warnings"][0]
+    assert pipe("a person walks forward", seconds=2, seed=0)[0].warnings == []

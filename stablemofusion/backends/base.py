@@ -69,6 +69,7 @@ class Backend(Protocol):
     version: str | None  # the model's version (a release's name)
     footskate_modes: tuple[str, ...]  # the footskate modes it runs
     adapters: tuple[str, ...]  # names of the adapters merged into its weights
+    reliability: dict | None  # how well it draws each known action (core.reliability), None where not measured
 
     def settings(self, settings: Settings | None = None, *, edit: bool = False, hooks: bool = False) -> Settings:
         """``settings`` resolved once for this model: every None filled in from its defaults, checked, the engine

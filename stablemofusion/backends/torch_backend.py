@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from ..core.folders import companion_file, model_folder
+from ..core.reliability import RELIABILITY_FILE, read_reliability
 from ..diffusion.checkpoint import load_checkpoint
 from ..diffusion.config import CheckpointConfig
 from ..diffusion.engine import SolverEngine, check_engine
@@ -71,6 +72,7 @@ class TorchBackend:
         self.text_cache = LRUTextCache(encoder, maxsize=text_cache_size)
         self.rigid = rigid
         self.known_actions: KnownActions | None = None  # from the folder's actions.json
+        self.reliability = None  # how well it draws each known action, from the folder's reliability.json
         self.length_estimator: LengthEstimator | None = None  # from the folder's length.safetensors
         self.adapters: tuple[str, ...] = ()  # names of the adapters merged into the weights
         self.path: Path | None = None  # the model folder it was loaded from
@@ -96,6 +98,7 @@ class TorchBackend:
         actions = companion_file(ck.path, ACTIONS_FILE)
         if actions is not None:
             c.known_actions = KnownActions.load(actions, c.text_cache, DomainDetector.load)
+        c.reliability = read_reliability(companion_file(ck.path, RELIABILITY_FILE))
         length = companion_file(ck.path, LENGTH_WEIGHTS)
         if length is not None:
             c.length_estimator = LengthEstimator.load(length.parent)

@@ -23,6 +23,10 @@ class OutOfDomainWarning(UserWarning):
     """A prompt is far from every action the model was trained on (it is generated anyway)."""
 
 
+class WeakActionWarning(UserWarning):
+    """A prompt's closest known action is one the model draws badly (few clips taught it; it is generated anyway)."""
+
+
 class NotEnglishWarning(UserWarning):
     """A prompt does not look like English (another script, another language's words, no words): the model knows
     English prompts only (it is generated anyway)."""
@@ -105,5 +109,5 @@ def finish_many(features: list[np.ndarray], skeleton: Skeleton, fps: float, rigi
     return out
 
 
-__all__ = ["EngineWarning", "LengthClampedWarning", "NotEnglishWarning", "OutOfDomainWarning", "asked_frames", "check_batch_request",
+__all__ = ["EngineWarning", "LengthClampedWarning", "NotEnglishWarning", "OutOfDomainWarning", "WeakActionWarning", "asked_frames", "check_batch_request",
            "clamp_message", "finish_many", "frames_for"]

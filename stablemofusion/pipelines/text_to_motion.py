@@ -8,14 +8,21 @@ import warnings
 from tqdm import tqdm
 
 from ..backends.base import Backend
-from ..core.final import NotEnglishWarning, asked_frames, check_batch_request, clamp_message, frames_for
+from ..core.final import (NotEnglishWarning, WeakActionWarning, asked_frames, check_batch_request, clamp_message,
+                          frames_for)
 from ..core.language import language_message, not_english
 from ..core.limits import DEFAULT_SECONDS, LENGTH_MULTIPLE, base_seed
 from ..core.path_plan import PromptPaths, follow, placed
+from ..core.reliability import weak_message
 from ..core.sequence_plan import share_seconds, split_sequence
 from ..core.result import MotionResult
 from ..core.settings import Settings
 from .timeline import TimelinePipeline
+
+
+# how much closer (cosine similarity) a prompt must be to an action drawn badly than to every action drawn well to be
+# warned about: chosen on the held-out lexicon probe (44 of its 54 prompts of weak actions warned, 1 of 6 others)
+WEAK_MARGIN = 0.03
 
 
 class TextToMotionPipeline:
@@ -52,6 +59,7 @@ class TextToMotionPipeline:
         for p, why in foreign.items():
             warnings.warn(language_message(p, why), NotEnglishWarning, stacklevel=3)
         domains = b.domains(asked)
+        weak = self.weak(asked, domains)
         results: list[MotionResult | None] = [None] * n
         # 3. timelines: prompts of several parts, each part its own segment, and motions longer than one window
         for i in (i for i in range(n) if len(parts[i]) > 1):
@@ -62,6 +70,7 @@ class TextToMotionPipeline:
             r.prompt, r.sequence = prompts[i], segments
             r.domain = min(checks, key=lambda d: d.similarity) if None not in checks else None
             r.warnings = [d.message(p) for d, p in zip(checks, parts[i]) if d is not None and d.out_of_domain]
+            r.warnings += list(self.weak(parts[i], checks).values())
             results[i] = r
         for i in (i for i in range(n) if lengths[i] > b.max_frames and len(parts[i]) == 1):
             r = TimelinePipeline(b)([(prompts[i], lengths[i] / b.fps)], seed=seed[i] if per_item else base + i,
@@ -82,8 +91,9 @@ class TextToMotionPipeline:
                 f, motion = placed(f, motion, placing, b.rigid)
                 results[i] = MotionResult.build(prompts[i], f, motion, b.skeleton, b.fps,
                                                 seed[i] if per_item else batch_seed, domains[i], settings)
-        # 6. what each result carries for the user, one line each: its prompt not English, out of domain, the length
-        # it asked for clamped to the model's range (a prompt of several parts: its parts out of domain, step 3)
+        # 6. what each result carries for the user, one line each: its prompt not English, out of domain, an action
+        # the model draws badly, the length it asked for clamped to the model's range (a prompt of several parts:
+        # its parts', step 3)
         for i, r in enumerate(results):
             if prompts[i] in foreign:
                 r.warnings.insert(0, language_message(prompts[i], foreign[prompts[i]]))
@@ -91,10 +101,27 @@ class TextToMotionPipeline:
                 continue
             if domains[i] is not None and domains[i].out_of_domain:
                 r.warnings.append(domains[i].message(asked[i]))
+            if asked[i] in weak:
+                r.warnings.append(weak[asked[i]])
             wanted = asked_frames(given[i], frs[i], b.fps)
             if wanted is not None and abs(wanted - r.frames) >= LENGTH_MULTIPLE:  # not a rounding to whole steps
                 r.warnings.append(clamp_message(wanted, r.frames, b.fps))
         return results
+
+    def weak(self, prompts: list[str], domains: list) -> dict[str, str]:
+        """Prompt -> a warning, for the in-domain prompts whose closest known action the model draws badly (its
+        reliability table) by a margin of WEAK_MARGIN over the closest one it draws well, each warned once."""
+        table = self.b.reliability
+        out = {}
+        for p, d in zip(prompts, domains):
+            if table is None or d is None or d.out_of_domain or not d.closest or p in out:
+                continue
+            action, similarity = d.closest[0]
+            drawn_well = [s for a, s in d.closest if not (a in table and table[a].weak)]
+            if action in table and table[action].weak and similarity - max(drawn_well, default=0.0) > WEAK_MARGIN:
+                out[p] = weak_message(p, action, table[action])
+                warnings.warn(out[p], WeakActionWarning, stacklevel=4)
+        return out
 
     def segments(self, parts: list[str], seconds: float | None, frames: int | None) -> list[tuple[str, float]]:
         """The (prompt, seconds) segments of a prompt's parts: each part as long as its path words say, else as the

@@ -52,3 +52,20 @@ def test_the_result_and_the_answer_carry_the_warning():
         r = pipe("une personne marche lentement vers l'avant", seconds=2, seed=0)[0]
     assert "does not look like English (French words)" in json_payload(r)["warnings"][0]
     assert pipe("a person walks forward", seconds=2, seed=0)[0].warnings == []
+
+
+def test_prompts_of_actions_the_model_draws_badly_are_warned_with_why():
+    """The shipped model's reliability table (benchmarks/action_reliability.py) marks kick, punch and slash weak
+    (2-4 clips each); their prompts are warned, with the clips and the measured accuracy, well-drawn ones are not."""
+    from stablemofusion.core.final import WeakActionWarning
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
+
+    pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
+    assert {a for a, r in pipe.backend.reliability.items() if r.weak} >= {"kick", "punch", "slash"}
+    for prompt, action in [("a person kicks with the right leg", "kick"), ("a man punches the air", "punch"),
+                           ("someone slashes with a sword", "slash")]:
+        with pytest.warns(WeakActionWarning, match=f"closest to '{action}', which this model draws badly"):
+            r = pipe(prompt, seconds=2, seed=0)[0]
+        assert any("draws badly (it was taught by" in w for w in r.warnings)
+    assert not any("draws badly" in w for w in pipe(["a person walks forward", "a person waves both hands"],
+                                                   seconds=2, seed=0)[0].warnings)

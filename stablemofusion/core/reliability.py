@@ -1,0 +1,49 @@
+"""How reliably a model draws each of its known actions, as data beside the model (``reliability.json``, made by
+``benchmarks/action_reliability.py``): a prompt whose closest known action the model draws badly is warned about,
+with why (its few clips, its measured accuracy)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from .errors import SMFError
+
+RELIABILITY_FILE = "reliability.json"
+MAX_RELIABILITY_BYTES = 1 << 20
+
+
+@dataclass(frozen=True)
+class ActionReliability:
+    """One known action: ``accuracy`` the share of motions for held-out wording judged to be it (None: not
+    measured), ``clips`` the corpus clips that taught it, ``weak`` whether prompts of it are warned about."""
+
+    accuracy: float | None
+    clips: int
+    weak: bool
+
+
+def read_reliability(path: str | Path | None) -> dict[str, ActionReliability] | None:
+    """The table of a ``reliability.json`` (None for no file); SMFError for a file that is not one."""
+    if path is None or not Path(path).is_file():
+        return None
+    path = Path(path)
+    try:
+        if path.stat().st_size > MAX_RELIABILITY_BYTES:
+            raise ValueError("too large")
+        rows = json.loads(path.read_text(encoding="utf-8"))["actions"]
+        return {str(a): ActionReliability(None if r["accuracy"] is None else float(r["accuracy"]), int(r["clips"]),
+                                          bool(r["weak"])) for a, r in rows.items()}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+        raise SMFError(f"{path}: not a reliability table ({e})") from None
+
+
+def weak_message(prompt: str, action: str, r: ActionReliability) -> str:
+    """One warning line for a prompt whose closest known action the model draws badly."""
+    measured = "" if r.accuracy is None else f"; {r.accuracy:.0%} of its motions for other wordings were judged right"
+    return (f"{prompt!r} is closest to {action!r}, which this model draws badly (it was taught by {r.clips} "
+            f"clip{'s' if r.clips != 1 else ''}{measured}): the motion may not show it")
+
+
+__all__ = ["ActionReliability", "RELIABILITY_FILE", "read_reliability", "weak_message"]

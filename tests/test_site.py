@@ -185,3 +185,24 @@ def test_a_site_that_cannot_be_written_is_one_line_and_leaves_nothing(tmp_path, 
     err = capsys.readouterr().err.strip()
     assert err.endswith("No space left on device") and len(err.splitlines()) == 1 and len(err) < 200, err
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_the_form_predicts_the_length_warns_of_sequences_and_names_downloads_after_the_prompt(served):
+    """Seconds left empty by default (the length is predicted from the text, as the command line does), a prompt
+    of several parts warned about in the page, and a download named after its prompt."""
+    with playwright.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS)
+        page = browser.new_page(viewport={"width": 900, "height": 600})
+        page.goto(served, wait_until="load")
+        page.wait_for_function("!document.getElementById('generate').disabled", timeout=60_000)
+        assert page.input_value("#seconds") == ""
+        page.fill("#prompt", "a tired man walks in a circle then waves")
+        page.click("#generate")
+        page.wait_for_function("window.smf.lastMotion && window.smf.lastMotion.prompt.includes('then waves')",
+                               timeout=60_000)
+        assert "asks for 2 things one after another" in page.inner_text("#warning")
+        assert page.evaluate("window.smf.lastMotion.joints.length") > 80  # predicted: not the old default of 4 s
+        with page.expect_download() as download:
+            page.click("#bvh")
+        assert download.value.suggested_filename == "a_tired_man_walks_in_a_circle_then_waves.bvh"
+        browser.close()

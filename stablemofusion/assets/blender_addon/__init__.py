@@ -24,7 +24,8 @@ from . import motion  # noqa: E402
 
 class SMF_PG_settings(bpy.types.PropertyGroup):
     prompt: StringProperty(name="Prompt", default="a person walks forward")
-    seconds: FloatProperty(name="Seconds", default=4.0, min=2.0, max=9.8)
+    seconds: FloatProperty(name="Seconds", default=0.0, min=0.0, max=9.8,
+                           description="0: the length is predicted from the prompt")
     seed: IntProperty(name="Seed", default=0, min=0)
     backend: EnumProperty(name="Run", items=[
         ("AUTO", "Auto", "in Blender when the stablemofusion runtime is importable, else the server"),
@@ -66,7 +67,7 @@ class SMF_OT_generate(bpy.types.Operator):
             return {"CANCELLED"}
         try:
             prefs = context.preferences.addons[__name__].preferences
-            joints, fps, source = motion.generate_joints(s.prompt.strip(), s.seconds, s.seed, s.server, s.backend,
+            joints, fps, source = motion.generate_joints(s.prompt.strip(), s.seconds or None, s.seed, s.server, s.backend,
                                                          bpy.path.abspath(prefs.packages) if prefs.packages else "",
                                                          bpy.path.abspath(prefs.model) if prefs.model else "")
             motion.LAST_JOINTS = joints

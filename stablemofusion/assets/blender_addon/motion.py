@@ -62,11 +62,12 @@ def local_pipeline(packages: str = "", required: bool = False, model: str = ""):
     return _PIPELINES[model]
 
 
-def generate_joints(prompt: str, seconds: float, seed: int, server: str, backend: str = "AUTO", packages: str = "",
+def generate_joints(prompt: str, seconds: float | None, seed: int, server: str, backend: str = "AUTO", packages: str = "",
                     model: str = "") -> tuple[np.ndarray, float, str]:
     """(joints (T, 22, 3) metres Y up, fps, where it came from): in Blender's Python on the portable runtime when it
     is importable (``backend`` AUTO or LOCAL; ``packages`` a folder to find it in; ``model`` a graphs folder, empty:
-    the shipped model), else from a running `smf serve` at ``server``."""
+    the shipped model), else from a running `smf serve` at ``server``; ``seconds`` None: the length the model
+    predicts from the prompt."""
     if backend in ("AUTO", "LOCAL"):
         pipe = local_pipeline(packages, required=backend == "LOCAL", model=model)
         if pipe is not None:
@@ -75,7 +76,7 @@ def generate_joints(prompt: str, seconds: float, seed: int, server: str, backend
             except Exception as e:  # noqa: BLE001 - the package's one-line errors (SMFError) and any other
                 raise MotionError(str(e)) from None
             return np.asarray(r.joints, np.float64), float(r.fps), "in Blender"
-    body = json.dumps({"prompt": prompt, "seconds": seconds, "seed": seed}).encode()
+    body = json.dumps({"prompt": prompt, "seed": seed, **({} if seconds is None else {"seconds": seconds})}).encode()
     url = server.rstrip("/") + "/v1/generate"
     req = urllib.request.Request(url, data=body, headers={"Content-Type": "application/json"}, method="POST")
     try:

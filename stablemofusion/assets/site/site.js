@@ -156,8 +156,12 @@ for (const format of Object.keys(DOWNLOADS)) {
   $(format).addEventListener('click', async () => {
     try {
       const [name, type] = DOWNLOADS[format];
+      // named after the prompt, as `smf generate` names its files (letters of any script, words joined by _)
+      let stem = (smf.lastMotion?.prompt ?? '').toLowerCase().replace(/[^\p{L}\p{N}]+/gu, '_').replace(/^_+|_+$/g, '');
+      if (stem.length > 48) { const cut = stem.slice(0, 49).lastIndexOf('_'); stem = stem.slice(0, cut > 0 ? cut : 48); }
+      stem = stem || 'motion';
       const url = URL.createObjectURL(new Blob([await smf.file(format)], { type }));
-      Object.assign(document.createElement('a'), { href: url, download: name }).click();
+      Object.assign(document.createElement('a'), { href: url, download: `${stem}${name.slice(name.indexOf('.'))}` }).click();
       setTimeout(() => URL.revokeObjectURL(url), 1000);
     } catch (e) {
       status(e.message, true);

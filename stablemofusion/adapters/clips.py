@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import io
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +25,11 @@ from ..core.errors import SMFError
 
 CAPTIONS_FILE = "captions.csv"
 MAX_CLIPS = 5000
+MAX_SKIPPED = 0.5  # share of a folder's clips that may be unusable (skipped, said); past it the run stops
+
+
+class ClipSkippedWarning(UserWarning):
+    """A clip of the folder cannot be used (too short, unreadable, not a body's joints) and is left out."""
 MAX_CSV_BYTES = 4 * 2**20
 MAX_CAPTION_CHARS = 300
 
@@ -91,9 +97,7 @@ def read_clips(folder: str | Path, joint_map: str | Path = "bandai-namco", *, ca
     JSON file) to ``skeleton`` features, with their captions; returns (clips, where the captions came from)."""
     from tqdm import tqdm
 
-    from ..motion.features import features_from_joints
-    from ..motion.files import check_bones
-    from ..motion.retarget import JointMap, retarget_bvh
+    from ..motion.retarget import JointMap
     from ..motion.skeleton import get_skeleton
 
     folder = Path(folder)
@@ -131,18 +135,34 @@ def read_clips(folder: str | Path, joint_map: str | Path = "bandai-namco", *, ca
             raise SMFError(f"{folder / missing[0]}: no caption in {captions} ({len(missing)} clip(s) lack one)")
     jmap = JointMap.named(joint_map)
     sk = get_skeleton(skeleton)
-    clips = []
+    clips, skipped = [], []
     for f, name in zip(tqdm(files, desc="clips", unit="file", disable=None if progress else True), names):
-        joints = retarget_bvh(f, jmap, unit=unit)  # MotionFormatError / SMFError name the file
-        if joints.shape[0] - 1 < min_frames:
-            raise SMFError(f"{f}: {joints.shape[0] / sk.fps:.2f} s is too short; clips need at least "
-                           f"{(min_frames + 1) / sk.fps:.2f} s")
-        check_bones(joints, sk, str(f))
-        feats = features_from_joints(joints, sk).astype(np.float32)
-        if not np.isfinite(feats).all():
-            raise SMFError(f"{f}: its motion gives non-finite features (a joint at the same place as its parent?)")
-        clips.append(Clip(name, tuple(table[name]), feats))
+        try:
+            clips.append(Clip(name, tuple(table[name]), _clip_features(f, jmap, sk, unit, min_frames)))
+        except SMFError as e:  # this clip is unusable: skipped, said, unless too few are left
+            skipped.append(str(e))
+    if skipped and (not clips or len(skipped) > len(files) * MAX_SKIPPED):
+        raise SMFError(f"{len(skipped)} of {len(files)} clips are unusable, too many to go on; the first: {skipped[0]}")
+    for reason in skipped:
+        warnings.warn(f"clip skipped: {reason}", ClipSkippedWarning, stacklevel=2)
     return clips, source
 
 
-__all__ = ["CAPTIONS_FILE", "Clip", "caption_from_name", "read_caption_csv", "read_clips"]
+def _clip_features(path: Path, jmap, sk, unit: str, min_frames: int) -> np.ndarray:
+    """One clip's features (T, D) float32; SMFError naming the file for a clip that cannot be used."""
+    from ..motion.features import features_from_joints
+    from ..motion.files import check_bones
+    from ..motion.retarget import retarget_bvh
+
+    joints = retarget_bvh(path, jmap, unit=unit)  # MotionFormatError / SMFError name the file
+    if joints.shape[0] - 1 < min_frames:
+        raise SMFError(f"{path}: {joints.shape[0] / sk.fps:.2f} s is too short; clips need at least "
+                       f"{(min_frames + 1) / sk.fps:.2f} s")
+    check_bones(joints, sk, str(path))
+    feats = features_from_joints(joints, sk).astype(np.float32)
+    if not np.isfinite(feats).all():
+        raise SMFError(f"{path}: its motion gives non-finite features (a joint at the same place as its parent?)")
+    return feats
+
+
+__all__ = ["CAPTIONS_FILE", "Clip", "ClipSkippedWarning", "caption_from_name", "read_caption_csv", "read_clips"]

@@ -78,16 +78,22 @@ def run(args: argparse.Namespace) -> None:
         raise SMFError("--licence must say under which terms your clips may be used")
     apply_threads(args.threads)
     t0 = time.perf_counter()
-    from ..adapters.clips import read_clips
+    import warnings
+
+    from ..adapters.clips import ClipSkippedWarning, read_clips
     from ..adapters.train import adapt
     from ..core.folders import model_folder
     from ..diffusion.checkpoint import read_config
 
     base = model_folder(args.base)
     config = read_config(base)
-    clips, source = read_clips(args.data, args.joint_map, captions=args.captions, caption=args.caption,
-                               from_names=args.captions_from_names, min_frames=config.min_frames, unit=args.unit,
-                               skeleton=config.skeleton, progress=not args.no_progress)
+    with warnings.catch_warnings(record=True) as caught:  # each clip skipped: one line on stderr
+        warnings.simplefilter("always", ClipSkippedWarning)
+        clips, source = read_clips(args.data, args.joint_map, captions=args.captions, caption=args.caption,
+                                   from_names=args.captions_from_names, min_frames=config.min_frames, unit=args.unit,
+                                   skeleton=config.skeleton, progress=not args.no_progress)
+    for w in caught:
+        print(f"smf: warning: {w.message}", file=sys.stderr)
     seconds = sum(c.frames for c in clips) / config.fps
     print(f"smf adapt: {len(clips)} clips ({seconds:.0f} s of motion), captions from {source}", file=sys.stderr)
     adapter = adapt(args.base, clips, args.out, cfg, name=args.name or args.out.stem, licence=args.licence.strip(),

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from stablemofusion.adapters.clips import caption_from_name, read_clips
+from stablemofusion.adapters.clips import ClipSkippedWarning, caption_from_name, read_clips
 from stablemofusion.adapters.file import Adapter, weights_hash
 from stablemofusion.adapters.train import AdaptConfig, adapt
 from stablemofusion.core.errors import SMFError
@@ -90,8 +90,14 @@ def test_bad_clip_folders_are_one_line_errors(clip_folder, bandai_mini_source, t
     short = tmp_path / "short"
     short.mkdir()
     shutil.copy(next(bandai_mini_source.rglob("dataset-1_run_normal_001.bvh")), short)  # 0.80 s
-    with pytest.raises(SMFError, match="run_normal_001.bvh: 0.80 s is too short"):
+    with pytest.raises(SMFError, match="1 of 1 clips are unusable.*run_normal_001.bvh: 0.80 s is too short"):
         read_clips(short, "bandai-namco", caption="a person runs")
+    # one unusable clip among usable ones is skipped, and said
+    for name in CLIPS[:2]:
+        shutil.copy(folder / f"{name}.bvh", short)
+    with pytest.warns(ClipSkippedWarning, match="clip skipped: .*run_normal_001.bvh: 0.80 s is too short"):
+        clips, _ = read_clips(short, "bandai-namco", caption="a person runs")
+    assert len(clips) == 2
     with pytest.raises(SMFError, match="lacks|lack"):  # a rig the joint map does not fit
         read_clips(folder, "mixamo", caption="x")
 

@@ -206,8 +206,11 @@ for f in range(1, len(result['joints']) + 1):
     got.append({b.name: list(ours.matrix_world @ b.head) for b in ours.pose.bones})
 result['ours'] = got
 scene.smf.prompt, scene.smf.seconds = 'a tired man walks in a circle then waves', 6  # a prompt of two parts
+ours.select_set(True)  # regenerated onto the same armature
+bpy.context.view_layer.objects.active = ours
 bpy.ops.smf.generate_motion()
 result['sequence'] = addon.motion.LAST_JOINTS.tolist()
+result['actions'] = [a.name for a in bpy.data.actions]
 json.dump(result, open(out, 'w'))
 """
 
@@ -239,3 +242,4 @@ def test_addon_generates_in_blender_without_a_server(tmp_path, blender_shares_py
                  "onnx", "--format", "npy", "--out", str(tmp_path / "seq")]) == 0
     want = np.load(next((tmp_path / "seq").glob("*_joints.npy")))
     assert np.abs(np.asarray(got["sequence"]) - want).max() < 1e-3
+    assert got["actions"] == ["a tired man walks in a circle then waves"]  # one action, reused: no orphan left

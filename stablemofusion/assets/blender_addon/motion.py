@@ -164,7 +164,8 @@ def _quat(m: np.ndarray) -> np.ndarray:
 
 def apply_motion(arm, joints: np.ndarray, fps: float, action_name: str = "stablemofusion") -> str:
     """Retarget joints (T, 22, 3) onto armature object ``arm`` and key its pose bones (frames 1..T) in a new
-    action; returns the joint map's name."""
+    action (the one an earlier generation made on it, emptied and renamed: no orphan action is left behind);
+    returns the joint map's name."""
     import bpy
 
     map_name, sources = choose_map([b.name for b in arm.data.bones])
@@ -180,8 +181,14 @@ def apply_motion(arm, joints: np.ndarray, fps: float, action_name: str = "stable
     to_arm = w.T @ C  # ours (world, Y up) -> armature space
     mw_inv = np.linalg.inv(np.array(arm.matrix_world))
     arm.animation_data_create()
-    action = bpy.data.actions.new(action_name)
-    arm.animation_data.action = action
+    action = arm.animation_data.action
+    if action is not None and action.get("stablemofusion"):  # an earlier generation's: reused, not left behind
+        action.fcurves.clear()
+        action.name = action_name
+    else:
+        action = bpy.data.actions.new(action_name)
+        action["stablemofusion"] = True
+        arm.animation_data.action = action
     pelvis = int(np.flatnonzero(targets == rigmath.PELVIS)[0])
     positions = motion.positions(rig.parents)
     frames = np.arange(1, T + 1, dtype=np.float64)

@@ -49,6 +49,9 @@ def load_backend(path: str | Path | None = None, *, backend: str | None = None, 
     :func:`backend_for` chooses. ``threads``: CPU threads (None: the library's default); ``adapter``:
     adapter files merged into the torch weights; ``torch_options`` (device, dtype, rigid, text_cache_size):
     the torch backend's."""
+    if backend in (None, "auto") and engine in (None, "auto") and path is not None and \
+            (Path(path) / "graphs.json").is_file() and not (Path(path) / "config.json").is_file():
+        backend = "onnx"  # a graphs folder: only the onnx backend runs it
     if backend_for(backend, engine) == "onnx":
         from .onnx_backend import OnnxBackend
 

@@ -1,4 +1,4 @@
-"""Export a model folder's inference path as ONNX graphs for the torch-free runtime (:mod:`stablemofusion.runtime`).
+"""Export a model folder's inference path as ONNX graphs for the ONNX backend (:mod:`stablemofusion.backends.onnx_backend`).
 
 One folder (``graphs.json`` the manifest, docs/runtime.md the contract) holds every network the default path
 runs; what is plain arithmetic (the sampler loops as coefficient tables, feature decoding, the rigid stage,

@@ -1,7 +1,7 @@
 """What every runtime does after sampling, written once (numpy, no torch): a requested length in frames, and the
 final stage of raw features (the rigid fit, footskate cleanup in 'post' mode, the body written back as
 features). The torch path (:class:`~stablemofusion.backends.torch_backend.TorchBackend`) and the portable runtime
-(:mod:`stablemofusion.runtime`) both call these."""
+(:mod:`stablemofusion.backends`) both call these."""
 
 from __future__ import annotations
 

@@ -43,7 +43,7 @@ def read_config_json(path: str | Path) -> dict:
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise SMFError(f"{path / CONFIG}: invalid JSON ({e})") from None
     if not isinstance(config, dict):
-        raise SMFError(f"{path / CONFIG}: not a JSON object")
+        raise SMFError(f"{path / CONFIG}: not a checkpoint config (not a JSON object)")
     return config
 
 

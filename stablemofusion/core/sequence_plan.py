@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import re
 
-# sequence words, with the commas and "and" around them; "A before B" is A, then B
+# sequence words, with the commas and "and" around them; "A before B-ing" is A, then B ("bows before the audience"
+# is one action)
 SEQUENCE = re.compile(r"\s*,?\s*\b(?:and\s+then|and\s+after\s+that|after\s+that|and\s+afterwards|afterwards|then|"
-                      r"and\s+finally|finally|followed\s+by|before)\b\s*,?\s*", re.IGNORECASE)
+                      r"and\s+finally|finally|before(?=\s+\w+ing\b))\b\s*,?\s*", re.IGNORECASE)
 SUBJECT = re.compile(r"^\s*(?:(?:a|an|the|this|that|some|one)\s+(?:[\w'-]+\s+){0,3}?(?:person|man|woman|boy|girl|guy|"
                      r"lady|gentleman|figure|character|human|child|kid|teenager|dancer|runner|athlete|soldier|player|"
                      r"someone|somebody|people|adult|elder|worker)|someone|somebody|he|she|they|it|i|you)\b",

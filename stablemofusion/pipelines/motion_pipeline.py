@@ -15,8 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..backends import load_backend
+from ..backends import PORTABLE_ADAPTERS, load_backend
 from ..backends.base import Backend
+from ..core.errors import SMFError
 from ..core.folders import default_model_path
 from ..core.limits import BATCH_SIZE, DEFAULT_SECONDS, FOOTSKATE_MODES
 from ..core.timeline_plan import DEFAULT_OVERLAP
@@ -108,11 +109,22 @@ class MotionPipeline:
     def with_adapters(self, adapters) -> "MotionPipeline":
         """A pipeline of this model with adapters merged into a copy of its weights (the torch backend's
         ``with_adapters``)."""
+        if self.backend.name != "torch":
+            raise SMFError(PORTABLE_ADAPTERS)
         return MotionPipeline(self.backend.with_adapters(adapters))
 
     def variant(self, name: str | None) -> "MotionPipeline":
         """The pipeline of the adapted copy named ``name`` (``add_variants``), or this one for None."""
+        if name is not None and self.backend.name != "torch":
+            raise SMFError(PORTABLE_ADAPTERS)
         return self if name is None else MotionPipeline(self.backend.variant(name))
+
+    def __setattr__(self, name: str, value) -> None:
+        """Setting what a backend holds (``pipe.rigid = ...``, ``pipe.text_cache = ...``) sets it on the backend."""
+        if name == "backend" or name in type(self).__dict__:
+            object.__setattr__(self, name, value)
+        else:
+            setattr(self.backend, name, value)
 
     def __getattr__(self, name: str):
         """What only one backend has (the torch backend's model, config, text cache, batch-level ``denoise``; the

@@ -8,6 +8,7 @@ import warnings
 from tqdm import tqdm
 
 from ..backends.base import Backend
+from ..core.errors import SMFError
 from ..core.final import (NotEnglishWarning, WeakActionWarning, asked_frames, check_batch_request, clamp_message,
                           frames_for)
 from ..core.language import language_message, not_english
@@ -23,6 +24,9 @@ from .timeline import TimelinePipeline
 # how much closer (cosine similarity) a prompt must be to an action drawn badly than to every action drawn well to be
 # warned about: chosen on the held-out lexicon probe (44 of its 54 prompts of weak actions warned, 1 of 6 others)
 WEAK_MARGIN = 0.03
+# a prompt of sequence words this close (cosine similarity) to one of the model's example sentences is that one
+# action ("a person walks forward then turns left" is a caption of the corpus's walk-turn-left), not split
+ONE_ACTION_SIMILARITY = 0.95
 
 
 class TextToMotionPipeline:
@@ -46,24 +50,31 @@ class TextToMotionPipeline:
         n = len(prompts)
         # 2. prepare: each prompt's parts ("... then ..."), paths from words (the model is given the prompt without
         # them), lengths (a path's, else the model's estimate where none is given), seeds, domains
-        parts = [split_sequence(p) for p in prompts]
+        parts = self.parts(prompts, settings)
+        one = [len(p) == 1 for p in parts]
         paths = PromptPaths.read(prompts, path)
         given, (asked, secs) = list(secs), (paths.asked, paths.seconds(prompts, secs, frs))
-        unknown = [i for i in range(n) if secs[i] is None and frs[i] is None and len(parts[i]) == 1]
+        unknown = [i for i in range(n) if secs[i] is None and frs[i] is None and one[i]]
         if unknown and b.has_length_model:
             for i, s in zip(unknown, b.predict_seconds([prompts[i] for i in unknown])):
                 secs[i] = s
-        lengths = [frames_for(s, f, b.fps, b.min_frames) for s, f in zip(secs, frs)]
+        lengths = [frames_for(s, f, b.fps, b.min_frames) if one[i] else 0 for i, (s, f) in enumerate(zip(secs, frs))]
         base = None if per_item else base_seed(seed)
         foreign = {p: why for p in dict.fromkeys(prompts) if (why := not_english(p)) is not None}
         for p, why in foreign.items():
             warnings.warn(language_message(p, why), NotEnglishWarning, stacklevel=3)
-        domains = b.domains(asked)
-        weak = self.weak(asked, domains)
+        single = [i for i in range(n) if one[i]]
+        domains: list = [None] * n
+        for i, d in zip(single, b.domains([asked[i] for i in single]) if single else []):
+            domains[i] = d
+        weak = self.weak([asked[i] for i in single], [domains[i] for i in single])
         results: list[MotionResult | None] = [None] * n
-        # 3. timelines: prompts of several parts, each part its own segment, and motions longer than one window
-        for i in (i for i in range(n) if len(parts[i]) > 1):
-            segments = self.segments(parts[i], given[i], frs[i])
+        # 3. timelines: prompts of several parts, each part its own segment (a length given, or an explicit path's,
+        # shared among them), and motions longer than one window
+        for i in (i for i in range(n) if not one[i]):
+            total = given[i] if given[i] is not None or paths.explicit[i] is None else \
+                paths.explicit[i].seconds(prompts[i])
+            segments = self.segments(parts[i], total, frs[i])
             r = TimelinePipeline(b)(segments, seed=seed[i] if per_item else base + i, settings=request,
                                     path=paths.explicit[i])
             checks = b.domains(PromptPaths.read(parts[i]).asked)
@@ -72,7 +83,7 @@ class TextToMotionPipeline:
             r.warnings = [d.message(p) for d, p in zip(checks, parts[i]) if d is not None and d.out_of_domain]
             r.warnings += list(self.weak(parts[i], checks).values())
             results[i] = r
-        for i in (i for i in range(n) if lengths[i] > b.max_frames and len(parts[i]) == 1):
+        for i in (i for i in range(n) if one[i] and lengths[i] > b.max_frames):
             r = TimelinePipeline(b)([(prompts[i], lengths[i] / b.fps)], seed=seed[i] if per_item else base + i,
                                     settings=request, path=paths.explicit[i])
             r.prompt, r.domain = prompts[i], domains[i]
@@ -97,7 +108,7 @@ class TextToMotionPipeline:
         for i, r in enumerate(results):
             if prompts[i] in foreign:
                 r.warnings.insert(0, language_message(prompts[i], foreign[prompts[i]]))
-            if len(parts[i]) > 1:
+            if not one[i]:
                 continue
             if domains[i] is not None and domains[i].out_of_domain:
                 r.warnings.append(domains[i].message(asked[i]))
@@ -107,6 +118,30 @@ class TextToMotionPipeline:
             if wanted is not None and abs(wanted - r.frames) >= LENGTH_MULTIPLE:  # not a rounding to whole steps
                 r.warnings.append(clamp_message(wanted, r.frames, b.fps))
         return results
+
+    def parts(self, prompts: list[str], settings: Settings) -> list[list[str]]:
+        """Each prompt's parts: split at its sequence words (:func:`~stablemofusion.core.sequence_plan.
+        split_sequence`), unless the whole prompt is nearly one of the model's example sentences (cosine
+        similarity ONE_ACTION_SIMILARITY: "a person walks forward then turns left" is one of its actions), or the
+        sampler cannot continue a motion part after part (then one motion of the whole prompt, as before)."""
+        b = self.b
+        parts = [split_sequence(p) for p in prompts]
+        several = [i for i, p in enumerate(parts) if len(p) > 1]
+        if not several:
+            return parts
+        try:
+            b.check_continues(settings, "a prompt of several parts")
+        except SMFError:
+            return [[p] for p in prompts]
+        with warnings.catch_warnings():  # a decision, not the prompts' own check
+            warnings.simplefilter("ignore")
+            for i in several:
+                wholes = b.domains(PromptPaths.read([prompts[i]]).asked)
+                if wholes[0] is None or not wholes[0].closest:
+                    continue
+                if wholes[0].closest[0][1] >= ONE_ACTION_SIMILARITY:
+                    parts[i] = [prompts[i]]
+        return parts
 
     def weak(self, prompts: list[str], domains: list) -> dict[str, str]:
         """Prompt -> a warning, for the in-domain prompts whose closest known action the model draws badly (its
@@ -135,4 +170,9 @@ class TextToMotionPipeline:
                 own[k] = s
         own = [DEFAULT_SECONDS if s is None else s for s in own]
         total = frames / b.fps if frames is not None else seconds
-        return list(zip(parts, own if total is None else share_seconds(total, own)))
+        shared = own if total is None else share_seconds(total, own)
+        shortest = b.min_frames / b.fps
+        if min(shared) < shortest:
+            raise SMFError(f"{len(parts)} parts ({'; '.join(parts)}) need at least {shortest:g} s each; "
+                           f"{total:g} s is too short for them")
+        return list(zip(parts, shared))

@@ -9,6 +9,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from ..core import limits
+from ..core.sequence_plan import split_sequence
 from ..core.errors import SMFError
 from .http_errors import ServeError
 from .responses import MOTION_FORMATS
@@ -160,7 +161,10 @@ class RequestChecks:
             data = body.path.model_dump() if isinstance(body.path, PathBody) else body.path
             path = checked(Waypoints.read, data)
             checked(limits.check_seconds, body.seconds or path.seconds(prompt), "the path's seconds")
-        cost = self._check_cost(body.seconds or (path.seconds(prompt) if path is not None else None), body)
+        # a prompt of several parts is made part after part, each up to a window long where no length is given
+        parts = len(split_sequence(prompt))
+        own = body.seconds or (path.seconds(prompt) if path is not None else None)
+        cost = self._check_cost(own or (parts * self.window_s if parts > 1 else None), body)
         return Job(prompt, body.seconds, seed, guidance, steps, body.footskate, adapter=self._adapter(body), path=path,
                    cost=cost)
 

@@ -75,3 +75,31 @@ def test_the_command_line_makes_the_parts_and_says_so(tmp_path):
     joints = np.load(next(tmp_path.glob("*_joints.npy")))
     cut = int(round(meta["sequence"][0]["seconds"] * meta["fps"]))
     assert raised(joints)[cut:].mean() > 0.5
+
+
+def test_a_prompt_that_is_one_of_the_models_actions_or_too_short_for_its_parts(onnx_pipe):
+    """A prompt that is nearly one of the model's example sentences is that action, not split ("walks forward then
+    turns left" is the corpus's walk-turn-left); "before" a noun is no sequence word; a length too short to give
+    every part the model's shortest motion is one clear error."""
+    from stablemofusion.core.errors import SMFError
+
+    assert onnx_pipe("a person walks forward then turns left", seed=0)[0].sequence is None
+    assert split_sequence("a person bows before the audience") == ["a person bows before the audience"]
+    with pytest.raises(SMFError, match="need at least 2 s each"):
+        onnx_pipe("a person bows and then runs forward", seconds=3, seed=0)
+
+
+def test_an_explicit_path_gives_a_sequence_its_length(onnx_pipe):
+    path = {"points": [[0, 0], [0, 4], [3, 4]], "times": [0, 4, 7]}
+    r = onnx_pipe("a person walks then waves", path=path, seed=0)[0]
+    assert len(r.sequence) == 2 and sum(s for _, s in r.sequence) == pytest.approx(7.0) and r.frames == 140
+
+
+def test_what_a_pipeline_is_given_reaches_its_backend(onnx_pipe):
+    from stablemofusion.core.errors import SMFError
+
+    rigid = onnx_pipe.rigid
+    onnx_pipe.rigid = rigid  # set on the backend, not on the pipeline
+    assert "rigid" not in vars(onnx_pipe) and onnx_pipe.backend.rigid is rigid
+    with pytest.raises(SMFError, match="--adapter needs PyTorch"):
+        onnx_pipe.with_adapters([])

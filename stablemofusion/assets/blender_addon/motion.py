@@ -35,7 +35,7 @@ _PIPELINES: dict = {}  # the portable pipelines, each model loaded once per Blen
 
 
 def local_pipeline(packages: str = "", required: bool = False, model: str = ""):
-    """The portable runtime's pipeline (stablemofusion.runtime, ONNX Runtime: no torch) in Blender's Python, its
+    """The pipeline on the ONNX backend (ONNX Runtime: no torch) in Blender's Python, its
     packages found where Blender finds its own or in the ``packages`` folder (a site-packages folder of a runtime
     install made with Blender's Python version; its .pth files are read), of the graphs folder ``model`` (empty:
     the shipped model). None when it is not importable, or with ``required`` a MotionError saying what to

@@ -1,5 +1,5 @@
 // Text to motion in JavaScript on the portable graphs (a folder written by `smf site`, model/): the JavaScript twin
-// of stablemofusion/runtime/pipeline.py for one prompt: the same tokenizer, graphs, sampler table and seeded noise,
+// of the Python ONNX backend (stablemofusion/backends/onnx_backend.py) for one prompt: the same tokenizer, graphs, sampler table and seeded noise,
 // so the same prompt, seed and length give the same joints. The final stage is not written here: following a path
 // (bend.onnx, follow.onnx), decoding and the rigid fit (rigid.onnx), the cleanup (cleanup.onnx) and the contacts
 // (contacts.onnx) are the Python's own functions exported as graphs, run like the model's. It runs in a browser and
@@ -208,7 +208,7 @@ export class MotionRuntime {
     // runtime makes one motion of the whole prompt, and says so
     const warnings = [];
     const parts = i.sequence_words ? prompt.split(new RegExp(i.sequence_words, 'i')).filter((p) => p && p.trim()) : [];
-    if (parts.length > 1) {
+    if (parts.length > 1 && parts.length <= (i.sequence_max_parts ?? Infinity)) {
       warnings.push(`"${prompt}" asks for ${parts.length} things one after another; this page makes one motion of the ` +
         'whole prompt, which may draw only the first (smf generate and smf serve make each part in turn)');
     }

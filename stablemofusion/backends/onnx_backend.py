@@ -4,7 +4,6 @@ sampling is the torch backend's table loop on the same portable noise, so both g
 
 from __future__ import annotations
 
-import warnings
 from collections import OrderedDict
 from dataclasses import replace
 from functools import cached_property
@@ -21,8 +20,9 @@ from ..core.reliability import RELIABILITY_FILE, read_reliability
 from ..core.limits import FOOTSKATE, PORTABLE_ENGINE, PORTABLE_FOOTSKATE, STUDENT_EDIT_STEPS
 from ..motion.rigid import DEFAULT_FIT, RigidMotion
 from ..motion.skeleton import get_skeleton
-from ..core.final import OutOfDomainWarning, finish_many
+from ..core.final import finish_many
 from ..core.settings import Settings
+from ..text.known import domains_of
 from ..text.names import GRAPHS_DIR
 from .base import Known
 from .onnx_graphs import TEACHER_INSTALL, PortableGraphs
@@ -123,14 +123,7 @@ class OnnxBackend:
     def domains(self, prompts: list[str]) -> list:
         """Each prompt's closest known action (None without known actions), warning once per out-of-domain
         prompt."""
-        known = self.known_actions
-        if known is None:
-            return [None] * len(prompts)
-        checks = list(known.check_many(prompts))
-        for p, d in dict(zip(prompts, checks)).items():
-            if d.out_of_domain:
-                warnings.warn(d.message(p), OutOfDomainWarning, stacklevel=3)
-        return checks
+        return domains_of(self.known_actions, prompts)
 
     # ---------------------------------------------------------------- sampling
     def settings(self, settings: Settings | None = None, *, edit: bool = False, hooks: bool = False) -> Settings:

@@ -5,7 +5,6 @@ calls (:meth:`TorchBackend.denoise`, :meth:`TorchBackend.sample`) that benchmark
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -25,11 +24,11 @@ from ..models.base import TextCondition
 from ..motion.rigid import DEFAULT_FIT, RigidFitConfig, RigidMotion
 from ..motion.skeleton import get_skeleton
 from ..text.domain import DomainDetector
-from ..text.known import ACTIONS_FILE, DomainCheck, KnownActions
+from ..text.known import ACTIONS_FILE, DomainCheck, KnownActions, domains_of
 from ..text.length import WEIGHTS as LENGTH_WEIGHTS
 from ..text.length import LengthEstimator
 from ..core.limits import FOOTSKATE_MODES, MAX_STEPS, STUDENT_MAX_STEPS
-from ..core.final import OutOfDomainWarning, finish_many, frames_for
+from ..core.final import finish_many, frames_for
 from ..core.settings import Settings
 from .base import Known
 from .torch_sampling import edit_hooks, resolve_engine, sample
@@ -304,13 +303,7 @@ class TorchBackend:
     def domains(self, prompts: list[str]) -> list[DomainCheck | None]:
         """Each prompt's closest known action (None for models without actions.json), warning once per
         out-of-domain prompt."""
-        if self.known_actions is None:
-            return [None] * len(prompts)
-        domains = list(self.known_actions.check_many(prompts))
-        for p, d in dict(zip(prompts, domains)).items():
-            if d.out_of_domain:
-                warnings.warn(d.message(p), OutOfDomainWarning, stacklevel=3)
-        return domains
+        return domains_of(self.known_actions, prompts)
 
     def solver(self, sampler: str, steps: int) -> SolverTable:
         """The precomputed coefficient table of a fast sampler, cached per (sampler, steps)."""

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +27,7 @@ import numpy as np
 
 from ..core.errors import SMFError
 from ..motion.arrays import to_numpy
+from ..core.final import OutOfDomainWarning
 from ..core.folders import MANIFEST
 from .names import ACTIONS_FILE, DETECTOR_FILE, EMBEDDINGS_FILE, GRAPHS_DIR
 from .sentence import sentence_embedding
@@ -246,3 +248,15 @@ def _best_per_owner(sims: np.ndarray, owner: np.ndarray, count: int) -> np.ndarr
 
 
 __all__ = ["ACTIONS_FILE", "EMBEDDINGS_FILE", "DomainCheck", "KnownActions"]
+
+
+def domains_of(known: "KnownActions | None", prompts: list[str]) -> list:
+    """Each prompt's closest known action (None for a model without known actions), warning once per out-of-domain
+    prompt (:class:`~stablemofusion.core.final.OutOfDomainWarning`); what every backend's ``domains`` is."""
+    if known is None:
+        return [None] * len(prompts)
+    checks = list(known.check_many(prompts))
+    for p, d in dict(zip(prompts, checks)).items():
+        if d.out_of_domain:
+            warnings.warn(d.message(p), OutOfDomainWarning, stacklevel=4)
+    return checks

@@ -211,6 +211,9 @@ bpy.context.view_layer.objects.active = ours
 bpy.ops.smf.generate_motion()
 result['sequence'] = addon.motion.LAST_JOINTS.tolist()
 result['actions'] = [a.name for a in bpy.data.actions]
+scene.smf.prompt, scene.smf.seconds = 'un homme marche lentement vers la porte', 3  # warned: shown in the panel
+result['french'] = list(bpy.ops.smf.generate_motion())
+result['warnings'] = list(addon.motion.LAST_WARNINGS)
 json.dump(result, open(out, 'w'))
 """
 
@@ -243,3 +246,5 @@ def test_addon_generates_in_blender_without_a_server(tmp_path, blender_shares_py
     want = np.load(next((tmp_path / "seq").glob("*_joints.npy")))
     assert np.abs(np.asarray(got["sequence"]) - want).max() < 1e-3
     assert got["actions"] == ["a tired man walks in a circle then waves"]  # one action, reused: no orphan left
+    assert got["french"] == ["FINISHED"] and len(got["warnings"]) >= 1  # and out of domain
+    assert "does not look like English (French words)" in got["warnings"][0]

@@ -16,6 +16,8 @@ bl_info = {
     "category": "Animation",
 }
 
+import textwrap
+
 import bpy  # noqa: E402
 from bpy.props import EnumProperty, FloatProperty, IntProperty, StringProperty  # noqa: E402
 
@@ -81,6 +83,8 @@ class SMF_OT_generate(bpy.types.Operator):
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
         self.report({"INFO"}, f"{len(joints)} frames at {fps:g} fps from {source} on {arm.name} (joint map {used})")
+        for w in motion.LAST_WARNINGS:  # where the user looks: the status bar, and the panel until the next motion
+            self.report({"WARNING"}, w)
         return {"FINISHED"}
 
 
@@ -100,6 +104,10 @@ class SMF_PT_panel(bpy.types.Panel):
         if s.backend != "LOCAL":
             col.prop(s, "server")
         col.operator(SMF_OT_generate.bl_idname, icon="ARMATURE_DATA")
+        for w in motion.LAST_WARNINGS:
+            box = col.box()
+            for k, line in enumerate(textwrap.wrap(w, 40)):
+                box.label(text=line, icon="ERROR" if k == 0 else "NONE")
 
 
 CLASSES = (SMF_PG_settings, SMF_AP_preferences, SMF_OT_generate, SMF_PT_panel)

@@ -34,6 +34,9 @@ class MotionError(Exception):
 _PIPELINES: dict = {}  # the portable pipelines, each model loaded once per Blender session
 
 
+LAST_WARNINGS: list[str] = []  # the last motion's warnings (not English, out of domain, ...), shown in the panel
+
+
 def local_pipeline(packages: str = "", required: bool = False, model: str = ""):
     """The pipeline on the ONNX backend (ONNX Runtime: no torch) in Blender's Python, its
     packages found where Blender finds its own or in the ``packages`` folder (a site-packages folder of a runtime
@@ -68,6 +71,7 @@ def generate_joints(prompt: str, seconds: float | None, seed: int, server: str, 
     is importable (``backend`` AUTO or LOCAL; ``packages`` a folder to find it in; ``model`` a graphs folder, empty:
     the shipped model), else from a running `smf serve` at ``server``; ``seconds`` None: the length the model
     predicts from the prompt."""
+    global LAST_WARNINGS
     if backend in ("AUTO", "LOCAL"):
         pipe = local_pipeline(packages, required=backend == "LOCAL", model=model)
         if pipe is not None:
@@ -75,6 +79,7 @@ def generate_joints(prompt: str, seconds: float | None, seed: int, server: str, 
                 r = pipe([prompt], seconds=seconds, seed=seed)[0]
             except Exception as e:  # noqa: BLE001 - the package's one-line errors (SMFError) and any other
                 raise MotionError(str(e)) from None
+            LAST_WARNINGS = list(r.warnings)
             return np.asarray(r.joints, np.float64), float(r.fps), "in Blender"
     body = json.dumps({"prompt": prompt, "seed": seed, **({} if seconds is None else {"seconds": seconds})}).encode()
     url = server.rstrip("/") + "/v1/generate"
@@ -90,6 +95,7 @@ def generate_joints(prompt: str, seconds: float | None, seed: int, server: str, 
         raise MotionError(f"{url}: {msg}") from None
     except (urllib.error.URLError, OSError) as e:
         raise MotionError(f"no stablemofusion server at {server} ({e}); start one with `smf serve`") from None
+    LAST_WARNINGS = [str(w) for w in data.get("warnings", [])]
     return np.asarray(data["joints"], np.float64), float(data["fps"]), url
 
 

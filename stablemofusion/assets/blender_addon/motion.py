@@ -94,7 +94,9 @@ def generate_joints(prompt: str, seconds: float | None, seed: int, server: str, 
             msg = str(e)
         raise MotionError(f"{url}: {msg}") from None
     except (urllib.error.URLError, OSError) as e:
-        raise MotionError(f"no stablemofusion server at {server} ({e}); start one with `smf serve`") from None
+        local = ("" if backend == "SERVER" else " or let it run in Blender: set the add-on's Python packages folder to a "
+                 "site-packages folder holding stablemofusion (docs/character.md)")
+        raise MotionError(f"no stablemofusion server at {server} ({e}); start one with `smf serve`{local}") from None
     LAST_WARNINGS = [str(w) for w in data.get("warnings", [])]
     return np.asarray(data["joints"], np.float64), float(data["fps"]), url
 

@@ -195,6 +195,13 @@ try:  # the packages folder not set yet: one clear error
     result = {'missing': 'no error'}
 except RuntimeError as e:
     result = {'missing': str(e)}
+scene.smf.backend, scene.smf.server = 'AUTO', 'http://127.0.0.1:9'  # neither a server nor the packages: both named
+try:
+    bpy.ops.smf.generate_motion()
+    result['neither'] = 'no error'
+except RuntimeError as e:
+    result['neither'] = str(e)
+scene.smf.backend = 'LOCAL'
 bpy.context.preferences.addons['stablemofusion_addon'].preferences.packages = packages
 result['status'] = list(bpy.ops.smf.generate_motion())
 addon = sys.modules['stablemofusion_addon']
@@ -232,6 +239,7 @@ def test_addon_generates_in_blender_without_a_server(tmp_path, blender_shares_py
     assert out.is_file(), run.stdout[-3000:] + run.stderr[-3000:]
     got = json.loads(out.read_text())
     assert "not importable in Blender's Python" in got["missing"] and "Traceback" not in got["missing"]
+    assert "smf serve" in got["neither"] and "packages folder" in got["neither"], got["neither"]
     assert got["status"] == ["FINISHED"], run.stdout[-3000:]
     cli = tmp_path / "cli"
     assert main(["generate", "a person waves both hands happily", "--seconds", "4", "--seed", "7", "--engine", "onnx",

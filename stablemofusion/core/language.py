@@ -13,11 +13,22 @@ from functools import lru_cache
 from importlib import resources
 
 
+MIN_WORDS = 2  # another language's words that outnumber English's, at least this many
+MIN_WORDS_ALONE = 3  # or one of them and no English word, in a prompt of at least this many words
+
+
 @lru_cache(maxsize=1)
 def _lexicon() -> dict:
     text = (resources.files("stablemofusion") / "assets" / "lexicons" / "languages.json").read_text("utf-8")
     data = json.loads(text)
     return {"names": data["names"], "words": {k: frozenset(v) for k, v in data["words"].items()}}
+
+
+def language_lexicon() -> dict:
+    """The word lists as data (names, words by language, and the rule's numbers), for the JavaScript runtime."""
+    lex = _lexicon()
+    return {"names": lex["names"], "words": {k: sorted(v) for k, v in lex["words"].items()},
+            "min_words": MIN_WORDS, "min_words_alone": MIN_WORDS_ALONE}
 
 
 def _script(ch: str) -> str:
@@ -39,7 +50,7 @@ def not_english(prompt: str) -> str | None:
     words = re.findall(r"[^\W\d_]+", prompt.lower())
     english = sum(w in lex["words"]["en"] for w in words)
     best, language = max((sum(w in ws for w in words), code) for code, ws in lex["words"].items() if code != "en")
-    if (best >= 2 and best > english) or (best >= 1 and english == 0 and len(words) >= 3):
+    if (best >= MIN_WORDS and best > english) or (best >= 1 and english == 0 and len(words) >= MIN_WORDS_ALONE):
         return f"{lex['names'][language]} words"
     return None
 
@@ -50,4 +61,4 @@ def language_message(prompt: str, why: str) -> str:
             "not follow it")
 
 
-__all__ = ["language_message", "not_english"]
+__all__ = ["MIN_WORDS", "MIN_WORDS_ALONE", "language_lexicon", "language_message", "not_english"]

@@ -22,6 +22,7 @@ from ..core.errors import SMFError
 from ..motion.bvh import BVH_ORDER
 from ..motion.gltf import BODY_COLOUR, BONE_RADIUS, DEFAULT_RADIUS, HAND_LENGTH, HEAD_RADIUS
 from ..core.path_plan import KINDS, MAX_PATH_METRES, MAX_PATH_SPEED, MAX_WAYPOINTS, MIN_TRAVEL
+from ..core.language import language_lexicon
 from ..core.sequence_plan import MAX_PARTS, SEQUENCE
 from ..core.limits import LENGTH_MULTIPLE, MAX_PROMPT_CHARS
 from ..motion.rigid import DEFAULT_FIT
@@ -64,6 +65,7 @@ def web_description(graphs) -> dict:
                      "bone_lengths": list(sk.bone_lengths)},
         "paths": path_lexicon(), "path_kinds": list(KINDS), "bvh_order": BVH_ORDER,
         "sequence_words": SEQUENCE.pattern, "sequence_max_parts": MAX_PARTS,  # a prompt of several parts (Python)
+        "languages": language_lexicon(),  # the word lists that tell a prompt that is not English (core/language.py)
         "glb_body": {"bone_radius": dict(BONE_RADIUS), "default_radius": DEFAULT_RADIUS, "head_radius": HEAD_RADIUS,
                      "hand_length": HAND_LENGTH, "colour": list(BODY_COLOUR[:3])},
         "path_limits": {"max_points": MAX_WAYPOINTS, "max_metres": MAX_PATH_METRES, "max_speed": MAX_PATH_SPEED,

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -95,3 +96,26 @@ def test_node_follows_an_explicit_path_as_the_python_runtime(site, prompt, path,
     want = pipe(prompt, seed=1, footskate=footskate, path=path)[0].joints
     got = np.asarray(json.loads(run.stdout)["joints"])
     assert got.shape == want.shape and np.abs(got - want).max() < 5e-6
+
+
+def test_node_tells_prompts_that_are_not_english_as_the_python_does(site):
+    """The page's language check is the Python's rule on the Python's word lists (web.json): the same reason for
+    every prompt of the foreign and English benchmark sets."""
+    from stablemofusion.core.language import not_english
+
+    folder, _ = site
+    bench = Path(__file__).resolve().parents[2] / "benchmarks"
+    prompts = [json.loads(line)["prompt"] for name in ("prompts_foreign.jsonl", "prompts_foreign_heldout.jsonl",
+                                                      "prompts_plain.jsonl", "prompts_sequences.jsonl")
+               for line in (bench / name).read_text(encoding="utf-8").splitlines() if line]
+    script = ("import { notEnglish } from './runtime/smf.js';\nimport { readFileSync } from 'node:fs';\n"
+              "const lex = JSON.parse(readFileSync('./model/web.json', 'utf8')).languages;\n"
+              "const prompts = JSON.parse(readFileSync(0, 'utf8'));\n"
+              "console.log(JSON.stringify(prompts.map((p) => notEnglish(p, lex))));\n")
+    (folder / "lang.mjs").write_text(script)
+    run = subprocess.run([NODE, str(folder / "lang.mjs")], input=json.dumps(prompts), capture_output=True, text=True,
+                         timeout=120, cwd=folder)
+    assert run.returncode == 0, run.stderr
+    assert json.loads(run.stdout) == [not_english(p) for p in prompts]
+    two = json.loads(node_generate(folder, "un homme marche lentement vers la porte", "--seconds", "3").stdout)
+    assert "does not look like English (French words)" in two["warnings"][0]

@@ -9,6 +9,34 @@ import { normal } from './noise.js';
 import { parsePath, placeJoints, readWaypoints, waypointSeconds } from './paths.js';
 import { bvhText, recentre } from './motion.js';
 
+const SCRIPTS = ['Cyrillic', 'Greek', 'Arabic', 'Hebrew', 'Devanagari', 'Thai', 'Armenian', 'Georgian', 'Bengali',
+  'Tamil', 'Ethiopic'];
+
+// Why a prompt is not English ('Cyrillic script', 'French words', 'no words'), or null: the Python's rule
+// (stablemofusion/core/language.py) on its word lists (web.json's "languages").
+export function notEnglish(prompt, lex) {
+  const letters = prompt.match(/\p{L}/gu) ?? [];
+  if (!letters.length) return 'no words';
+  const other = letters.find((c) => !/\p{Script=Latin}/u.test(c));
+  if (other) {
+    if (/[\p{Script=Han}\p{Script=Hiragana}\p{Script=Katakana}\p{Script=Hangul}]/u.test(other)) return 'Chinese, Japanese or Korean script';
+    return `${SCRIPTS.find((s) => new RegExp(`\\p{Script=${s}}`, 'u').test(other)) ?? 'Another'} script`;
+  }
+  const words = prompt.toLowerCase().match(/\p{L}+/gu) ?? [];
+  const count = (code) => words.filter((w) => lex.words[code].includes(w)).length;
+  const english = count('en');
+  let best = 0, language = null;
+  for (const code of Object.keys(lex.words)) {
+    if (code === 'en') continue;
+    const c = count(code);
+    if (c > best || (c === best && c > 0 && code > language)) [best, language] = [c, code];  // ties: as Python's max
+  }
+  if ((best >= lex.min_words && best > english) || (best >= 1 && english === 0 && words.length >= lex.min_words_alone)) {
+    return `${lex.names[language]} words`;
+  }
+  return null;
+}
+
 export class MotionRuntime {
   // read(name, kind) -> Promise of the file `name` of the model folder: kind 'json' (an object) or 'bytes'
   // (a Uint8Array); onProgress(loaded, total) after each file; providers: ONNX Runtime's execution providers
@@ -211,6 +239,11 @@ export class MotionRuntime {
     if (parts.length > 1 && parts.length <= (i.sequence_max_parts ?? Infinity)) {
       warnings.push(`"${prompt}" asks for ${parts.length} things one after another; this page makes one motion of the ` +
         'whole prompt, which may draw only the first (smf generate and smf serve make each part in turn)');
+    }
+    const foreign = i.languages ? notEnglish(prompt, i.languages) : null;
+    if (foreign) {
+      warnings.unshift(`"${prompt}" does not look like English (${foreign}): the model knows English prompts only, so ` +
+        'the motion may not follow it');
     }
     const motion = { joints, frames: n, fps: i.fps, prompt, seed, ...domain, warnings,
       ...(contacts ? { contacts: contacts.map((c) => Array.from(c)) } : {}) };

@@ -14,16 +14,13 @@ from ..core.final import (NotEnglishWarning, WeakActionWarning, asked_frames, ch
 from ..core.language import language_message, not_english
 from ..core.limits import DEFAULT_SECONDS, LENGTH_MULTIPLE, base_seed
 from ..core.path_plan import PromptPaths, follow, placed
-from ..core.reliability import weak_message
+from ..core.reliability import WEAK_MARGIN, weak_message
 from ..core.sequence_plan import share_seconds, split_sequence
 from ..core.result import MotionResult
 from ..core.settings import Settings
 from .timeline import TimelinePipeline
 
 
-# how much closer (cosine similarity) a prompt must be to an action drawn badly than to every action drawn well to be
-# warned about: chosen on the held-out lexicon probe (44 of its 54 prompts of weak actions warned, 1 of 6 others)
-WEAK_MARGIN = 0.03
 # a prompt of sequence words this close (cosine similarity) to one of the model's example sentences is that one
 # action ("a person walks forward then turns left" is a caption of the corpus's walk-turn-left), not split
 ONE_ACTION_SIMILARITY = 0.95

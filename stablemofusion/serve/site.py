@@ -22,7 +22,9 @@ from ..core.errors import SMFError
 from ..motion.bvh import BVH_ORDER
 from ..motion.gltf import BODY_COLOUR, BONE_RADIUS, DEFAULT_RADIUS, HAND_LENGTH, HEAD_RADIUS
 from ..core.path_plan import KINDS, MAX_PATH_METRES, MAX_PATH_SPEED, MAX_WAYPOINTS, MIN_TRAVEL
+from ..core.folders import companion_file
 from ..core.language import language_lexicon
+from ..core.reliability import RELIABILITY_FILE, WEAK_MARGIN, read_reliability
 from ..core.sequence_plan import MAX_PARTS, SEQUENCE
 from ..core.limits import LENGTH_MULTIPLE, MAX_PROMPT_CHARS
 from ..motion.rigid import DEFAULT_FIT
@@ -37,6 +39,15 @@ ORT_VENDOR = ("site", "vendor", "onnxruntime-web")
 _ORT_BANNER = re.compile(r"ONNX Runtime Web v(\d+\.\d+\.\d+)")
 MODEL_LICENCE = ("The model's weights were trained on Bandai-Namco motion capture (CC BY-NC 4.0): non-commercial "
                  "use only. MiniLM (the text encoder): Apache-2.0.")
+
+
+def weak_actions(graphs) -> dict:
+    """The actions the model draws badly (its folder's reliability table; none without one), with their clips and
+    accuracy, and the margin a prompt must be closer to one of them than to any action drawn well."""
+    folder = graphs.folder.parent
+    table = read_reliability(companion_file(folder, RELIABILITY_FILE)) if (folder / "config.json").is_file() else None
+    weak = {a: {"clips": r.clips, "accuracy": r.accuracy} for a, r in (table or {}).items() if r.weak}
+    return {"actions": weak, "margin": WEAK_MARGIN}
 
 
 def web_description(graphs) -> dict:
@@ -66,6 +77,7 @@ def web_description(graphs) -> dict:
         "paths": path_lexicon(), "path_kinds": list(KINDS), "bvh_order": BVH_ORDER,
         "sequence_words": SEQUENCE.pattern, "sequence_max_parts": MAX_PARTS,  # a prompt of several parts (Python)
         "languages": language_lexicon(),  # the word lists that tell a prompt that is not English (core/language.py)
+        "weak_actions": weak_actions(graphs),  # actions the model draws badly, and the margin (core/reliability.py)
         "glb_body": {"bone_radius": dict(BONE_RADIUS), "default_radius": DEFAULT_RADIUS, "head_radius": HEAD_RADIUS,
                      "hand_length": HAND_LENGTH, "colour": list(BODY_COLOUR[:3])},
         "path_limits": {"max_points": MAX_WAYPOINTS, "max_metres": MAX_PATH_METRES, "max_speed": MAX_PATH_SPEED,

@@ -119,3 +119,12 @@ def test_node_tells_prompts_that_are_not_english_as_the_python_does(site):
     assert json.loads(run.stdout) == [not_english(p) for p in prompts]
     two = json.loads(node_generate(folder, "un homme marche lentement vers la porte", "--seconds", "3").stdout)
     assert "does not look like English (French words)" in two["warnings"][0]
+
+
+def test_node_warns_of_actions_the_model_draws_badly_as_the_python_does(site):
+    folder, pipe = site
+    for prompt in ("a person kicks with the right leg", "someone slashes with a sword", "a person walks forward"):
+        got = json.loads(node_generate(folder, prompt, "--seconds", "2", "--seed", "0").stdout)["warnings"]
+        want = [w for w in pipe(prompt, seconds=2, seed=0)[0].warnings if "draws badly" in w]
+        assert [w for w in got if "draws badly" in w] == [w.replace("'", '"') for w in want], prompt
+        assert bool(want) == ("walks" not in prompt)  # kick and slash warned, the walk not

@@ -245,6 +245,16 @@ export class MotionRuntime {
       warnings.unshift(`"${prompt}" does not look like English (${foreign}): the model knows English prompts only, so ` +
         'the motion may not follow it');
     }
+    // the closest known action one the model draws badly (its reliability table, web.json), by the Python's margin
+    const weak = i.weak_actions?.actions ?? {};
+    const [action, similarity] = domain.closest?.[0] ?? [null, 0];
+    const wellDrawn = (domain.closest ?? []).filter(([a]) => !(a in weak)).map(([, s]) => s);
+    if (!domain.outOfDomain && action in weak && similarity - (wellDrawn.length ? Math.max(...wellDrawn) : 0) > i.weak_actions.margin) {
+      const w = weak[action];
+      warnings.push(`"${prompt}" is closest to "${action}", which this model draws badly (it was taught by ${w.clips} ` +
+        `clip${w.clips === 1 ? '' : 's'}${w.accuracy === null ? '' : `; ${Math.round(w.accuracy * 100)}% of its motions for ` +
+        'other wordings were judged right'}): the motion may not show it`);
+    }
     const motion = { joints, frames: n, fps: i.fps, prompt, seed, ...domain, warnings,
       ...(contacts ? { contacts: contacts.map((c) => Array.from(c)) } : {}) };
     Object.defineProperty(motion, 'flat', { value: flat }); // (T x J x 3) as one array, not serialised

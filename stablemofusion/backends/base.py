@@ -36,11 +36,13 @@ class Known:
     plan: EditPlan | None = None
     impose: str = "x0"
 
+    def __post_init__(self):
+        if self.impose not in IMPOSE:
+            raise SMFError(f"impose must be one of {', '.join(IMPOSE)}, got {self.impose!r}")
+
     @classmethod
     def of_plan(cls, plan: EditPlan, impose: str = "x0") -> "Known":
         """The known part and root constraints of one edit (a batch of one)."""
-        if impose not in IMPOSE:
-            raise SMFError(f"impose must be one of {', '.join(IMPOSE)}, got {impose!r}")
         return cls(plan.known[None], plan.mask[None], plan, impose)
 
     @classmethod

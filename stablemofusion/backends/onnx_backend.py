@@ -15,8 +15,7 @@ import numpy as np
 
 from ..core.edit_plan import x0_constraint
 from ..core.errors import SMFError
-from ..core.folders import companion_file
-from ..core.reliability import RELIABILITY_FILE, read_reliability
+from ..core.reliability import graphs_reliability
 from ..core.limits import FOOTSKATE, PORTABLE_ENGINE, PORTABLE_FOOTSKATE, STUDENT_EDIT_STEPS
 from ..motion.rigid import DEFAULT_FIT, RigidMotion
 from ..motion.skeleton import get_skeleton
@@ -68,9 +67,7 @@ class OnnxBackend:
         self.rigid = DEFAULT_FIT
         self.student = bool(model.student)
         self.version = graphs.manifest.get("model_version")  # the model's version (a release's name)
-        # how well it draws each known action: the model folder's reliability.json (the graphs sit in its onnx/)
-        self.reliability = read_reliability(companion_file(graphs.folder.parent, RELIABILITY_FILE)
-                                            if (graphs.folder.parent / "config.json").is_file() else None)
+        self.reliability = graphs_reliability(graphs.folder)  # how well it draws each known action
         self._cache: OrderedDict[str, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self._cache_size = text_cache_size
 

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import SMFError
+from .folders import CONFIG, companion_file
 
 RELIABILITY_FILE = "reliability.json"
 MAX_RELIABILITY_BYTES = 1 << 20
@@ -42,6 +43,13 @@ def read_reliability(path: str | Path | None) -> dict[str, ActionReliability] | 
         raise SMFError(f"{path}: not a reliability table ({e})") from None
 
 
+def graphs_reliability(graphs_folder: str | Path) -> dict[str, ActionReliability] | None:
+    """The reliability table of the model whose portable graphs are in ``graphs_folder`` (its model folder's, the
+    graphs sitting in its ``onnx/``; None for graphs exported on their own or a model without one)."""
+    folder = Path(graphs_folder).parent
+    return read_reliability(companion_file(folder, RELIABILITY_FILE)) if (folder / CONFIG).is_file() else None
+
+
 def weak_message(prompt: str, action: str, r: ActionReliability) -> str:
     """One warning line for a prompt whose closest known action the model draws badly."""
     measured = "" if r.accuracy is None else f"; {r.accuracy:.0%} of its motions for other wordings were judged right"
@@ -49,4 +57,4 @@ def weak_message(prompt: str, action: str, r: ActionReliability) -> str:
             f"clip{'s' if r.clips != 1 else ''}{measured}): the motion may not show it")
 
 
-__all__ = ["ActionReliability", "RELIABILITY_FILE", "WEAK_MARGIN", "read_reliability", "weak_message"]
+__all__ = ["ActionReliability", "RELIABILITY_FILE", "WEAK_MARGIN", "graphs_reliability", "read_reliability", "weak_message"]

@@ -22,9 +22,8 @@ from ..core.errors import SMFError
 from ..motion.bvh import BVH_ORDER
 from ..motion.gltf import BODY_COLOUR, BONE_RADIUS, DEFAULT_RADIUS, HAND_LENGTH, HEAD_RADIUS
 from ..core.path_plan import KINDS, MAX_PATH_METRES, MAX_PATH_SPEED, MAX_WAYPOINTS, MIN_TRAVEL
-from ..core.folders import companion_file
 from ..core.language import language_lexicon
-from ..core.reliability import RELIABILITY_FILE, WEAK_MARGIN, read_reliability
+from ..core.reliability import WEAK_MARGIN, graphs_reliability
 from ..core.sequence_plan import MAX_PARTS, SEQUENCE
 from ..core.limits import LENGTH_MULTIPLE, MAX_PROMPT_CHARS
 from ..motion.rigid import DEFAULT_FIT
@@ -44,9 +43,8 @@ MODEL_LICENCE = ("The model's weights were trained on Bandai-Namco motion captur
 def weak_actions(graphs) -> dict:
     """The actions the model draws badly (its folder's reliability table; none without one), with their clips and
     accuracy, and the margin a prompt must be closer to one of them than to any action drawn well."""
-    folder = graphs.folder.parent
-    table = read_reliability(companion_file(folder, RELIABILITY_FILE)) if (folder / "config.json").is_file() else None
-    weak = {a: {"clips": r.clips, "accuracy": r.accuracy} for a, r in (table or {}).items() if r.weak}
+    table = graphs_reliability(graphs.folder) or {}
+    weak = {a: {"clips": r.clips, "accuracy": r.accuracy} for a, r in table.items() if r.weak}
     return {"actions": weak, "margin": WEAK_MARGIN}
 
 

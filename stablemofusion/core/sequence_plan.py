@@ -43,10 +43,19 @@ def split_sequence(prompt: str) -> list[str]:
     return out
 
 
-def share_seconds(total: float, own: list[float]) -> list[float]:
-    """``total`` seconds shared among parts in proportion to their ``own`` lengths."""
-    whole = sum(own)
-    return [total * s / whole for s in own]
+def share_seconds(total: float, own: list[float], minimum: float = 0.0) -> list[float]:
+    """``total`` seconds shared among parts in proportion to their ``own`` lengths, each at least ``minimum`` where
+    ``total`` allows it (the parts that would fall short get ``minimum``, the others share the rest)."""
+    short: set[int] = set()
+    while True:
+        free = [k for k in range(len(own)) if k not in short]
+        rest = total - minimum * len(short)
+        whole = sum(own[k] for k in free)
+        out = [minimum if k in short else rest * own[k] / whole for k in range(len(own))]
+        under = {k for k in free if out[k] < minimum}
+        if not under or total < minimum * len(own):
+            return out if total >= minimum * len(own) else [total * s / sum(own) for s in own]
+        short |= under
 
 
 __all__ = ["MAX_PARTS", "split_sequence", "share_seconds"]

@@ -167,8 +167,8 @@ class TextToMotionPipeline:
                 own[k] = s
         own = [DEFAULT_SECONDS if s is None else s for s in own]
         total = frames / b.fps if frames is not None else seconds
-        shared = own if total is None else share_seconds(total, own)
         shortest = b.min_frames / b.fps
+        shared = own if total is None else share_seconds(total, own, shortest)
         if min(shared) < shortest:
             raise SMFError(f"{len(parts)} parts ({'; '.join(parts)}) need at least {shortest:g} s each; "
                            f"{total:g} s is too short for them")

@@ -34,6 +34,12 @@ def test_a_given_length_is_shared_in_proportion():
     assert share_seconds(6.0, [2.0, 4.0]) == [2.0, 4.0] and share_seconds(3.0, [2.0, 4.0]) == [1.0, 2.0]
 
 
+def test_a_short_length_still_gives_every_part_the_shortest_segment_where_it_can():
+    assert share_seconds(4.0, [3.0, 2.5], minimum=2.0) == [2.0, 2.0]
+    assert share_seconds(5.0, [10.0, 1.0, 1.0], minimum=1.5) == [2.0, 1.5, 1.5]
+    assert share_seconds(3.0, [3.0, 2.0], minimum=2.0) == [1.8, 1.2]  # too short for both: the caller refuses
+
+
 def raised(joints: np.ndarray) -> np.ndarray:
     """(T,) whether a wrist is above its shoulder (HumanML3D joints: shoulders 16, 17; wrists 20, 21)."""
     return (joints[:, 20, 1] > joints[:, 16, 1]) | (joints[:, 21, 1] > joints[:, 17, 1])

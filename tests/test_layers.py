@@ -23,7 +23,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "stablemofusion"
 
 LAYERS = {  # module prefix -> layer; a module takes the layer of its longest matching prefix
-    "core": ("core", "motion", "footskate", "render", "text.names", "text.known", "text.sentence"),
+    "core": ("core", "motion", "footskate", "render", "robots", "text.names", "text.known", "text.sentence"),
     "model": ("models", "diffusion", "data", "text", "adapters", "footskate.vgrf", "footskate.underpressure"),
     "backends": ("backends",),
     "pipelines": ("pipelines",),

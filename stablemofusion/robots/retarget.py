@@ -1,0 +1,322 @@
+"""A motion's joints retargeted onto a humanoid robot, step by step, each a function of arrays:
+
+1. :func:`robot_frame`: HumanML3D's Y-up, +Z-forward joints into MuJoCo's Z-up, +X-forward frame;
+2. :func:`planted_feet`: the frames each foot stands (the cleanup's holds, else the kinematic contacts);
+3. :func:`keypoint_targets`: the human joints scaled to the robot's leg length, raised so that a planted ankle sits
+   at the robot's ankle height, and each foot's toe point from the human foot's heading and pitch;
+4. :func:`solve_poses`: per frame, damped Gauss-Newton on the weighted target errors from the previous frame's
+   pose, joints kept inside their ranges, the robot's own bodies pushed apart where they would touch;
+5. :func:`floor_feet`: the floating base raised or lowered so that a planted foot's sole is on the floor and no
+   sole goes below it;
+6. :func:`resample_qpos`: the trajectory at the control rate (50 Hz), angles linearly, the base quaternion by
+   normalised linear interpolation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..footskate.contacts import kinematic_contacts
+from ..motion.resample import resample
+from .model import Robot, mujoco
+
+CONTROL_FPS = 50.0
+TOE_WEIGHT = 2.0
+BASE_WEIGHT = 2.0  # the floating base turned as the human pelvis (two points 0.2 m off its origin)
+BASE_LEVER = 0.2
+COLLISION_MARGIN = 0.02  # m the retarget keeps between the robot's own bodies (interpolated frames between)
+COLLISION_WEIGHT = 200.0
+EXTRA_ITERATIONS = 8
+POSTURE_WEIGHT = 1e-3  # pulls redundant joints (waist, wrists) toward the reference pose
+DAMPING = 1e-2
+MAX_STEP = 0.2  # rad (or m) one iteration may move any coordinate
+
+
+@dataclass
+class RobotMotion:
+    """A robot's trajectory: ``qpos`` (T, nq) in MuJoCo's order (base position m, base quaternion w x y z, then
+    the joints in rad, named ``joint_names``) at ``fps``; ``planted`` (T, 2) the frames the human's left and right
+    foot stood; ``scale`` the human-to-robot size ratio used; ``robot`` its name; ``warnings`` one line each."""
+
+    robot: str
+    fps: float
+    qpos: np.ndarray
+    joint_names: tuple[str, ...]
+    planted: np.ndarray
+    scale: float
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def root_pos(self) -> np.ndarray:
+        return self.qpos[:, :3]
+
+    @property
+    def root_quat(self) -> np.ndarray:
+        """(T, 4) w x y z."""
+        return self.qpos[:, 3:7]
+
+    @property
+    def dof_pos(self) -> np.ndarray:
+        return self.qpos[:, 7:]
+
+    @property
+    def seconds(self) -> float:
+        return len(self.qpos) / self.fps
+
+
+def robot_frame(joints: np.ndarray) -> np.ndarray:
+    """(..., 3) HumanML3D (x left, y up, z forward) -> MuJoCo (x forward, y left, z up), metres."""
+    return joints[..., [2, 0, 1]]
+
+
+def planted_feet(joints: np.ndarray, fps: float, contacts: np.ndarray | None = None) -> np.ndarray:
+    """(T, 2) bool, left and right: a foot stands when its ankle or toe is held by the cleanup (``contacts``, (T, 4)
+    in HumanML3D's left ankle, left toe, right ankle, right toe order), else by the kinematic contacts of the
+    (T, 22, 3) HumanML3D joints."""
+    held = held_joints(joints, fps, contacts)
+    return np.stack([held[:, 0] | held[:, 1], held[:, 2] | held[:, 3]], axis=1)
+
+
+def held_joints(joints: np.ndarray, fps: float, contacts: np.ndarray | None = None) -> np.ndarray:
+    """(T, 4) bool: the cleanup's holds (``contacts``) of the left ankle, left toe, right ankle, right toe, else the
+    kinematic contacts of the (T, 22, 3) HumanML3D joints."""
+    return kinematic_contacts(joints, fps) if contacts is None else np.asarray(contacts, dtype=bool)
+
+
+def _rest_height(values: np.ndarray, planted: np.ndarray) -> float:
+    return float(np.median(values[planted])) if planted.any() else float(np.percentile(values, 5))
+
+
+def keypoint_targets(robot: Robot, joints: np.ndarray, planted: np.ndarray,
+                     held: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+    """The robot's targets from (T, 22, 3) HumanML3D joints: (T, K, 3) site targets (the robot's ``human`` joints),
+    (T, 2, 3) toe points (left, right) in MuJoCo's frame, metres, and the scale (robot leg / human leg). ``planted``
+    (T, 2) the frames each foot stands; ``held`` (T, 4) the held ankles and toes, whose targets are put on the floor
+    (an ankle at the robot's standing ankle height, a toe point at 0)."""
+    p = robot_frame(joints)
+    leg = np.linalg.norm(p[:, 1] - p[:, 4], axis=-1) + np.linalg.norm(p[:, 4] - p[:, 7], axis=-1)
+    scale = robot.leg / float(np.median(leg))
+    ankles, toes = p[:, [7, 8]], p[:, [10, 11]]
+    rest_ankle = _rest_height(ankles[..., 2], planted)
+    lift = robot.rest_ankle - scale * rest_ankle
+    targets = scale * p[:, robot.human]
+    targets[..., 2] += lift
+    # toe points: the robot's resting toe vector turned to the human foot's heading, tilted by its pitch off rest
+    v = toes - ankles
+    yaw = np.arctan2(v[..., 1], v[..., 0])
+    pitch = np.arctan2(v[..., 2], np.linalg.norm(v[..., :2], axis=-1))
+    tilt = pitch - _rest_height(pitch, planted)
+    r = robot.rest_toe
+    forward, up = r[0] * np.cos(tilt) - r[2] * np.sin(tilt), r[0] * np.sin(tilt) + r[2] * np.cos(tilt)
+    offset = np.stack([forward * np.cos(yaw) - r[1] * np.sin(yaw), forward * np.sin(yaw) + r[1] * np.cos(yaw), up], -1)
+    ankle_targets = scale * ankles
+    ankle_targets[..., 2] += lift
+    toe_targets = ankle_targets + offset
+    if held is not None:
+        for f, name in enumerate(("left_ankle", "right_ankle")):
+            k = list(robot.human_names).index(name)
+            targets[held[:, 2 * f], k, 2] = robot.rest_ankle
+            toe_targets[held[:, 2 * f + 1], f, 2] = 0.0
+    return targets, toe_targets, scale
+
+
+def pelvis_axes(joints: np.ndarray) -> np.ndarray:
+    """(T, 3, 3) the human pelvis's left and up axes (rows 1, 2) and forward (row 0) in MuJoCo's frame, from the
+    (T, 22, 3) HumanML3D hips and first spine joint: the frame the robot's floating base is turned to."""
+    p = robot_frame(joints)
+    left = p[:, 1] - p[:, 2]
+    left /= np.linalg.norm(left, axis=-1, keepdims=True)
+    up = p[:, 3] - p[:, 0]
+    up -= (up * left).sum(-1, keepdims=True) * left
+    up /= np.linalg.norm(up, axis=-1, keepdims=True)
+    return np.stack([np.cross(left, up), left, up], axis=1)
+
+
+def _yaw_quat(yaw: float) -> np.ndarray:
+    return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+
+
+def count_self_contacts(model, data, below: float = 0.0) -> int:
+    """How many of ``data``'s contacts (after ``mj_collision``) join two of the robot's own bodies closer than
+    ``below`` (m; 0: penetrating)."""
+    n = data.ncon
+    if n == 0:
+        return 0
+    bodies = model.geom_bodyid[data.contact.geom[:n]]
+    return int(((bodies > 0).all(axis=1) & (data.contact.dist[:n] < below)).sum())
+
+
+class _Solver:
+    """Per-frame IK on one MuJoCo data: weighted site and toe-point errors, posture prior, joint ranges, and
+    self-contacts pushed apart."""
+
+    def __init__(self, robot: Robot):
+        self.r, self.m = robot, robot.model
+        self.d = mujoco.MjData(self.m)
+        nv = self.m.nv
+        self.jacp = np.zeros((3, nv))
+        self.w = np.concatenate([np.repeat(robot.weights, 3), np.full(6, TOE_WEIGHT), np.full(6, BASE_WEIGHT)])
+        self.jac0 = np.zeros((3, nv))
+        self.prior = np.zeros(nv)
+        self.prior[6:] = POSTURE_WEIGHT
+        m = self.m
+        self.dof_jnt = m.dof_jntid.copy()
+        self.slide = np.array([int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_SLIDE) for j in m.dof_jntid])
+        # moves[b, v]: dof v moves body b (its joint's body is b or an ancestor of b)
+        self.moves = np.zeros((m.nbody, nv))
+        for b in range(m.nbody):
+            a = b
+            while a > 0:
+                self.moves[b, m.dof_bodyid == a] = 1.0
+                a = int(m.body_parentid[a])
+        self.point_bodies = np.concatenate([m.site_bodyid[robot.sites], [s.body for s in robot.soles],
+                                            [robot.free_body] * 3])
+
+    def _jacobians(self, points: np.ndarray, bodies: np.ndarray) -> np.ndarray:
+        """(P, 3, nv) the world-frame position Jacobians of ``points`` (P, 3) fixed to ``bodies`` (P,), from the
+        current kinematics (MuJoCo's free joint: world translation, then rotation about the body's own axes)."""
+        m, d = self.m, self.d
+        axis, anchor = d.xaxis[self.dof_jnt].copy(), d.xanchor[self.dof_jnt].copy()
+        base = self.r.free_body
+        axis[3:6] = d.xmat[base].reshape(3, 3).T  # rows: the base's own axes
+        anchor[3:6] = d.xpos[base]
+        jac = np.cross(axis[None], points[:, None] - anchor[None])  # (P, nv, 3) rotation: axis x arm
+        jac[:, self.slide] = axis[self.slide]
+        jac[:, 0:3] = np.eye(3)
+        jac *= self.moves[bodies][:, :, None]
+        return jac.transpose(0, 2, 1)
+
+    def _errors(self, sites: np.ndarray, toes: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        m, d, r = self.m, self.d, self.r
+        mujoco.mj_kinematics(m, d)
+        base = r.free_body
+        rot, origin = d.xmat[base].reshape(3, 3), d.xpos[base]
+        soles = [d.xmat[s.body].reshape(3, 3) @ s.toe + d.xpos[s.body] for s in r.soles]
+        points = np.concatenate([d.site_xpos[r.sites], soles, [origin + BASE_LEVER * rot[:, 1],
+                                                                 origin + BASE_LEVER * rot[:, 2], origin]])
+        jac = self._jacobians(points, self.point_bodies)
+        jac[-3:-1] -= jac[-1]
+        want = np.concatenate([sites, toes, BASE_LEVER * axes[1:3]])
+        have = np.concatenate([points[:-3], BASE_LEVER * rot[:, 1:3].T])
+        return jac[:-1].reshape(-1, m.nv), (want - have).ravel()
+
+    def _contacts(self) -> tuple[np.ndarray, np.ndarray]:
+        """Rows (C, nv) and wanted increases (C,) of the distances between the robot's own bodies that are
+        closer than the margin."""
+        m, d = self.m, self.d
+        mujoco.mj_collision(m, d)
+        near = [c for c in d.contact[:d.ncon] if m.geom_bodyid[c.geom1] > 0 and m.geom_bodyid[c.geom2] > 0
+                and c.dist < COLLISION_MARGIN]
+        if not near:
+            return np.zeros((0, m.nv)), np.zeros(0)
+        points = np.array([c.pos for c in near])
+        normals = np.array([c.frame[:3] for c in near])
+        j1 = self._jacobians(points, m.geom_bodyid[[c.geom1 for c in near]])
+        j2 = self._jacobians(points, m.geom_bodyid[[c.geom2 for c in near]])
+        rows = np.einsum("ck,ckv->cv", normals, j2 - j1)
+        return rows, COLLISION_MARGIN - np.array([c.dist for c in near])
+
+    def step(self, sites: np.ndarray, toes: np.ndarray, axes: np.ndarray, contacts: bool) -> float:
+        m, d = self.m, self.d
+        jac, err = self._errors(sites, toes, axes)
+        a = jac.T @ (self.w[:, None] * jac)
+        g = jac.T @ (self.w * err)
+        if contacts:
+            rows, want = self._contacts()
+            if len(rows):
+                a += COLLISION_WEIGHT * rows.T @ rows
+                g += COLLISION_WEIGHT * rows.T @ want
+        dq_prior = np.zeros(m.nv)
+        dq_prior[6:] = d.qpos[7:] - self.r.rest[7:]
+        a[np.diag_indices_from(a)] += DAMPING + self.prior
+        g -= self.prior * dq_prior
+        dq = np.linalg.solve(a, g)
+        q, (lo, hi) = d.qpos[7:], self.r.ranges.T
+        stuck = ((q <= lo + 1e-9) & (dq[6:] < 0)) | ((q >= hi - 1e-9) & (dq[6:] > 0))
+        if stuck.any():  # joints at a limit and pushed past it: held there, the others solved again
+            held = np.concatenate([np.zeros(6, bool), stuck])
+            a[held, :], a[:, held], g[held] = 0.0, 0.0, 0.0
+            a[held, held] = 1.0
+            dq = np.linalg.solve(a, g)
+        dq *= min(1.0, MAX_STEP / max(float(np.abs(dq).max()), 1e-12))
+        mujoco.mj_integratePos(m, d.qpos, dq, 1.0)
+        d.qpos[7:] = np.clip(d.qpos[7:], self.r.ranges[:, 0], self.r.ranges[:, 1])
+        return float(np.abs(dq).max())
+
+    def self_contacts(self) -> int:
+        mujoco.mj_kinematics(self.m, self.d)
+        mujoco.mj_collision(self.m, self.d)
+        return count_self_contacts(self.m, self.d, below=COLLISION_MARGIN / 2)
+
+
+def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.ndarray, iterations: int = 8,
+                first_iterations: int = 60) -> np.ndarray:
+    """(T, nq) poses tracking (T, K, 3) site targets, (T, 2, 3) toe points and the (T, 3, 3) pelvis axes
+    (:func:`pelvis_axes`), frame after frame from the previous
+    pose (the first from the reference pose turned and moved to the first frame's pelvis), joints inside their
+    ranges, self-contacts pushed apart (further iterations of a frame while any remain)."""
+    s = _Solver(robot)
+    q = robot.rest.copy()
+    pelvis = list(robot.human_names).index("pelvis")
+    hips = [list(robot.human_names).index(j) for j in ("left_hip", "right_hip") if j in robot.human_names]
+    left = targets[0, hips[0]] - targets[0, hips[1]] if len(hips) == 2 else np.array([0.0, 1.0, 0.0])
+    q[:2] = targets[0, pelvis, :2]
+    q[3:7] = _yaw_quat(np.arctan2(-left[0], left[1]))
+    s.d.qpos[:] = q
+    out = np.empty((len(targets), robot.model.nq))
+    for t in range(len(targets)):
+        if t > 1:  # from the previous pose moved on at the previous pace (the base's turn left to the solve)
+            s.d.qpos[:3] += out[t - 1, :3] - out[t - 2, :3]
+            s.d.qpos[7:] = np.clip(2 * out[t - 1, 7:] - out[t - 2, 7:], robot.ranges[:, 0], robot.ranges[:, 1])
+        for i in range(first_iterations if t == 0 else iterations):
+            if s.step(targets[t], toes[t], axes[t], contacts=False) < 1e-4:
+                break
+        for _ in range(EXTRA_ITERATIONS):  # the robot's own bodies still touching: pushed apart further
+            if not s.self_contacts():
+                break
+            s.step(targets[t], toes[t], axes[t], contacts=True)
+        out[t] = s.d.qpos
+    return out
+
+
+def floor_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray) -> np.ndarray:
+    """(T, nq) poses with the base moved up or down per frame so that the lowest sole of a planted foot touches the
+    floor (z = 0) and no sole is below it."""
+    d = mujoco.MjData(robot.model)
+    out = qpos.copy()
+    for t in range(len(qpos)):
+        d.qpos[:] = qpos[t]
+        mujoco.mj_kinematics(robot.model, d)
+        low = np.array([robot.sole_heights(d, sole).min() for sole in robot.soles])
+        standing = low[planted[t]]
+        shift = -standing.min() if len(standing) else max(0.0, -low.min())
+        out[t, 2] += max(shift, -low.min())
+    return out
+
+
+def resample_qpos(qpos: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarray:
+    """(T', nq) at ``dst_fps`` over the same time: positions and angles linearly, the base quaternion normalised
+    after linear interpolation (signs made continuous first)."""
+    q = qpos.copy()
+    quat = q[:, 3:7]
+    for t in range(1, len(quat)):
+        if quat[t] @ quat[t - 1] < 0:
+            quat[t] = -quat[t]
+    out = resample(q, src_fps, dst_fps)
+    out[:, 3:7] /= np.linalg.norm(out[:, 3:7], axis=1, keepdims=True)
+    return out
+
+
+def retarget(robot: Robot, joints: np.ndarray, fps: float, contacts: np.ndarray | None = None,
+             out_fps: float = CONTROL_FPS) -> RobotMotion:
+    """(T, 22, 3) HumanML3D joints (metres, at ``fps``; ``contacts`` the cleanup's (T, 4) holds, None: detected)
+    -> the robot's trajectory at ``out_fps``: solved at the motion's rate, resampled, then put on the floor."""
+    joints = np.asarray(joints, dtype=float)
+    held = held_joints(joints, fps, contacts)
+    planted = planted_feet(joints, fps, held)
+    targets, toes, scale = keypoint_targets(robot, joints, planted, held)
+    qpos = resample_qpos(solve_poses(robot, targets, toes, pelvis_axes(joints)), fps, out_fps)
+    planted = resample(planted.astype(float), fps, out_fps) > 0.5
+    return RobotMotion(robot.name, out_fps, floor_feet(robot, qpos, planted), robot.joint_names, planted, scale)

@@ -16,6 +16,7 @@ def add_parser(sub, name: str) -> None:
     from ..core.limits import BATCH_SIZE
     from .character import add_character_arguments
     from .options import add_sampling_arguments
+    from .robot import add_robot_arguments
 
     p = sub.add_parser(name,
                        description="Generate one motion per prompt and write its files (by default joints and features "
@@ -33,6 +34,7 @@ def add_parser(sub, name: str) -> None:
     p.add_argument("--batch-size", type=int, default=BATCH_SIZE, help="prompts generated together")
     add_sampling_arguments(p)
     add_character_arguments(p, reads_motion=False)
+    add_robot_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -106,10 +108,12 @@ def run(args: argparse.Namespace) -> None:
     from ..core.output import parse_formats, write_results
     from .character import load_rig
     from .options import choose_engine, load_pipeline, output_meta, sampling_kwargs, user_warnings
+    from .robot import robot_formats, write_robot_files
 
     choose_engine(args)
     formats = parse_formats(args.format)
     rig = load_rig(args)  # checked before the model loads
+    robot = robot_formats(args)
     prompts = read_prompts(args)
     path = read_path(args.path)
     if path is not None and args.timeline is not None:
@@ -124,7 +128,9 @@ def run(args: argparse.Namespace) -> None:
 
         with user_warnings():
             results = [pipe.timeline(parse_timeline(args.timeline), progress=None, **kwargs)]
-        write_results(results, args.out, formats, meta, overwrite=args.overwrite, rig=rig)
+        stems = write_results(results, args.out, formats, meta, overwrite=args.overwrite, rig=rig)
+        for r, stem in zip(results, stems if robot else []):
+            write_robot_files(args, r.joints, r.fps, r.contacts, stem, robot, meta)
         return
     # one batch at a time, each written before the next is made: memory stays that of one batch, files appear as it
     # goes (batch k uses seed + k, as one call of all the prompts does)
@@ -143,6 +149,8 @@ def run(args: argparse.Namespace) -> None:
                 parts = "; ".join(f"{p!r} {s:.1f} s" for p, s in r.sequence)
                 print(f"smf: note: {r.prompt!r} asks for one thing after another: made as a timeline of {parts}",
                       file=sys.stderr)
-        write_results(results, args.out, formats, meta, overwrite=args.overwrite, rig=rig, first=start)
+        stems = write_results(results, args.out, formats, meta, overwrite=args.overwrite, rig=rig, first=start)
+        for r, stem in zip(results, stems if robot else []):
+            write_robot_files(args, r.joints, r.fps, r.contacts, stem, robot, meta)
         bar.update(len(batch))
     bar.close()

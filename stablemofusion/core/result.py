@@ -50,6 +50,19 @@ class MotionResult:
         ankle, right toe), None where no cleanup ran."""
         return None if self.motion is None else self.motion.planted
 
+    def to_robot(self, robot: str = "g1", joint_map: str | None = None, fps: float = 50.0):
+        """This motion retargeted to a humanoid robot: ``robot`` a shipped name (g1, h1) or an MJCF file,
+        ``joint_map`` a JSON file of which robot site each joint drives (None: the robot's BODY_25 keypoint sites);
+        a :class:`~stablemofusion.robots.retarget.RobotMotion` at ``fps`` (its ``qpos`` in MuJoCo's order). Needs
+        the ``robot`` extra (MuJoCo)."""
+        from ..robots.model import load_robot  # MuJoCo, an optional extra, loads only when a robot is asked for
+        from ..robots.retarget import retarget
+
+        motion = retarget(load_robot(str(robot), None if joint_map is None else str(joint_map)), self.joints,
+                          self.fps, self.contacts, fps)
+        motion.warnings = list(self.warnings)
+        return motion
+
     @property
     def frames(self) -> int:
         return len(self.joints)

@@ -390,6 +390,18 @@ def render_video(joints: np.ndarray, path: str | os.PathLike, *, skeleton: str |
     return target
 
 
+def write_frames(frames: Iterator[np.ndarray], path: str | os.PathLike, fps: float) -> Path:
+    """(H, W, 3) uint8 RGB frames to ``path`` (.mp4 or .gif), atomically; returns its path."""
+    target = Path(path)
+    suffix = target.suffix.lower()
+    if suffix not in VIDEO_SUFFIXES:
+        raise SMFError(f"unsupported video format '{target.suffix}'; use .mp4 or .gif")
+    check_encoder(suffix)
+    with atomic_path(target) as tmp:
+        (_write_mp4 if suffix == ".mp4" else _write_gif)(frames, tmp, fps)
+    return target
+
+
 def _write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
     """Stream RGB frames to H.264 via imageio's ffmpeg plugin (bundled imageio-ffmpeg binary)."""
     import imageio.v2 as imageio

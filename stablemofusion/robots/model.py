@@ -4,6 +4,8 @@ human joints drive, its feet's soles, its size. Needs MuJoCo (``pip install 'sta
 from __future__ import annotations
 
 import json
+import os
+import sys
 from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
@@ -14,6 +16,8 @@ import numpy as np
 from ..core.errors import SMFError
 from ..motion.skeleton import HUMANML3D
 
+if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+    os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering without a display (MuJoCo reads it on import)
 try:
     import mujoco
 except ImportError:  # the optional extra: every entry point says how to install it

@@ -35,7 +35,7 @@ from ..core import limits
 from ..core.output import made_by
 from .server_limits import (MAX_BODY_BYTES, MAX_REQUEST_COST, MAX_STREAMS, QUEUED_REQUESTS, RECENT_RESULTS,
                             UPLOAD_BUDGET_BYTES)
-from .responses import motion_response
+from .responses import motion_response, robot_response
 from .live import StreamHub, ThreadStreamWorker, serve_stream
 from .worker import Job, ThreadWorker
 
@@ -75,12 +75,13 @@ class RecentResults:
 
 
 async def answer(request: Request, batcher: DynamicBatcher, job: Job, format: str,
-                 recent: RecentResults | None = None, meta: dict | None = None) -> Response:
+                 recent: RecentResults | None = None, meta: dict | None = None, robot: str | None = None) -> Response:
     """Submit ``job`` (unless ``recent`` holds its motion) and answer with its motion in ``format`` (with ``meta``:
-    what made it); a client that leaves cancels its job (it is dropped if it has not started)."""
+    what made it), or retargeted to ``robot``; a client that leaves cancels its job (it is dropped if it has not
+    started)."""
     done = recent.get(job) if recent is not None else None
     if done is not None:
-        return motion_response(done, format, meta)
+        return await _respond(done, format, meta, robot)
     work = asyncio.ensure_future(batcher.submit(job))
     gone = asyncio.ensure_future(_until_disconnected(request))
     try:
@@ -96,7 +97,13 @@ async def answer(request: Request, batcher: DynamicBatcher, job: Job, format: st
     result = work.result()  # a ServeError of the job propagates
     if recent is not None:
         recent.put(job, result)
-    return motion_response(result, format, meta)
+    return await _respond(result, format, meta, robot)
+
+
+async def _respond(result, format: str, meta: dict | None, robot: str | None) -> Response:
+    if robot is None:
+        return motion_response(result, format, meta)
+    return await asyncio.to_thread(robot_response, result, robot, meta)  # MuJoCo work off the event loop
 
 
 def _install_error_handlers(app: FastAPI) -> None:
@@ -183,8 +190,11 @@ def create_app(model, *, max_batch: int = limits.BATCH_SIZE, wait_ms: float = 5.
     @app.post("/v1/generate")
     async def generate(request: Request, format: str = "json"):
         check_format(format)
-        job = checks.generate(parse_body(await request.body(), GenerateRequest))
-        return await answer(request, batcher, job, format, recent, made)
+        body = parse_body(await request.body(), GenerateRequest)
+        if body.robot is not None and format != "json":
+            raise ServeError(422, f"robot: a robot's trajectory is answered as JSON, not {format}")
+        job = checks.generate(body)
+        return await answer(request, batcher, job, format, recent, made, body.robot)
 
     @app.post("/v1/timeline")
     async def timeline(request: Request, format: str = "json"):

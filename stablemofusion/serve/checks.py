@@ -11,6 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from ..core import limits
 from ..core.sequence_plan import split_sequence
 from ..core.errors import SMFError
+from ..robots.model import mujoco
 from .http_errors import ServeError
 from .responses import MOTION_FORMATS
 from .server_limits import MAX_REQUEST_COST
@@ -42,6 +43,7 @@ class GenerateRequest(BaseModel):
     footskate: Literal["off", "post", "loop"] = limits.FOOTSKATE
     adapter: str | None = None  # None: the base model; else the name of an adapter the server loaded
     path: PathBody | list[list[float]] | None = None  # a root path to follow: [[x, z], ...] metres, or with times
+    robot: Literal["g1", "h1"] | None = None  # also retarget to this shipped robot: the answer is its trajectory
 
 
 class Segment(BaseModel):
@@ -152,6 +154,9 @@ class RequestChecks:
 
     def generate(self, body: GenerateRequest) -> Job:
         prompt = check_prompt(body.prompt, "prompt")
+        if body.robot is not None and mujoco is None:
+            raise ServeError(422, "robot: this server cannot retarget to robots (MuJoCo is not installed: pip install "
+                                  "'stablemofusion[robot]')")
         checked(limits.check_seconds, body.seconds)
         seed, guidance, steps = self._common(body)
         path = None

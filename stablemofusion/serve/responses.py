@@ -6,6 +6,9 @@ from __future__ import annotations
 from fastapi.responses import Response
 
 from ..core import output
+from ..robots.files import json_payload
+from ..robots.model import load_robot
+from ..robots.retarget import retarget
 
 # format -> (bytes of a result, media type, download file name or None)
 MOTION_FORMATS = {
@@ -23,3 +26,12 @@ def motion_response(result, format: str, meta: dict | None = None) -> Response:
     headers = {"Content-Disposition": f'attachment; filename="{filename}"'} if filename else None
     body = encode(result, **(meta or {})) if format in ("json", "glb") else encode(result)
     return Response(body, media_type=media, headers=headers)
+
+
+def robot_response(result, robot: str, meta: dict | None = None) -> Response:
+    """A generated motion retargeted to a shipped robot (``robot``): its trajectory as JSON (``robot``, ``fps``,
+    ``columns``, ``qpos``...), with the motion's prompt, seed, warnings and ``meta``."""
+    motion = retarget(load_robot(robot), result.joints, result.fps, result.contacts)
+    body = {"prompt": result.prompt, "seed": result.seed, **json_payload(motion), **(meta or {})}
+    body["warnings"] = list(result.warnings) + body["warnings"]
+    return Response(output._dumps(body), media_type="application/json")

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..motion.resample import resample
 from .model import Robot, mujoco
-from .retarget import RobotMotion, count_self_contacts, keypoint_targets, planted_feet, robot_frame
+from .retarget import RobotMotion, count_self_contacts, held_joints, keypoint_targets, planted_feet, robot_frame
 
 
 def limit_violations(robot: Robot, qpos: np.ndarray, tolerance: float = 1e-9) -> int:
@@ -38,15 +38,17 @@ def self_contacts(robot: Robot, qpos: np.ndarray) -> np.ndarray:
 
 
 def sole_tracks(robot: Robot, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(T, 2) each foot's lowest sole height above the floor (m), (T, 2, 2) each sole's centre on the floor (x, y),
-    left and right."""
-    low, centre = np.empty((len(qpos), 2)), np.empty((len(qpos), 2, 2))
+    """(T, 2) each foot's lowest sole height above the floor (m); (T, 4, 2) the heel and toe points of the left
+    and right sole on the floor (x, y), in the order left heel, left toe, right heel, right toe (the human's held
+    ankle, toe, ...)."""
+    low, points = np.empty((len(qpos), 2)), np.empty((len(qpos), 4, 2))
     for t, d in poses(robot, qpos):
         for f, sole in enumerate(robot.soles):
             low[t, f] = robot.sole_heights(d, sole).min()
-            mid = (sole.toe + sole.heel) / 2
-            centre[t, f] = (d.xmat[sole.body].reshape(3, 3) @ mid + d.xpos[sole.body])[:2]
-    return low, centre
+            rot = d.xmat[sole.body].reshape(3, 3)
+            points[t, 2 * f] = (rot @ sole.heel + d.xpos[sole.body])[:2]
+            points[t, 2 * f + 1] = (rot @ sole.toe + d.xpos[sole.body])[:2]
+    return low, points
 
 
 def site_positions(robot: Robot, qpos: np.ndarray) -> np.ndarray:
@@ -57,9 +59,9 @@ def site_positions(robot: Robot, qpos: np.ndarray) -> np.ndarray:
     return out
 
 
-def slide_speeds(track: np.ndarray, planted: np.ndarray, fps: float) -> np.ndarray:
-    """Horizontal speeds (m/s) of (T, 2, 2) foot tracks between frames where the foot stands in both (T, 2)."""
-    both = planted[1:] & planted[:-1]
+def slide_speeds(track: np.ndarray, held: np.ndarray, fps: float) -> np.ndarray:
+    """Horizontal speeds (m/s) of (T, P, 2) points between frames where they are held (T, P) in both."""
+    both = held[1:] & held[:-1]
     step = np.linalg.norm(np.diff(track, axis=0), axis=-1) * fps
     return step[both]
 
@@ -74,24 +76,26 @@ def joint_speeds(qpos: np.ndarray, fps: float) -> np.ndarray:
 def check_motion(robot: Robot, motion: RobotMotion, joints: np.ndarray, fps: float,
                  contacts: np.ndarray | None = None) -> dict:
     """The checks of one trajectory against the (T, 22, 3) HumanML3D joints (at ``fps``, with the cleanup's
-    ``contacts``) it was made from."""
+    ``contacts``) it was made from: the robot's heel and toe points slide while the human's ankle and toe are held,
+    the human's (scaled to the robot) the same way."""
     q = motion.qpos
+    joints = np.asarray(joints, float)
     touching = self_contacts(robot, q)
-    low, centre = sole_tracks(robot, q)
-    stand = motion.planted
-    human_stand = planted_feet(joints, fps, contacts)
-    targets, _, scale = keypoint_targets(robot, np.asarray(joints, float), human_stand)
+    low, points = sole_tracks(robot, q)
+    held = held_joints(joints, fps, contacts)
+    targets, _, scale = keypoint_targets(robot, joints, planted_feet(joints, fps, held), held)
     targets = resample(targets, fps, motion.fps)[:len(q)]
     errors = np.linalg.norm(site_positions(robot, q)[:len(targets)] - targets, axis=-1)
-    human = robot_frame(np.asarray(joints, float))[:, [7, 8], :2] * scale  # the human's ankles, scaled
+    robot_held = (resample(held.astype(float), fps, motion.fps) > 0.5)[:len(q)]
+    human = robot_frame(joints)[:, [7, 10, 8, 11], :2] * scale  # the human's ankles and toes, scaled
     return {
         "frames": len(q),
         "limit_violations": limit_violations(robot, q),
         "self_contact_frames": int((touching > 0).sum()),
-        "planted_sole_height_max_m": float(np.abs(low[stand]).max()) if stand.any() else 0.0,
+        "planted_sole_height_m": low[motion.planted],
         "sole_below_floor_m": float(max(0.0, -low.min())),
-        "robot_slide_mps": slide_speeds(centre, stand, motion.fps),
-        "human_slide_mps": slide_speeds(human, human_stand, fps),
+        "robot_slide_mps": slide_speeds(points, robot_held, motion.fps),
+        "human_slide_mps": slide_speeds(human, held, fps),
         "tracking_error_m": errors.ravel(),
         "joint_speed_max_rads": joint_speeds(q, motion.fps),
     }

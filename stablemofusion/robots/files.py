@@ -56,13 +56,14 @@ def write_csv(motion: RobotMotion, path: str | Path) -> Path:
 
 
 def write_keyframes(motion: RobotMotion, robot: Robot, path: str | Path) -> Path:
-    """An MJCF file that includes the robot's scene and holds every frame as a keyframe (``time`` and ``qpos``):
-    open it in MuJoCo's viewer (``python -m mujoco.viewer --mjcf FILE``) and step through the keys."""
-    keys = "\n".join(f'    <key name="f{t:05d}" time="{t / motion.fps:.4f}" qpos="{" ".join(f"{v:.6f}" for v in q)}"/>'
-                     for t, q in enumerate(motion.qpos))
-    text = (f'<mujoco model="{motion.robot} trajectory">\n  <include file="{robot.path.resolve()}"/>\n'
-            f"  <size nkey=\"{len(motion.qpos)}\"/>\n  <keyframe>\n{keys}\n  </keyframe>\n</mujoco>\n")
-    write_text(path, text)
+    """The robot's MJCF (its scene, floor included) with every frame as a keyframe (``time`` and ``qpos``), its
+    meshes read from the robot's folder: open it in MuJoCo's viewer (``python -m mujoco.viewer --mjcf FILE``) and
+    step through the keys."""
+    spec = mujoco.MjSpec.from_file(str(robot.path))
+    spec.meshdir = str((robot.path.parent / (spec.meshdir or ".")).resolve())
+    for t, q in enumerate(motion.qpos):
+        spec.add_key(name=f"f{t:05d}", time=t / motion.fps, qpos=q.tolist())
+    write_text(path, spec.to_xml())
     return Path(path)
 
 

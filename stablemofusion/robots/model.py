@@ -45,9 +45,10 @@ def robot_file(robot: str | Path) -> Path:
     return path
 
 
-def read_joint_map(path: str | Path | None) -> tuple[dict[str, str], dict[str, float]]:
+def read_joint_map(path: str | Path | None, robot: str | None = None) -> tuple[dict[str, str], dict[str, float]]:
     """(human joint -> robot site, human joint -> weight) from a joint-map JSON (``{"sites": {...}, "weights":
-    {...}}``; weights default to 1); None: the shipped map onto the BODY_25 sites."""
+    {...}}``; weights default to 1); None: the shipped map onto the BODY_25 sites (with a shipped ``robot``'s own
+    corrections)."""
     if path is None:
         text = (resources.files("stablemofusion") / "assets" / "robots_keypoints.json").read_text(encoding="utf-8")
         where = "the shipped joint map"
@@ -62,6 +63,8 @@ def read_joint_map(path: str | Path | None) -> tuple[dict[str, str], dict[str, f
     except json.JSONDecodeError as e:
         raise SMFError(f"the joint map {where} is not JSON: {e.msg} (line {e.lineno})") from None
     sites = data.get("sites") if isinstance(data, dict) else None
+    if path is None and robot in data.get("robots", {}):
+        sites = {**sites, **data["robots"][robot]["sites"]}
     if not isinstance(sites, dict) or not sites or not all(isinstance(v, str) for v in sites.values()):
         raise SMFError(f"the joint map {where} needs \"sites\": {{human joint: robot site name}}")
     unknown = sorted(set(sites) - set(HUMANML3D.joint_names))
@@ -116,7 +119,7 @@ class Robot:
         lo = np.where(m.jnt_limited[hinge].astype(bool), m.jnt_range[hinge, 0], -np.inf)
         hi = np.where(m.jnt_limited[hinge].astype(bool), m.jnt_range[hinge, 1], np.inf)
         self.ranges = np.stack([lo, hi], axis=1)
-        sites, weights = read_joint_map(joint_map)
+        sites, weights = read_joint_map(joint_map, self.name)
         ids = {}
         for joint, site in sites.items():
             sid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, site)

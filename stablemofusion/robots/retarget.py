@@ -23,7 +23,7 @@ from ..motion.resample import resample
 from .model import Robot, mujoco
 
 CONTROL_FPS = 50.0
-TOE_WEIGHT = 2.0
+TOE_WEIGHT = 5.0
 BASE_WEIGHT = 2.0  # the floating base turned as the human pelvis (two points 0.2 m off its origin)
 BASE_LEVER = 0.2
 COLLISION_MARGIN = 0.02  # m the retarget keeps between the robot's own bodies (interpolated frames between)

@@ -1,0 +1,198 @@
+"""Retargeting to the shipped humanoid robots, checked in MuJoCo: each step as a function of arrays, the whole
+retarget on generated motions (limits, self-contacts, feet on the floor, tracking), the files a robotics user loads,
+and every door (library, CLI, HTTP)."""
+
+from __future__ import annotations
+
+import io
+import json
+
+import numpy as np
+import pytest
+
+mujoco = pytest.importorskip("mujoco", reason="the robot extra (pip install 'stablemofusion[robot]')")
+
+from stablemofusion.cli.main import main  # noqa: E402
+from stablemofusion.core.errors import SMFError  # noqa: E402
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline  # noqa: E402
+from stablemofusion.robots.checks import check_motion, limit_violations, self_contacts  # noqa: E402
+from stablemofusion.robots.files import csv_columns, npz_arrays, write_keyframes  # noqa: E402
+from stablemofusion.robots.model import Robot, load_robot, read_joint_map  # noqa: E402
+from stablemofusion.robots.retarget import (_Solver, keypoint_targets, pelvis_axes, planted_feet,  # noqa: E402
+                                            resample_qpos, retarget, robot_frame, solve_poses)
+
+ROBOTS = ("g1", "h1")
+
+
+@pytest.fixture(scope="module")
+def pipe():
+    return MotionPipeline.from_pretrained(backend="onnx", threads=1)
+
+
+@pytest.fixture(scope="module")
+def waves(pipe):
+    return pipe("a person waves with the right hand", seconds=4, seed=0)[0]
+
+
+def test_the_frame_turns_y_up_z_forward_into_z_up_x_forward():
+    left, up, forward = np.eye(3)  # HumanML3D: x left, y up, z forward
+    assert np.array_equal(robot_frame(np.stack([forward, left, up])), np.eye(3))
+
+
+def test_pelvis_axes_are_a_rotation_facing_where_the_hips_say():
+    joints = np.zeros((2, 22, 3))
+    joints[:, 1], joints[:, 2], joints[:, 3] = [0.1, 0, 0], [-0.1, 0, 0], [0, 0.1, 0.02]
+    axes = pelvis_axes(joints)
+    assert np.allclose(axes[0] @ axes[0].T, np.eye(3)) and np.isclose(np.linalg.det(axes[0]), 1.0)
+    assert np.allclose(axes[0, 1], [0, 1, 0]) and axes[0, 0, 0] > 0.9  # left is +y, forward +x
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_the_shipped_robots_load_with_their_sites_on_the_right_sides(name):
+    robot = load_robot(name)
+    assert robot.model.nq == 7 + len(robot.joint_names) and len(robot.sites) == 14
+    assert 0.5 < robot.leg < 1.0 and 0.03 < robot.rest_ankle < 0.1
+
+
+def test_a_map_whose_left_site_is_on_the_right_is_refused(tmp_path):
+    sites, _ = read_joint_map(None)
+    sites["left_wrist"], sites["right_wrist"] = sites["right_wrist"], sites["left_wrist"]
+    bad = tmp_path / "swapped.json"
+    bad.write_text(json.dumps({"sites": sites}))
+    with pytest.raises(SMFError, match="left_wrist, lies on the robot's right side"):
+        Robot("g1", bad)
+
+
+@pytest.mark.parametrize("text, message", [("{", "not JSON"), ('{"sites": {"nose": "x"}}', "does not have: nose"),
+                                           ('{"sites": {"pelvis": "BODY_25:MidHip"}}', "must map left_ankle")])
+def test_bad_joint_maps_get_one_line(tmp_path, text, message):
+    path = tmp_path / "map.json"
+    path.write_text(text)
+    with pytest.raises(SMFError, match=message):
+        read_joint_map(path)
+
+
+def test_the_solver_reaches_a_pose_the_robot_can_take():
+    """Targets read off a random pose inside the joint ranges: the solve from the reference pose finds sites within
+    a few millimetres of them (the posture prior pulls the redundant joints toward the reference pose), joints
+    inside their ranges."""
+    robot = load_robot("g1")
+    rng = np.random.default_rng(0)
+    q = robot.rest.copy()
+    q[7:] = np.clip(q[7:] + rng.normal(0, 0.15, len(q) - 7), robot.ranges[:, 0], robot.ranges[:, 1])
+    s = _Solver(robot)
+    s.d.qpos[:] = q
+    mujoco.mj_kinematics(robot.model, s.d)
+    sites = s.d.site_xpos[robot.sites].copy()
+    toes = np.stack([s.d.xmat[f.body].reshape(3, 3) @ f.toe + s.d.xpos[f.body] for f in robot.soles])
+    axes = s.d.xmat[robot.free_body].reshape(3, 3).T.copy()
+    got = solve_poses(robot, sites[None], toes[None], axes[None], first_iterations=200)[0]
+    s.d.qpos[:] = got
+    mujoco.mj_kinematics(robot.model, s.d)
+    error = np.linalg.norm(s.d.site_xpos[robot.sites] - sites, axis=1)
+    assert np.median(error) < 0.005 and error.max() < 0.03
+    assert limit_violations(robot, got[None]) == 0
+
+
+def test_the_base_quaternion_is_resampled_without_a_sign_flip():
+    q = np.zeros((3, 8))
+    q[:, 3:7] = [[1, 0, 0, 0], [-np.cos(0.1), 0, 0, -np.sin(0.1)], [np.cos(0.2), 0, 0, np.sin(0.2)]]
+    out = resample_qpos(q, 20.0, 50.0)
+    assert np.allclose(np.linalg.norm(out[:, 3:7], axis=1), 1.0)
+    assert (np.einsum("ti,ti->t", out[1:, 3:7], out[:-1, 3:7]) > 0.99).all()
+
+
+def test_planted_feet_come_from_the_cleanups_holds(waves):
+    held = waves.contacts
+    feet = planted_feet(waves.joints, waves.fps, held)
+    assert np.array_equal(feet[:, 0], held[:, 0] | held[:, 1]) and np.array_equal(feet[:, 1], held[:, 2] | held[:, 3])
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_a_generated_motion_on_each_robot(waves, name):
+    """Inside the joint ranges, no contact between the robot's own bodies, planted soles on the floor (within 2 cm,
+    none below it), keypoints tracked (median under 7 cm), feet sliding no more than the human's, 50 Hz."""
+    robot = load_robot(name)
+    motion = waves.to_robot(name)
+    assert motion.fps == 50.0 and len(motion.qpos) == (waves.frames - 1) * 5 // 2 + 1  # 20 fps -> 50 Hz
+    got = check_motion(robot, motion, waves.joints, waves.fps, waves.contacts)
+    assert got["limit_violations"] == 0 and got["self_contact_frames"] == 0
+    assert np.percentile(got["planted_sole_height_m"], 95) <= 0.02 and got["sole_below_floor_m"] < 1e-6
+    assert np.median(got["tracking_error_m"]) < 0.07
+    assert np.median(got["robot_slide_mps"]) <= np.median(got["human_slide_mps"]) + 0.01
+    # the right hand waves: the right wrist's site above the right shoulder's for a good part of the motion
+    d = mujoco.MjData(robot.model)
+    names = list(robot.human_names)
+    up = []
+    for q in motion.qpos:
+        d.qpos[:] = q
+        mujoco.mj_kinematics(robot.model, d)
+        up.append(d.site_xpos[robot.sites[names.index("right_wrist")], 2]
+                  > d.site_xpos[robot.sites[names.index("right_shoulder")], 2])
+    assert np.mean(up) > 0.3
+
+
+def test_self_contacts_are_counted(waves):
+    """A pose that folds an arm into the body is counted (the check is not blind)."""
+    robot = load_robot("g1")
+    q = robot.rest.copy()
+    q[7 + robot.joint_names.index("left_shoulder_roll_joint")] = robot.ranges[
+        robot.joint_names.index("left_shoulder_roll_joint"), 0]
+    q[7 + robot.joint_names.index("left_elbow_joint")] = robot.ranges[robot.joint_names.index("left_elbow_joint"), 1]
+    assert self_contacts(robot, q[None])[0] > 0
+
+
+def test_the_files_hold_the_trajectory(tmp_path, waves):
+    robot = load_robot("g1")
+    motion = waves.to_robot("g1")
+    arrays = npz_arrays(motion)
+    assert np.array_equal(arrays["root_rot"][:, 3], motion.qpos[:, 3])  # x y z w
+    assert list(arrays["joint_names"]) == list(robot.joint_names) and arrays["dof_pos"].shape[1] == 29
+    columns = csv_columns(motion)
+    assert columns[:8] == ["time", "base_x", "base_y", "base_z", "base_qw", "base_qx", "base_qy", "base_qz"]
+    keys = write_keyframes(motion, robot, tmp_path / "keys.xml")
+    model = mujoco.MjModel.from_xml_path(str(keys))
+    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "f00007")
+    assert np.allclose(model.key_qpos[key], motion.qpos[7], atol=1e-6) and model.key_time[key] == 7 / 50
+
+
+def test_smf_generate_writes_the_robots_files(tmp_path, capsys):
+    assert main(["generate", "a person bows", "--seconds", "3", "--seed", "0", "--format", "json", "--robot", "h1",
+                 "--robot-format", "npz,csv", "--out", str(tmp_path)]) == 0
+    (npz,) = tmp_path.glob("*.h1.npz")
+    data = np.load(npz)
+    assert data["qpos"].shape == (148, 26) and float(data["fps"]) == 50.0
+    (csv,) = tmp_path.glob("*.h1.csv")
+    table = np.loadtxt(csv, delimiter=",", skiprows=1)
+    assert np.allclose(table[:, 1:], data["qpos"], atol=1e-6)
+
+
+@pytest.mark.parametrize("args, message", [(["--robot", "r2d2"], "robot must be one of g1, h1 or an MJCF .xml file"),
+                                           (["--robot", "g1", "--robot-format", "fbx"], "unknown robot format fbx"),
+                                           (["--robot-format", "npz"], "go with --robot")])
+def test_smf_generate_refuses_bad_robot_flags_in_one_line(tmp_path, capsys, args, message):
+    assert main(["generate", "a person bows", "--out", str(tmp_path), *args]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1 and not list(tmp_path.iterdir())
+
+
+def test_smf_convert_to_a_robot(tmp_path):
+    out = tmp_path / "wave.csv"
+    assert main(["convert", "example:wave-both-hands", str(out), "--robot", "g1"]) == 0
+    assert out.read_text().splitlines()[0].startswith("time,base_x")
+
+
+def test_http_answers_the_robots_trajectory(pipe):
+    from serve.serve_helpers import call
+    from stablemofusion.serve import create_app
+
+    ok, bad, wrong_format = call(create_app(pipe, max_streams=0),
+                                 ("POST", "/v1/generate", {"prompt": "a person bows", "seconds": 3, "seed": 0,
+                                                           "robot": "g1"}),
+                                 ("POST", "/v1/generate", {"prompt": "a person bows", "robot": "r2d2"}),
+                                 ("POST", "/v1/generate?format=bvh", {"prompt": "a person bows", "robot": "g1"}))
+    assert ok.status_code == 200, ok.text
+    body = ok.json()
+    assert body["robot"] == "g1" and body["fps"] == 50 and np.asarray(body["qpos"]).shape == (148, 36)
+    assert body["columns"][:3] == ["base_x", "base_y", "base_z"] and body["seed"] == 0
+    assert bad.status_code == 422 and wrong_format.status_code == 422 and "JSON" in wrong_format.json()["error"]

@@ -26,12 +26,13 @@ def decimate(src: Path, dst: Path, ratio: float) -> tuple[int, int]:
     import fast_simplification
     import trimesh
 
-    mesh = trimesh.load(src, force="mesh", process=False)
+    mesh = trimesh.load(src, force="mesh", process=True)  # an STL is a triangle soup: its vertices merged first
     faces = len(mesh.faces)
     if faces > 200:
         v, f = fast_simplification.simplify(np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces),
                                             target_reduction=1 - ratio)
-        mesh = trimesh.Trimesh(v, f, process=False)
+        mesh = trimesh.Trimesh(v, f, process=True)  # merged vertices, then faces wound one way (outward normals)
+        trimesh.repair.fix_normals(mesh)
     dst.write_bytes(mesh.export(file_type="stl"))
     return faces, len(mesh.faces)
 

@@ -10,6 +10,7 @@ def add_parser(sub, name: str) -> None:
     from ..core.limits import EDIT_MODES, IMPOSE
     from .character import add_character_arguments
     from .options import add_sampling_arguments
+    from .robot import add_robot_arguments
 
     p = sub.add_parser(name,
                        description="Keep part of a motion (its start, its end, both, one half of the body, or its "
@@ -29,6 +30,7 @@ def add_parser(sub, name: str) -> None:
                    help="keep the known part in the x0 prediction (default) or in the noisy sample")
     add_sampling_arguments(p)
     add_character_arguments(p, reads_motion=True)
+    add_robot_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -44,10 +46,12 @@ def run(args: argparse.Namespace) -> None:
     from ..core.output import parse_formats, write_results
     from .character import load_rig
     from .options import choose_engine, load_pipeline, output_meta, sampling_kwargs, user_warnings
+    from .robot import robot_formats, write_robot_files
 
     choose_engine(args)
     formats = parse_formats(args.format)
     rig = load_rig(args, args.motion)
+    robot = robot_formats(args)
     if not args.text.strip():
         raise SMFError("the prompt is empty")
     for flag in ("fps", "seconds"):
@@ -75,6 +79,8 @@ def run(args: argparse.Namespace) -> None:
     with user_warnings():
         result = pipe.edit(args.text, source, args.mode, keep_start=args.keep_start, keep_end=args.keep_end,
                            seconds=args.seconds, path=path, impose=args.impose, **kwargs)
-    write_results([result], args.out, formats,
-                  {"edit": args.mode, "impose": args.impose, "keep_start": args.keep_start, "keep_end": args.keep_end,
-                   **output_meta(args, pipe, edit=True)}, overwrite=args.overwrite, rig=rig)
+    meta = {"edit": args.mode, "impose": args.impose, "keep_start": args.keep_start, "keep_end": args.keep_end,
+            **output_meta(args, pipe, edit=True)}
+    (stem,) = write_results([result], args.out, formats, meta, overwrite=args.overwrite, rig=rig)
+    if robot:
+        write_robot_files(args, result.joints, result.fps, result.contacts, stem, robot, meta)

@@ -38,16 +38,15 @@ def self_contacts(robot: Robot, qpos: np.ndarray) -> np.ndarray:
 
 
 def sole_tracks(robot: Robot, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(T, 2) each foot's lowest sole height above the floor (m); (T, 4, 2) the heel and toe points of the left
-    and right sole on the floor (x, y), in the order left heel, left toe, right heel, right toe (the human's held
-    ankle, toe, ...)."""
+    """(T, 2) each foot's lowest sole height above the floor (m); (T, 4, 2) on the floor (x, y) the points that
+    stand for the human's left ankle, left toe, right ankle, right toe: the ankle sites and the soles' toe points."""
     low, points = np.empty((len(qpos), 2)), np.empty((len(qpos), 4, 2))
+    names = list(robot.human_names)
     for t, d in poses(robot, qpos):
-        for f, sole in enumerate(robot.soles):
+        for f, (sole, ankle) in enumerate(zip(robot.soles, ("left_ankle", "right_ankle"))):
             low[t, f] = robot.sole_heights(d, sole).min()
-            rot = d.xmat[sole.body].reshape(3, 3)
-            points[t, 2 * f] = (rot @ sole.heel + d.xpos[sole.body])[:2]
-            points[t, 2 * f + 1] = (rot @ sole.toe + d.xpos[sole.body])[:2]
+            points[t, 2 * f] = d.site_xpos[robot.sites[names.index(ankle)], :2]
+            points[t, 2 * f + 1] = (d.xmat[sole.body].reshape(3, 3) @ sole.toe + d.xpos[sole.body])[:2]
     return low, points
 
 

@@ -6,9 +6,12 @@
    at the robot's ankle height, and each foot's toe point from the human foot's heading and pitch;
 4. :func:`solve_poses`: per frame, damped Gauss-Newton on the weighted target errors from the previous frame's
    pose, joints kept inside their ranges, the robot's own bodies pushed apart where they would touch;
-5. :func:`floor_feet`: the floating base raised or lowered so that a planted foot's sole is on the floor and no
+5. :func:`lock_feet`: at the control rate, each held ankle and toe kept at its hold's mean place on the floor,
+   eased in and out (foot locking);
+6. :func:`separate`: frames in which the robot's own bodies still touch pushed apart;
+7. :func:`floor_feet`: the floating base raised or lowered so that a planted foot's sole is on the floor and no
    sole goes below it;
-6. :func:`resample_qpos`: the trajectory at the control rate (50 Hz), angles linearly, the base quaternion by
+8. :func:`resample_qpos`: the trajectory at the control rate (50 Hz), angles linearly, the base quaternion by
    normalised linear interpolation.
 """
 
@@ -20,6 +23,7 @@ import numpy as np
 
 from ..footskate.contacts import kinematic_contacts
 from ..motion.resample import resample
+from ..motion.rotation import matrix_to_quat
 from .model import Robot, mujoco
 
 CONTROL_FPS = 50.0
@@ -29,6 +33,9 @@ BASE_LEVER = 0.2
 COLLISION_MARGIN = 0.02  # m the retarget keeps between the robot's own bodies (interpolated frames between)
 COLLISION_WEIGHT = 200.0
 EXTRA_ITERATIONS = 8
+HELD_BOOST = 10.0  # a held ankle's or toe's weight, times its usual one
+SMOOTH_WEIGHT = 0.02  # pulls each joint toward the previous frames' pace
+LOCK_BLEND = 4  # frames (at the control rate) over which a foot lock eases in before a hold and out after it
 POSTURE_WEIGHT = 1e-3  # pulls redundant joints (waist, wrists) toward the reference pose
 DAMPING = 1e-2
 MAX_STEP = 0.2  # rad (or m) one iteration may move any coordinate
@@ -218,11 +225,15 @@ class _Solver:
         rows = np.einsum("ck,ckv->cv", normals, j2 - j1)
         return rows, COLLISION_MARGIN - np.array([c.dist for c in near])
 
-    def step(self, sites: np.ndarray, toes: np.ndarray, axes: np.ndarray, contacts: bool) -> float:
+    def step(self, sites: np.ndarray, toes: np.ndarray, axes: np.ndarray, contacts: bool,
+             weights: np.ndarray | None = None, smooth_to: np.ndarray | None = None) -> float:
+        """One damped Gauss-Newton step toward the targets (``weights`` per row, else the usual ones), the joints
+        also pulled toward ``smooth_to`` (the previous frames' pace); returns the largest coordinate change."""
         m, d = self.m, self.d
         jac, err = self._errors(sites, toes, axes)
-        a = jac.T @ (self.w[:, None] * jac)
-        g = jac.T @ (self.w * err)
+        w = self.w if weights is None else weights
+        a = jac.T @ (w[:, None] * jac)
+        g = jac.T @ (w * err)
         if contacts:
             rows, want = self._contacts()
             if len(rows):
@@ -232,6 +243,9 @@ class _Solver:
         dq_prior[6:] = d.qpos[7:] - self.r.rest[7:]
         a[np.diag_indices_from(a)] += DAMPING + self.prior
         g -= self.prior * dq_prior
+        if smooth_to is not None:
+            a[np.diag_indices(m.nv)[0][6:], np.diag_indices(m.nv)[1][6:]] += SMOOTH_WEIGHT
+            g[6:] -= SMOOTH_WEIGHT * (d.qpos[7:] - smooth_to)
         dq = np.linalg.solve(a, g)
         q, (lo, hi) = d.qpos[7:], self.r.ranges.T
         stuck = ((q <= lo + 1e-9) & (dq[6:] < 0)) | ((q >= hi - 1e-9) & (dq[6:] > 0))
@@ -251,32 +265,115 @@ class _Solver:
         return count_self_contacts(self.m, self.d, below=COLLISION_MARGIN / 2)
 
 
-def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.ndarray, iterations: int = 8,
-                first_iterations: int = 60) -> np.ndarray:
+def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.ndarray,
+                held: np.ndarray | None = None, iterations: int = 8, first_iterations: int = 60) -> np.ndarray:
     """(T, nq) poses tracking (T, K, 3) site targets, (T, 2, 3) toe points and the (T, 3, 3) pelvis axes
-    (:func:`pelvis_axes`), frame after frame from the previous
-    pose (the first from the reference pose turned and moved to the first frame's pelvis), joints inside their
+    (:func:`pelvis_axes`), frame after frame from the previous pose moved on at its pace (the first from the
+    reference pose turned and moved to the first frame's pelvis): the ankles and toe points of ``held`` (T, 4)
+    feet weighted up, the joints pulled toward the previous frames' pace (no sudden jumps), joints inside their
     ranges, self-contacts pushed apart (further iterations of a frame while any remain)."""
     s = _Solver(robot)
+    K = len(robot.sites)
+    weights = np.repeat(s.w[None], len(targets), axis=0)
+    if held is not None:
+        for f, name in enumerate(("left_ankle", "right_ankle")):
+            k = list(robot.human_names).index(name)
+            weights[held[:, 2 * f], 3 * k:3 * k + 3] *= HELD_BOOST
+            weights[held[:, 2 * f + 1], 3 * K + 3 * f:3 * K + 3 * f + 3] *= HELD_BOOST
     q = robot.rest.copy()
     pelvis = list(robot.human_names).index("pelvis")
-    hips = [list(robot.human_names).index(j) for j in ("left_hip", "right_hip") if j in robot.human_names]
-    left = targets[0, hips[0]] - targets[0, hips[1]] if len(hips) == 2 else np.array([0.0, 1.0, 0.0])
     q[:2] = targets[0, pelvis, :2]
-    q[3:7] = _yaw_quat(np.arctan2(-left[0], left[1]))
+    q[3:7] = matrix_to_quat(axes[0].T)
     s.d.qpos[:] = q
     out = np.empty((len(targets), robot.model.nq))
+    lo, hi = robot.ranges[:, 0], robot.ranges[:, 1]
     for t in range(len(targets)):
+        pace = None
         if t > 1:  # from the previous pose moved on at the previous pace (the base's turn left to the solve)
+            pace = np.clip(2 * out[t - 1, 7:] - out[t - 2, 7:], lo, hi)
             s.d.qpos[:3] += out[t - 1, :3] - out[t - 2, :3]
-            s.d.qpos[7:] = np.clip(2 * out[t - 1, 7:] - out[t - 2, 7:], robot.ranges[:, 0], robot.ranges[:, 1])
+            s.d.qpos[7:] = pace
         for i in range(first_iterations if t == 0 else iterations):
-            if s.step(targets[t], toes[t], axes[t], contacts=False) < 1e-4:
+            if s.step(targets[t], toes[t], axes[t], False, weights[t], pace) < 1e-4:
                 break
         for _ in range(EXTRA_ITERATIONS):  # the robot's own bodies still touching: pushed apart further
             if not s.self_contacts():
                 break
-            s.step(targets[t], toes[t], axes[t], contacts=True)
+            s.step(targets[t], toes[t], axes[t], True, weights[t], pace)
+        out[t] = s.d.qpos
+    return out
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """The [start, stop) runs of True in a (T,) bool array."""
+    edges = np.diff(np.concatenate([[0], mask.astype(int), [0]]))
+    return list(zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]))
+
+
+def lock_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, iterations: int = 3) -> np.ndarray:
+    """(T, nq) poses whose held ankles and toe points (``held`` (T, 4): left ankle, left toe, right ankle, right
+    toe) stay at the hold's mean place, on the floor (an ankle at the standing ankle height, a toe point at 0), the
+    lock eased in and out over ``LOCK_BLEND`` frames around each hold: a few Gauss-Newton steps from each pose,
+    every other target its own current place."""
+    s = _Solver(robot)
+    m, K, names = robot.model, len(robot.sites), list(robot.human_names)
+    ankles = [robot.sites[names.index(j)] for j in ("left_ankle", "right_ankle")]
+    T = len(qpos)
+    spots = np.empty((T, 4, 3))  # where each ankle site and toe point is
+    for t in range(T):
+        s.d.qpos[:] = qpos[t]
+        mujoco.mj_kinematics(m, s.d)
+        for f, sole in enumerate(robot.soles):
+            spots[t, 2 * f] = s.d.site_xpos[ankles[f]]
+            spots[t, 2 * f + 1] = s.d.xmat[sole.body].reshape(3, 3) @ sole.toe + s.d.xpos[sole.body]
+    anchors, share = spots.copy(), np.zeros((T, 4))  # where each is pulled to, and how fully (1 inside a hold)
+    for j in range(4):
+        for a, b in _runs(held[:, j]):
+            spot = np.array([*spots[a:b, j, :2].mean(axis=0), robot.rest_ankle if j % 2 == 0 else 0.0])
+            anchors[a:b, j], share[a:b, j] = spot, 1.0
+            for k in range(1, LOCK_BLEND + 1):  # eased in before the hold and out after it
+                ease = 1 - k / (LOCK_BLEND + 1)
+                for t in (a - k, b - 1 + k):
+                    if 0 <= t < T and ease > share[t, j]:
+                        anchors[t, j], share[t, j] = spot, ease
+    targets = spots + share[..., None] * (anchors - spots)
+    out = qpos.copy()
+    for t in np.nonzero(share.any(axis=1))[0]:
+        s.d.qpos[:] = qpos[t]
+        mujoco.mj_kinematics(m, s.d)
+        sites = s.d.site_xpos[robot.sites].copy()
+        toes = spots[t, 1::2].copy()
+        axes = s.d.xmat[robot.free_body].reshape(3, 3).T.copy()
+        weights = s.w.copy()
+        for f in range(2):
+            k = names.index(("left_ankle", "right_ankle")[f])
+            sites[k], toes[f] = targets[t, 2 * f], targets[t, 2 * f + 1]
+            weights[3 * k:3 * k + 3] *= 1 + (HELD_BOOST - 1) * share[t, 2 * f]
+            weights[3 * K + 3 * f:3 * K + 3 * f + 3] *= 1 + (HELD_BOOST - 1) * share[t, 2 * f + 1]
+        for _ in range(iterations):
+            if s.step(sites, toes, axes, False, weights) < 1e-4:
+                break
+        out[t] = s.d.qpos
+    return out
+
+
+def separate(robot: Robot, qpos: np.ndarray, iterations: int = EXTRA_ITERATIONS) -> np.ndarray:
+    """(T, nq) poses in which the robot's own bodies touch pushed apart (only those frames, each from its own
+    pose, the targets its current sites, so that nothing else moves more than it must)."""
+    s = _Solver(robot)
+    out = qpos.copy()
+    for t in range(len(qpos)):
+        s.d.qpos[:] = qpos[t]
+        if not s.self_contacts():
+            continue
+        mujoco.mj_kinematics(robot.model, s.d)
+        sites = s.d.site_xpos[robot.sites].copy()
+        toes = np.stack([s.d.xmat[f.body].reshape(3, 3) @ f.toe + s.d.xpos[f.body] for f in robot.soles])
+        axes = s.d.xmat[robot.free_body].reshape(3, 3).T.copy()
+        for _ in range(iterations):
+            s.step(sites, toes, axes, True)
+            if not s.self_contacts():
+                break
         out[t] = s.d.qpos
     return out
 
@@ -317,6 +414,8 @@ def retarget(robot: Robot, joints: np.ndarray, fps: float, contacts: np.ndarray 
     held = held_joints(joints, fps, contacts)
     planted = planted_feet(joints, fps, held)
     targets, toes, scale = keypoint_targets(robot, joints, planted, held)
-    qpos = resample_qpos(solve_poses(robot, targets, toes, pelvis_axes(joints)), fps, out_fps)
+    qpos = resample_qpos(solve_poses(robot, targets, toes, pelvis_axes(joints), held), fps, out_fps)
     planted = resample(planted.astype(float), fps, out_fps) > 0.5
-    return RobotMotion(robot.name, out_fps, floor_feet(robot, qpos, planted), robot.joint_names, planted, scale)
+    held = resample(held.astype(float), fps, out_fps) > 0.5
+    qpos = floor_feet(robot, separate(robot, lock_feet(robot, qpos, held)), planted)
+    return RobotMotion(robot.name, out_fps, qpos, robot.joint_names, planted, scale)

@@ -35,6 +35,7 @@ COLLISION_WEIGHT = 200.0
 EXTRA_ITERATIONS = 8
 HELD_BOOST = 10.0  # a held ankle's or toe's weight, times its usual one
 SMOOTH_WEIGHT = 0.02  # pulls each joint toward the previous frames' pace
+SEPARATE_HOLD = 0.1  # how much a pose being pushed apart holds to its own place (times the usual weights)
 LOCK_BLEND = 4  # frames (at the control rate) over which a foot lock eases in before a hold and out after it
 POSTURE_WEIGHT = 1e-3  # pulls redundant joints (waist, wrists) toward the reference pose
 DAMPING = 1e-2
@@ -371,7 +372,7 @@ def separate(robot: Robot, qpos: np.ndarray, iterations: int = EXTRA_ITERATIONS)
         toes = np.stack([s.d.xmat[f.body].reshape(3, 3) @ f.toe + s.d.xpos[f.body] for f in robot.soles])
         axes = s.d.xmat[robot.free_body].reshape(3, 3).T.copy()
         for _ in range(iterations):
-            s.step(sites, toes, axes, True)
+            s.step(sites, toes, axes, True, SEPARATE_HOLD * s.w)
             if not s.self_contacts():
                 break
         out[t] = s.d.qpos

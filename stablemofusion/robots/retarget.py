@@ -6,9 +6,9 @@
    at the robot's ankle height, and each foot's toe point from the human foot's heading and pitch;
 4. :func:`solve_poses`: per frame, damped Gauss-Newton on the weighted target errors from the previous frame's
    pose, joints kept inside their ranges, the robot's own bodies pushed apart where they would touch;
-5. :func:`lock_feet`: at the control rate, each held ankle and toe kept at its hold's mean place on the floor,
-   eased in and out (foot locking);
-6. :func:`separate`: frames in which the robot's own bodies still touch pushed apart;
+5. :func:`lock_feet`: each held ankle and toe kept at its hold's mean place on the floor, eased in and out (foot
+   locking);
+6. :func:`separate`: at the control rate, frames in which the robot's own bodies still touch pushed apart;
 7. :func:`floor_feet`: the floating base raised or lowered so that a planted foot's sole is on the floor and no
    sole goes below it;
 8. :func:`resample_qpos`: the trajectory at the control rate (50 Hz), angles linearly, the base quaternion by
@@ -36,7 +36,8 @@ EXTRA_ITERATIONS = 8
 HELD_BOOST = 10.0  # a held ankle's or toe's weight, times its usual one
 SMOOTH_WEIGHT = 0.02  # pulls each joint toward the previous frames' pace
 SEPARATE_HOLD = 0.1  # how much a pose being pushed apart holds to its own place (times the usual weights)
-LOCK_BLEND = 4  # frames (at the control rate) over which a foot lock eases in before a hold and out after it
+LOCK_BLEND = 0.1  # s over which a foot lock eases in before a hold and out after it
+TOLERANCE = 1e-3  # rad (or m): a frame's solve stops when no coordinate moves more
 POSTURE_WEIGHT = 1e-3  # pulls redundant joints (waist, wrists) toward the reference pose
 DAMPING = 1e-2
 MAX_STEP = 0.2  # rad (or m) one iteration may move any coordinate
@@ -190,11 +191,13 @@ class _Solver:
         base = self.r.free_body
         axis[3:6] = d.xmat[base].reshape(3, 3).T  # rows: the base's own axes
         anchor[3:6] = d.xpos[base]
-        jac = np.cross(axis[None], points[:, None] - anchor[None])  # (P, nv, 3) rotation: axis x arm
-        jac[:, self.slide] = axis[self.slide]
-        jac[:, 0:3] = np.eye(3)
-        jac *= self.moves[bodies][:, :, None]
-        return jac.transpose(0, 2, 1)
+        arm = points[:, None] - anchor[None]  # (P, nv, 3)
+        ax, ay, az = axis[None, :, 0], axis[None, :, 1], axis[None, :, 2]
+        jac = np.stack([ay * arm[..., 2] - az * arm[..., 1], az * arm[..., 0] - ax * arm[..., 2],
+                        ax * arm[..., 1] - ay * arm[..., 0]], axis=1)  # (P, 3, nv) rotation: axis x arm
+        jac[:, :, self.slide] = axis[self.slide].T[None]
+        jac[:, :, 0:3] = np.eye(3)
+        return jac * self.moves[bodies][:, None, :]
 
     def _errors(self, sites: np.ndarray, toes: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         m, d, r = self.m, self.d, self.r
@@ -295,7 +298,7 @@ def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.nd
             s.d.qpos[:3] += out[t - 1, :3] - out[t - 2, :3]
             s.d.qpos[7:] = pace
         for i in range(first_iterations if t == 0 else iterations):
-            if s.step(targets[t], toes[t], axes[t], False, weights[t], pace) < 1e-4:
+            if s.step(targets[t], toes[t], axes[t], False, weights[t], pace) < TOLERANCE:
                 break
         for _ in range(EXTRA_ITERATIONS):  # the robot's own bodies still touching: pushed apart further
             if not s.self_contacts():
@@ -311,10 +314,11 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]))
 
 
-def lock_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, iterations: int = 3) -> np.ndarray:
+def lock_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, iterations: int = 3) -> np.ndarray:
     """(T, nq) poses whose held ankles and toe points (``held`` (T, 4): left ankle, left toe, right ankle, right
     toe) stay at the hold's mean place, on the floor (an ankle at the standing ankle height, a toe point at 0), the
-    lock eased in and out over ``LOCK_BLEND`` frames around each hold: a few Gauss-Newton steps from each pose,
+    lock eased in and out over ``LOCK_BLEND`` seconds around each hold (poses at ``fps``): a few Gauss-Newton
+    steps from each pose,
     every other target its own current place."""
     s = _Solver(robot)
     m, K, names = robot.model, len(robot.sites), list(robot.human_names)
@@ -332,8 +336,9 @@ def lock_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, iterations: int 
         for a, b in _runs(held[:, j]):
             spot = np.array([*spots[a:b, j, :2].mean(axis=0), robot.rest_ankle if j % 2 == 0 else 0.0])
             anchors[a:b, j], share[a:b, j] = spot, 1.0
-            for k in range(1, LOCK_BLEND + 1):  # eased in before the hold and out after it
-                ease = 1 - k / (LOCK_BLEND + 1)
+            blend = max(1, round(LOCK_BLEND * fps))
+            for k in range(1, blend + 1):  # eased in before the hold and out after it
+                ease = 1 - k / (blend + 1)
                 for t in (a - k, b - 1 + k):
                     if 0 <= t < T and ease > share[t, j]:
                         anchors[t, j], share[t, j] = spot, ease
@@ -352,7 +357,7 @@ def lock_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, iterations: int 
             weights[3 * k:3 * k + 3] *= 1 + (HELD_BOOST - 1) * share[t, 2 * f]
             weights[3 * K + 3 * f:3 * K + 3 * f + 3] *= 1 + (HELD_BOOST - 1) * share[t, 2 * f + 1]
         for _ in range(iterations):
-            if s.step(sites, toes, axes, False, weights) < 1e-4:
+            if s.step(sites, toes, axes, False, weights) < TOLERANCE:
                 break
         out[t] = s.d.qpos
     return out
@@ -415,8 +420,8 @@ def retarget(robot: Robot, joints: np.ndarray, fps: float, contacts: np.ndarray 
     held = held_joints(joints, fps, contacts)
     planted = planted_feet(joints, fps, held)
     targets, toes, scale = keypoint_targets(robot, joints, planted, held)
-    qpos = resample_qpos(solve_poses(robot, targets, toes, pelvis_axes(joints), held), fps, out_fps)
+    qpos = lock_feet(robot, solve_poses(robot, targets, toes, pelvis_axes(joints), held), held, fps)
+    qpos = resample_qpos(qpos, fps, out_fps)
     planted = resample(planted.astype(float), fps, out_fps) > 0.5
-    held = resample(held.astype(float), fps, out_fps) > 0.5
-    qpos = floor_feet(robot, separate(robot, lock_feet(robot, qpos, held)), planted)
+    qpos = floor_feet(robot, separate(robot, qpos), planted)
     return RobotMotion(robot.name, out_fps, qpos, robot.joint_names, planted, scale)

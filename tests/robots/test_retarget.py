@@ -150,7 +150,7 @@ def test_a_locked_foot_stays_put_and_eases_in_and_out(waves):
     motion = waves.to_robot("h1")
     held = np.zeros((len(motion.qpos), 4), bool)
     held[20:60, 0] = True  # the left ankle, 0.8 s
-    locked = lock_feet(robot, motion.qpos, held)
+    locked = lock_feet(robot, motion.qpos, held, motion.fps)
     d = mujoco.MjData(robot.model)
     site = robot.sites[list(robot.human_names).index("left_ankle")]
     where = []

@@ -1,9 +1,10 @@
 """The package's layers hold in the code: every import (at module top or inside a function) runs downward, no
 module imports itself back through others, and the core imports no PyTorch. Layers, lowest first:
 
-- core (``core/``, ``motion/``, ``footskate/``, ``render/``, the text side's file names and known actions): errors,
-  limits, settings, seeded noise, motion math, footskate cleanup, plans (edits, paths, timelines, streams), the
-  final stage's entry points, the result type, outputs, model folders; it loads without PyTorch;
+- core (``core/``, ``motion/``, ``footskate/``, ``render/``, ``robots/``, the text side's file names and known
+  actions): errors, limits, settings, seeded noise, motion math, footskate cleanup, plans (edits, paths, timelines,
+  streams), the final stage's entry points, the result type, outputs, model folders, retargeting to robots (MuJoCo,
+  an optional extra); it loads without PyTorch;
 - model (``models/``, ``diffusion/``, ``data/``, ``text/``, ``adapters/``): networks, diffusion, training data, the
   text encoders, adapters (PyTorch where it computes);
 - backends (``backends/``): the seam, the torch and ONNX backends, the export of a model's graphs;

@@ -35,7 +35,7 @@ COLLISION_WEIGHT = 200.0
 EXTRA_ITERATIONS = 8
 HELD_BOOST = 10.0  # a held ankle's or toe's weight, times its usual one
 SMOOTH_WEIGHT = 0.02  # pulls each joint toward the previous frames' pace
-SEPARATE_HOLD = 0.1  # how much a pose being pushed apart holds to its own place (times the usual weights)
+SEPARATE_HOLD = 0.01  # how much a pose being pushed apart holds to its own place (times the usual weights)
 LOCK_BLEND = 0.1  # s over which a foot lock eases in before a hold and out after it
 TOLERANCE = 1e-3  # rad (or m): a frame's solve stops when no coordinate moves more
 POSTURE_WEIGHT = 1e-3  # pulls redundant joints (waist, wrists) toward the reference pose
@@ -363,7 +363,7 @@ def lock_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, iter
     return out
 
 
-def separate(robot: Robot, qpos: np.ndarray, iterations: int = EXTRA_ITERATIONS) -> np.ndarray:
+def separate(robot: Robot, qpos: np.ndarray, iterations: int = 3 * EXTRA_ITERATIONS) -> np.ndarray:
     """(T, nq) poses in which the robot's own bodies touch pushed apart (only those frames, each from its own
     pose, the targets its current sites, so that nothing else moves more than it must)."""
     s = _Solver(robot)

@@ -91,6 +91,29 @@ bpy.context.view_layer.objects.active = None
 result['ours_status'] = list(bpy.ops.smf.generate_motion())
 ours = bpy.data.objects['stablemofusion']
 result['ours'] = heads(ours, %(frames)s)
+# 3. a render (F12) shows the character: the body parented to our armature's bones
+result['body'] = sorted(o.parent_bone for o in bpy.data.objects if o.parent == ours)
+cam_data = bpy.data.cameras.new('cam')
+cam = bpy.data.objects.new('cam', cam_data)
+scene.collection.objects.link(cam)
+scene.camera = cam
+scene.frame_set(40)
+cam.location = (ours.matrix_world @ ours.pose.bones['pelvis'].head) + __import__('mathutils').Vector((0, -4.5, 0.2))
+cam.rotation_euler = (1.5708, 0, 0)
+scene.render.engine = 'BLENDER_WORKBENCH'
+scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 96, 96, 100
+def covered(path):
+    scene.render.filepath = path
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(path)
+    px = list(img.pixels)
+    first = px[:4]
+    return sum(1 for i in range(0, len(px), 4) if abs(px[i] - first[0]) + abs(px[i + 1] - first[1]) > 0.05)
+result['covered'] = covered(out + '.with.png')
+for o in bpy.data.objects:
+    if o.parent == ours:
+        o.hide_render = True
+result['covered_without_body'] = covered(out + '.without.png')
 json.dump(result, open(out, 'w'))
 """ % {"frames": FRAMES}
 
@@ -179,6 +202,9 @@ def test_addon_headless_in_blender(tmp_path):
     # the skeleton it created: our joint names; limbs and the pelvis path follow the motion
     ours = np.stack([_to_ours(h, list(HUMANML3D.joint_names)) for h in got["ours"]])
     assert np.abs(ours - joints[idx]).max() < 1e-3  # the created skeleton takes the (rigid) motion's poses exactly
+    # a render shows the character: its body covers part of the frame, which without it stays empty
+    assert "head" in got["body"] and len(got["body"]) >= 18
+    assert got["covered"] > 300 and got["covered_without_body"] == 0, (got["covered"], got["covered_without_body"])
     print(f"Blender add-on: limb cosine {cos:.5f} on the Mixamo-style armature")
 
 

@@ -278,7 +278,50 @@ def create_our_armature(joints: np.ndarray, name: str = "stablemofusion"):
         if PARENTS[j] >= 0:
             eb.parent = data.edit_bones[JOINT_NAMES[PARENTS[j]]]
     bpy.ops.object.mode_set(mode="OBJECT")
+    add_body(obj)
     return obj
+
+
+def add_body(arm) -> list:
+    """A simple body for an armature the add-on made, so that a render shows the character: a tapered cylinder
+    along each bone from its parent's joint to its own (a sphere for the head), each parented to the parent bone
+    (rigid skinning), one grey material. Returns the body's objects (children of ``arm``)."""
+    import bmesh
+    import bpy
+    from mathutils import Matrix
+
+    material = bpy.data.materials.get("stablemofusion body") or bpy.data.materials.new("stablemofusion body")
+    material.diffuse_color = (0.72, 0.72, 0.75, 1.0)
+    made = []
+    for bone in arm.data.bones:
+        head = bone.name == "head"
+        length = bone.length
+        if length < 0.02 and not head:
+            continue
+        bm = bmesh.new()
+        if head:
+            bmesh.ops.create_uvsphere(bm, u_segments=16, v_segments=10, radius=BODY_RADIUS["head"])
+            bmesh.ops.translate(bm, verts=bm.verts, vec=(0.0, 0.04, 0.0))
+        else:
+            r = BODY_RADIUS.get(bone.name, BODY_RADIUS["limb"])
+            bmesh.ops.create_cone(bm, cap_ends=True, segments=12, radius1=r, radius2=0.8 * r, depth=length)
+            bmesh.ops.rotate(bm, verts=bm.verts, cent=(0, 0, 0), matrix=Matrix.Rotation(-np.pi / 2, 3, "X"))  # Z->Y
+            bmesh.ops.translate(bm, verts=bm.verts, vec=(0.0, length / 2, 0.0))
+        mesh = bpy.data.meshes.new(f"{arm.name} {bone.name}")
+        bm.to_mesh(mesh)
+        bm.free()
+        mesh.materials.append(material)
+        part = bpy.data.objects.new(mesh.name, mesh)
+        bpy.context.scene.collection.objects.link(part)
+        part.parent, part.parent_type, part.parent_bone = arm, "BONE", bone.name
+        part.location = (0.0, -length, 0.0)  # a bone's child sits at its tail: moved back to its head
+        made.append(part)
+    return made
+
+
+BODY_RADIUS = {"head": 0.1, "limb": 0.045, "pelvis": 0.12, "spine1": 0.11, "spine2": 0.12, "spine3": 0.12, "neck": 0.05,
+               "left_hip": 0.07, "right_hip": 0.07, "left_knee": 0.065, "right_knee": 0.065, "left_collar": 0.05,
+               "right_collar": 0.05, "left_foot": 0.035, "right_foot": 0.035, "left_ankle": 0.05, "right_ankle": 0.05}
 
 
 REST_DIRECTIONS = (

@@ -223,6 +223,8 @@ def test_the_answers_warnings_and_parts_are_shown(page):
         text = page.inner_text("#status")
         assert "Warning: length 20 frames (1.00 s) clamped" in text
         assert 'made part after part: "a man walks" 1.0 s, then "a man waves" 1.0 s' in text
+        banner = page.locator("#warning")  # and in the banner above the view, where the user looks
+        assert banner.is_visible() and "clamped to 40 frames" in banner.inner_text()
     finally:
         page.unroute("**/v1/generate")
 

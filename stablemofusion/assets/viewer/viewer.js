@@ -161,6 +161,7 @@ $('form').addEventListener('submit', async (ev) => {
   state.ready = false;
   $('generate').disabled = true;
   status('generating...');
+  $('warning').textContent = '';
   try {
     const segments = parseTimeline($('prompt').value);
     let body = { ...common, segments };
@@ -178,9 +179,11 @@ $('form').addEventListener('submit', async (ev) => {
     for (const f of Object.keys(DOWNLOADS)) $(f).disabled = false;
     await showCharacter();  // the server converts the motion it just made (no second generation)
     // the answer's warnings (out of domain, a length clamped) and how a prompt of several parts was split
-    const notes = [...(m.warnings ?? (m.warning ? [m.warning] : [])).map((w) => `Warning: ${w}`),
+    const warnings = m.warnings ?? (m.warning ? [m.warning] : []);
+    const notes = [...warnings.map((w) => `Warning: ${w}`),
       ...(m.sequence ? [`made part after part: ${m.sequence.map((p) => `"${p.prompt}" ${p.seconds.toFixed(1)} s`).join(', then ')}`] : [])];
-    if (notes.length) status(`${$('status').textContent}. ${notes.join('. ')}`, Boolean(m.warnings ?? m.warning));
+    if (notes.length) status(`${$('status').textContent}. ${notes.join('. ')}`, warnings.length > 0);
+    $('warning').textContent = notes.join(' ');  // the banner above the view
   } catch (e) {
     status(e.message, true);
   } finally {

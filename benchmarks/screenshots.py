@@ -1,0 +1,64 @@
+"""Screenshots for the docs, of the real thing: the viewer of `smf serve` (the shipped model, ONNX backend) in
+Debian's headless Chromium, showing a prompt of two parts and a prompt in French with their notes and warnings.
+
+    python benchmarks/screenshots.py [--out docs/images]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import socket
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+from stablemofusion.pipelines.motion_pipeline import MotionPipeline
+from stablemofusion.serve import create_app
+
+FLAGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--disable-background-networking",
+         "--disable-component-update", "--disable-sync", "--no-first-run"]
+SHOTS = {"viewer-sequence.png": "a tired man walks in a circle then waves",
+         "viewer-warning.png": "un homme marche lentement vers la porte"}
+
+
+def main() -> None:
+    import uvicorn
+    from playwright.sync_api import sync_playwright
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "docs" / "images")
+    args = ap.parse_args()
+    app = create_app(MotionPipeline.from_pretrained(backend="onnx", threads=1), max_streams=0)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    threading.Thread(target=server.run, daemon=True).start()
+    url = f"http://127.0.0.1:{port}"
+    for _ in range(600):
+        try:
+            if urllib.request.urlopen(url + "/v1/health", timeout=5).status == 200:
+                break
+        except OSError:
+            time.sleep(0.1)
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=shutil.which("chromium"), args=FLAGS)
+        page = browser.new_page(viewport={"width": 900, "height": 620})
+        page.goto(url + "/")
+        for name, prompt in SHOTS.items():
+            page.fill("#prompt", prompt)
+            page.fill("#seed", "0")
+            page.click("#generate")
+            page.wait_for_function("document.getElementById('status').textContent.includes('frames')",
+                                   timeout=120_000)
+            page.wait_for_timeout(1500)
+            page.screenshot(path=str(args.out / name))
+            print(f"wrote {args.out / name}: {page.inner_text('#status')}")
+        browser.close()
+    server.should_exit = True
+
+
+if __name__ == "__main__":
+    main()

@@ -126,7 +126,7 @@ function show(motion, ms) {
   status(`${motion.prompt}: ${motion.frames} frames, seed ${motion.seed}, made in ${ms.toFixed(0)} ms`);
   $('warning').textContent = [...(motion.outOfDomain
     ? [`"${motion.prompt}" is unlike the actions this model knows (closest: ${motion.closest.map((c) => c[0]).join(', ')}); the motion may not follow it.`]
-    : []), ...(motion.warnings ?? [])].join(' ');
+    : []), ...(motion.warnings ?? [])].join('\n');  // one line each (viewer.css: pre-line)
 }
 let last = performance.now(), clock = 0;
 function loop(now) {

@@ -183,7 +183,7 @@ $('form').addEventListener('submit', async (ev) => {
     const notes = [...warnings.map((w) => `Warning: ${w}`),
       ...(m.sequence ? [`made part after part: ${m.sequence.map((p) => `"${p.prompt}" ${p.seconds.toFixed(1)} s`).join(', then ')}`] : [])];
     if (notes.length) status(`${$('status').textContent}. ${notes.join('. ')}`, warnings.length > 0);
-    $('warning').textContent = notes.join(' ');  // the banner above the view
+    $('warning').textContent = notes.join('\n');  // the banner above the view, one line each
   } catch (e) {
     status(e.message, true);
   } finally {

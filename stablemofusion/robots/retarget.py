@@ -270,7 +270,7 @@ class _Solver:
 
 
 def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.ndarray,
-                held: np.ndarray | None = None, iterations: int = 8, first_iterations: int = 60) -> np.ndarray:
+                held: np.ndarray | None = None, iterations: int = 4, first_iterations: int = 60) -> np.ndarray:
     """(T, nq) poses tracking (T, K, 3) site targets, (T, 2, 3) toe points and the (T, 3, 3) pelvis axes
     (:func:`pelvis_axes`), frame after frame from the previous pose moved on at its pace (the first from the
     reference pose turned and moved to the first frame's pelvis): the ankles and toe points of ``held`` (T, 4)
@@ -314,7 +314,7 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]))
 
 
-def lock_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, iterations: int = 3) -> np.ndarray:
+def lock_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, iterations: int = 2) -> np.ndarray:
     """(T, nq) poses whose held ankles and toe points (``held`` (T, 4): left ankle, left toe, right ankle, right
     toe) stay at the hold's mean place, on the floor (an ankle at the standing ankle height, a toe point at 0), the
     lock eased in and out over ``LOCK_BLEND`` seconds around each hold (poses at ``fps``): a few Gauss-Newton

@@ -219,3 +219,23 @@ def test_http_answers_the_robots_trajectory(pipe):
     assert body["robot"] == "g1" and body["fps"] == 50 and np.asarray(body["qpos"]).shape == (148, 36)
     assert body["columns"][:3] == ["base_x", "base_y", "base_z"] and body["seed"] == 0
     assert bad.status_code == 422 and wrong_format.status_code == 422 and "JSON" in wrong_format.json()["error"]
+
+
+def test_without_mujoco_every_door_says_how_to_get_it(tmp_path, capsys, monkeypatch, pipe):
+    """The robot extra missing: the CLI answers one line naming it (exit 2, before any generation), HTTP a 422."""
+    from serve.serve_helpers import call
+    from stablemofusion.robots import model as robot_model
+    from stablemofusion.serve import checks, create_app
+
+    monkeypatch.setattr(robot_model, "mujoco", None)
+    monkeypatch.setattr(checks, "mujoco", None)
+    robot_model.load_robot.cache_clear()
+    try:
+        assert main(["generate", "a person bows", "--robot", "g1", "--out", str(tmp_path)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "pip install 'stablemofusion[robot]'" in err[0] and not list(tmp_path.iterdir())
+        (answer,) = call(create_app(pipe, max_streams=0),
+                         ("POST", "/v1/generate", {"prompt": "a person bows", "robot": "g1"}))
+        assert answer.status_code == 422 and "MuJoCo is not installed" in answer.json()["error"]
+    finally:
+        robot_model.load_robot.cache_clear()

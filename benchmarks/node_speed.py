@@ -21,22 +21,12 @@ from stablemofusion.serve.site import write_site
 HERE = Path(__file__).resolve().parent
 
 SCRIPT = r"""
-import { readFile } from 'node:fs/promises';
 import { join } from 'node:path';
 import { pathToFileURL } from 'node:url';
 const site = process.argv[2];
 const { prompts, rounds } = JSON.parse(process.argv[3]);
-const { MotionRuntime } = await import(pathToFileURL(join(site, 'runtime', 'smf.js')).href);
-const ortDir = join(site, 'vendor', 'onnxruntime-web');
-const ort = await import(pathToFileURL(join(ortDir, 'ort.wasm.min.mjs')).href);
-ort.env.wasm.numThreads = 1;
-ort.env.wasm.wasmPaths = pathToFileURL(ortDir + '/').href;
-const { Tokenizer } = await import(pathToFileURL(join(site, 'vendor', 'tokenizers', 'tokenizers.min.mjs')).href);
-const read = async (name, kind) => {
-  const bytes = await readFile(join(site, 'model', name));
-  return kind === 'json' ? JSON.parse(bytes.toString('utf8')) : new Uint8Array(bytes);
-};
-const rt = await MotionRuntime.load({ ort, Tokenizer, read });
+const { loadRuntime } = await import(pathToFileURL(join(site, 'runtime', 'node.mjs')).href);
+const rt = await loadRuntime(site);
 for (const prompt of prompts) for (const fs of ['off', 'post']) await rt.generate({ prompt, seconds: 4, seed: 0, footskate: fs });
 const best = { off: prompts.map(() => Infinity), post: prompts.map(() => Infinity) };
 const perRound = [];

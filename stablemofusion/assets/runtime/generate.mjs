@@ -2,10 +2,9 @@
 //   node runtime/generate.mjs "a person waves both hands" [--seconds 4] [--seed 0] [--footskate post|off]
 //                             [--path '[[0, 0], [0, 3], [3, 3]]']
 // prints {"joints": [frames][22][3] metres, "fps", "prompt", "seed", "similarity", "outOfDomain", "closest"} as JSON.
-import { readFile } from 'node:fs/promises';
 import { dirname, join } from 'node:path';
-import { fileURLToPath, pathToFileURL } from 'node:url';
-import { MotionRuntime } from './smf.js';
+import { fileURLToPath } from 'node:url';
+import { loadRuntime } from './node.mjs';
 
 const site = join(dirname(fileURLToPath(import.meta.url)), '..');
 const args = process.argv.slice(2);
@@ -21,17 +20,8 @@ const footskate = option('--footskate', 'post');
 const pathText = option('--path', null);
 const prompt = args.join(' ');
 
-const ortDir = join(site, 'vendor', 'onnxruntime-web');
-const ort = await import(pathToFileURL(join(ortDir, 'ort.wasm.min.mjs')).href);
-ort.env.wasm.numThreads = 1;
-ort.env.wasm.wasmPaths = pathToFileURL(ortDir + '/').href;
-const { Tokenizer } = await import(pathToFileURL(join(site, 'vendor', 'tokenizers', 'tokenizers.min.mjs')).href);
-const read = async (name, kind) => {
-  const bytes = await readFile(join(site, 'model', name));
-  return kind === 'json' ? JSON.parse(bytes.toString('utf8')) : new Uint8Array(bytes);
-};
 try {
-  const runtime = await MotionRuntime.load({ ort, Tokenizer, read });
+  const runtime = await loadRuntime(site);
   const path = pathText === null ? null : JSON.parse(pathText);
   const motion = await runtime.generate({ prompt, seconds, seed, footskate, path });
   process.stdout.write(JSON.stringify(motion));

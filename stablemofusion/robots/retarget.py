@@ -363,23 +363,25 @@ def lock_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, iter
     return out
 
 
-def separate(robot: Robot, qpos: np.ndarray, iterations: int = 3 * EXTRA_ITERATIONS) -> np.ndarray:
-    """(T, nq) poses in which the robot's own bodies touch pushed apart (only those frames, each from its own
-    pose, the targets its current sites, so that nothing else moves more than it must)."""
+def separate(robot: Robot, qpos: np.ndarray, iterations: int = 3 * EXTRA_ITERATIONS, rounds: int = 4) -> np.ndarray:
+    """(T, nq) poses in which the robot's own bodies touch pushed apart (only those frames, each from its own pose,
+    the targets its current sites, held loosely so that nothing else moves more than it must; up to ``rounds``
+    rounds, each from where the last one stopped)."""
     s = _Solver(robot)
     out = qpos.copy()
     for t in range(len(qpos)):
         s.d.qpos[:] = qpos[t]
-        if not s.self_contacts():
-            continue
-        mujoco.mj_kinematics(robot.model, s.d)
-        sites = s.d.site_xpos[robot.sites].copy()
-        toes = np.stack([s.d.xmat[f.body].reshape(3, 3) @ f.toe + s.d.xpos[f.body] for f in robot.soles])
-        axes = s.d.xmat[robot.free_body].reshape(3, 3).T.copy()
-        for _ in range(iterations):
-            s.step(sites, toes, axes, True, SEPARATE_HOLD * s.w)
+        for _ in range(rounds):
             if not s.self_contacts():
                 break
+            mujoco.mj_kinematics(robot.model, s.d)
+            sites = s.d.site_xpos[robot.sites].copy()
+            toes = np.stack([s.d.xmat[f.body].reshape(3, 3) @ f.toe + s.d.xpos[f.body] for f in robot.soles])
+            axes = s.d.xmat[robot.free_body].reshape(3, 3).T.copy()
+            for _ in range(iterations):
+                s.step(sites, toes, axes, True, SEPARATE_HOLD * s.w)
+                if not s.self_contacts():
+                    break
         out[t] = s.d.qpos
     return out
 

@@ -138,8 +138,7 @@ class Robot:
         at = {j: data.site_xpos[ids[j]].copy() for j in ids}
         self.soles = tuple(self._sole(data, ids[j]) for j in FOOT_JOINTS)
         low = min(self.sole_heights(data, s).min() for s in self.soles)
-        side = "left"
-        if all(f"{side}_{j}" in at for j in ("hip", "knee", "ankle")):
+        if all(j in at for j in ("left_hip", "left_knee", "left_ankle")):
             self.leg = float(np.linalg.norm(at["left_hip"] - at["left_knee"])
                              + np.linalg.norm(at["left_knee"] - at["left_ankle"]))
         else:
@@ -149,7 +148,7 @@ class Robot:
             if side is not None and where[1] * side < 0:
                 raise SMFError(f"{self.path}: site {sites[joint]!r}, which the joint map gives {joint}, lies on the "
                                f"robot's {'right' if side > 0 else 'left'} side at rest; map {joint} to a site on "
-                               f"its {joint.split('_')[0]} side (--joint-map)")
+                               f"its {joint.split('_')[0]} side (--robot-map)")
         self.rest_ankle = float(at["left_ankle"][2] - low)
         self.rest_toe = data.xmat[self.soles[0].body].reshape(3, 3) @ self.soles[0].toe \
             + data.xpos[self.soles[0].body] - at["left_ankle"]

@@ -8,11 +8,11 @@
    pose, joints kept inside their ranges, the robot's own bodies pushed apart where they would touch;
 5. :func:`lock_feet`: each held ankle and toe kept at its hold's mean place on the floor, eased in and out (foot
    locking);
-6. :func:`separate`: at the control rate, frames in which the robot's own bodies still touch pushed apart;
-7. :func:`floor_feet`: the floating base raised or lowered so that a planted foot's sole is on the floor and no
-   sole goes below it;
-8. :func:`resample_qpos`: the trajectory at the control rate (50 Hz), angles linearly, the base quaternion by
-   normalised linear interpolation.
+6. :func:`resample_qpos`: the trajectory at the control rate (50 Hz), angles linearly, the base quaternion by
+   normalised linear interpolation;
+7. :func:`separate`: frames in which the robot's own bodies still touch pushed apart;
+8. :func:`floor_feet`: the floating base raised or lowered so that a planted foot's sole is on the floor and no
+   sole goes below it.
 """
 
 from __future__ import annotations
@@ -143,10 +143,6 @@ def pelvis_axes(joints: np.ndarray) -> np.ndarray:
     return np.stack([np.cross(left, up), left, up], axis=1)
 
 
-def _yaw_quat(yaw: float) -> np.ndarray:
-    return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
-
-
 def count_self_contacts(model, data, below: float = 0.0) -> int:
     """How many of ``data``'s contacts (after ``mj_collision``) join two of the robot's own bodies closer than
     ``below`` (m; 0: penetrating)."""
@@ -165,9 +161,11 @@ class _Solver:
         self.r, self.m = robot, robot.model
         self.d = mujoco.MjData(self.m)
         nv = self.m.nv
-        self.jacp = np.zeros((3, nv))
         self.w = np.concatenate([np.repeat(robot.weights, 3), np.full(6, TOE_WEIGHT), np.full(6, BASE_WEIGHT)])
-        self.jac0 = np.zeros((3, nv))
+        K, names = len(robot.sites), list(robot.human_names)
+        ankles = [names.index(j) for j in ("left_ankle", "right_ankle")]
+        # the rows of the left ankle, left toe point, right ankle, right toe point (the held joints' order)
+        self.feet_rows = [np.arange(3 * k, 3 * k + 3) for k in (ankles[0], K, ankles[1], K + 1)]
         self.prior = np.zeros(nv)
         self.prior[6:] = POSTURE_WEIGHT
         m = self.m
@@ -199,13 +197,31 @@ class _Solver:
         jac[:, :, 0:3] = np.eye(3)
         return jac * self.moves[bodies][:, None, :]
 
+    def weights(self, share: np.ndarray) -> np.ndarray:
+        """The rows' weights with the feet's ankles and toe points weighted up by ``share`` (4,) of ``HELD_BOOST``
+        (1: held, 0: free; the held joints' order)."""
+        w = self.w.copy()
+        for rows, k in zip(self.feet_rows, share):
+            w[rows] *= 1 + (HELD_BOOST - 1) * k
+        return w
+
+    def toe_points(self) -> np.ndarray:
+        """(2, 3) the soles' toe points, left and right, in the current kinematics."""
+        d = self.d
+        return np.stack([d.xmat[f.body].reshape(3, 3) @ f.toe + d.xpos[f.body] for f in self.r.soles])
+
+    def here(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The current pose's own sites, toe points and base axes (the targets that keep it where it is)."""
+        mujoco.mj_kinematics(self.m, self.d)
+        return (self.d.site_xpos[self.r.sites].copy(), self.toe_points(),
+                self.d.xmat[self.r.free_body].reshape(3, 3).T.copy())
+
     def _errors(self, sites: np.ndarray, toes: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         m, d, r = self.m, self.d, self.r
         mujoco.mj_kinematics(m, d)
         base = r.free_body
         rot, origin = d.xmat[base].reshape(3, 3), d.xpos[base]
-        soles = [d.xmat[s.body].reshape(3, 3) @ s.toe + d.xpos[s.body] for s in r.soles]
-        points = np.concatenate([d.site_xpos[r.sites], soles, [origin + BASE_LEVER * rot[:, 1],
+        points = np.concatenate([d.site_xpos[r.sites], self.toe_points(), [origin + BASE_LEVER * rot[:, 1],
                                                                  origin + BASE_LEVER * rot[:, 2], origin]])
         jac = self._jacobians(points, self.point_bodies)
         jac[-3:-1] -= jac[-1]
@@ -218,16 +234,15 @@ class _Solver:
         closer than the margin."""
         m, d = self.m, self.d
         mujoco.mj_collision(m, d)
-        near = [c for c in d.contact[:d.ncon] if m.geom_bodyid[c.geom1] > 0 and m.geom_bodyid[c.geom2] > 0
-                and c.dist < COLLISION_MARGIN]
-        if not near:
+        n = d.ncon
+        pairs = m.geom_bodyid[d.contact.geom[:n]] if n else np.zeros((0, 2), int)
+        near = (pairs > 0).all(axis=1) & (d.contact.dist[:n] < COLLISION_MARGIN) if n else np.zeros(0, bool)
+        if not near.any():
             return np.zeros((0, m.nv)), np.zeros(0)
-        points = np.array([c.pos for c in near])
-        normals = np.array([c.frame[:3] for c in near])
-        j1 = self._jacobians(points, m.geom_bodyid[[c.geom1 for c in near]])
-        j2 = self._jacobians(points, m.geom_bodyid[[c.geom2 for c in near]])
+        points, normals = d.contact.pos[:n][near], d.contact.frame[:n, :3][near]
+        j1, j2 = self._jacobians(points, pairs[near, 0]), self._jacobians(points, pairs[near, 1])
         rows = np.einsum("ck,ckv->cv", normals, j2 - j1)
-        return rows, COLLISION_MARGIN - np.array([c.dist for c in near])
+        return rows, COLLISION_MARGIN - d.contact.dist[:n][near]
 
     def step(self, sites: np.ndarray, toes: np.ndarray, axes: np.ndarray, contacts: bool,
              weights: np.ndarray | None = None, smooth_to: np.ndarray | None = None) -> float:
@@ -248,7 +263,8 @@ class _Solver:
         a[np.diag_indices_from(a)] += DAMPING + self.prior
         g -= self.prior * dq_prior
         if smooth_to is not None:
-            a[np.diag_indices(m.nv)[0][6:], np.diag_indices(m.nv)[1][6:]] += SMOOTH_WEIGHT
+            joints = np.arange(6, m.nv)
+            a[joints, joints] += SMOOTH_WEIGHT
             g[6:] -= SMOOTH_WEIGHT * (d.qpos[7:] - smooth_to)
         dq = np.linalg.solve(a, g)
         q, (lo, hi) = d.qpos[7:], self.r.ranges.T
@@ -277,13 +293,7 @@ def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.nd
     feet weighted up, the joints pulled toward the previous frames' pace (no sudden jumps), joints inside their
     ranges, self-contacts pushed apart (further iterations of a frame while any remain)."""
     s = _Solver(robot)
-    K = len(robot.sites)
-    weights = np.repeat(s.w[None], len(targets), axis=0)
-    if held is not None:
-        for f, name in enumerate(("left_ankle", "right_ankle")):
-            k = list(robot.human_names).index(name)
-            weights[held[:, 2 * f], 3 * k:3 * k + 3] *= HELD_BOOST
-            weights[held[:, 2 * f + 1], 3 * K + 3 * f:3 * K + 3 * f + 3] *= HELD_BOOST
+    held = np.zeros((len(targets), 4)) if held is None else held
     q = robot.rest.copy()
     pelvis = list(robot.human_names).index("pelvis")
     q[:2] = targets[0, pelvis, :2]
@@ -297,13 +307,14 @@ def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.nd
             pace = np.clip(2 * out[t - 1, 7:] - out[t - 2, 7:], lo, hi)
             s.d.qpos[:3] += out[t - 1, :3] - out[t - 2, :3]
             s.d.qpos[7:] = pace
+        weights = s.weights(held[t])
         for i in range(first_iterations if t == 0 else iterations):
-            if s.step(targets[t], toes[t], axes[t], False, weights[t], pace) < TOLERANCE:
+            if s.step(targets[t], toes[t], axes[t], False, weights, pace) < TOLERANCE:
                 break
         for _ in range(EXTRA_ITERATIONS):  # the robot's own bodies still touching: pushed apart further
             if not s.self_contacts():
                 break
-            s.step(targets[t], toes[t], axes[t], True, weights[t], pace)
+            s.step(targets[t], toes[t], axes[t], True, weights, pace)
         out[t] = s.d.qpos
     return out
 
@@ -321,41 +332,33 @@ def lock_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, iter
     steps from each pose,
     every other target its own current place."""
     s = _Solver(robot)
-    m, K, names = robot.model, len(robot.sites), list(robot.human_names)
+    names = list(robot.human_names)
     ankles = [robot.sites[names.index(j)] for j in ("left_ankle", "right_ankle")]
     T = len(qpos)
     spots = np.empty((T, 4, 3))  # where each ankle site and toe point is
     for t in range(T):
         s.d.qpos[:] = qpos[t]
-        mujoco.mj_kinematics(m, s.d)
-        for f, sole in enumerate(robot.soles):
-            spots[t, 2 * f] = s.d.site_xpos[ankles[f]]
-            spots[t, 2 * f + 1] = s.d.xmat[sole.body].reshape(3, 3) @ sole.toe + s.d.xpos[sole.body]
+        mujoco.mj_kinematics(robot.model, s.d)
+        spots[t, 0::2], spots[t, 1::2] = s.d.site_xpos[ankles], s.toe_points()
     anchors, share = spots.copy(), np.zeros((T, 4))  # where each is pulled to, and how fully (1 inside a hold)
+    blend = max(1, round(LOCK_BLEND * fps))
     for j in range(4):
         for a, b in _runs(held[:, j]):
             spot = np.array([*spots[a:b, j, :2].mean(axis=0), robot.rest_ankle if j % 2 == 0 else 0.0])
             anchors[a:b, j], share[a:b, j] = spot, 1.0
-            blend = max(1, round(LOCK_BLEND * fps))
             for k in range(1, blend + 1):  # eased in before the hold and out after it
                 ease = 1 - k / (blend + 1)
                 for t in (a - k, b - 1 + k):
                     if 0 <= t < T and ease > share[t, j]:
                         anchors[t, j], share[t, j] = spot, ease
     targets = spots + share[..., None] * (anchors - spots)
+    feet = [names.index(j) for j in ("left_ankle", "right_ankle")]
     out = qpos.copy()
     for t in np.nonzero(share.any(axis=1))[0]:
         s.d.qpos[:] = qpos[t]
-        mujoco.mj_kinematics(m, s.d)
-        sites = s.d.site_xpos[robot.sites].copy()
-        toes = spots[t, 1::2].copy()
-        axes = s.d.xmat[robot.free_body].reshape(3, 3).T.copy()
-        weights = s.w.copy()
-        for f in range(2):
-            k = names.index(("left_ankle", "right_ankle")[f])
-            sites[k], toes[f] = targets[t, 2 * f], targets[t, 2 * f + 1]
-            weights[3 * k:3 * k + 3] *= 1 + (HELD_BOOST - 1) * share[t, 2 * f]
-            weights[3 * K + 3 * f:3 * K + 3 * f + 3] *= 1 + (HELD_BOOST - 1) * share[t, 2 * f + 1]
+        sites, toes, axes = s.here()
+        sites[feet], toes = targets[t, 0::2], targets[t, 1::2]
+        weights = s.weights(share[t])
         for _ in range(iterations):
             if s.step(sites, toes, axes, False, weights) < TOLERANCE:
                 break
@@ -374,10 +377,7 @@ def separate(robot: Robot, qpos: np.ndarray, iterations: int = 3 * EXTRA_ITERATI
         for _ in range(rounds):
             if not s.self_contacts():
                 break
-            mujoco.mj_kinematics(robot.model, s.d)
-            sites = s.d.site_xpos[robot.sites].copy()
-            toes = np.stack([s.d.xmat[f.body].reshape(3, 3) @ f.toe + s.d.xpos[f.body] for f in robot.soles])
-            axes = s.d.xmat[robot.free_body].reshape(3, 3).T.copy()
+            sites, toes, axes = s.here()
             for _ in range(iterations):
                 s.step(sites, toes, axes, True, SEPARATE_HOLD * s.w)
                 if not s.self_contacts():
@@ -396,8 +396,7 @@ def floor_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray) -> np.ndarra
         mujoco.mj_kinematics(robot.model, d)
         low = np.array([robot.sole_heights(d, sole).min() for sole in robot.soles])
         standing = low[planted[t]]
-        shift = -standing.min() if len(standing) else max(0.0, -low.min())
-        out[t, 2] += max(shift, -low.min())
+        out[t, 2] += max(-standing.min() if len(standing) else 0.0, -low.min())
     return out
 
 

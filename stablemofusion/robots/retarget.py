@@ -184,7 +184,7 @@ class _Solver:
     def _jacobians(self, points: np.ndarray, bodies: np.ndarray) -> np.ndarray:
         """(P, 3, nv) the world-frame position Jacobians of ``points`` (P, 3) fixed to ``bodies`` (P,), from the
         current kinematics (MuJoCo's free joint: world translation, then rotation about the body's own axes)."""
-        m, d = self.m, self.d
+        d = self.d
         axis, anchor = d.xaxis[self.dof_jnt].copy(), d.xanchor[self.dof_jnt].copy()
         base = self.r.free_body
         axis[3:6] = d.xmat[base].reshape(3, 3).T  # rows: the base's own axes

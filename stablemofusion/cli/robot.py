@@ -25,13 +25,13 @@ def add_robot_arguments(p: argparse.ArgumentParser) -> None:
 def robot_formats(args: argparse.Namespace) -> list[str]:
     """The checked --robot-format list (empty without --robot); the robot itself is loaded now, so that a bad robot,
     map or missing MuJoCo is answered before any generation."""
-    from ..robots.files import ROBOT_FORMATS
-    from ..robots.model import load_robot
-
-    if args.robot is None:
+    if args.robot is None:  # MuJoCo is imported only when a robot is asked for
         if args.robot_map is not None or args.robot_format is not None:
             raise SMFError("--robot-map and --robot-format go with --robot")
         return []
+    from ..robots.files import ROBOT_FORMATS
+    from ..robots.model import load_robot
+
     formats = [f.strip().lower() for f in (args.robot_format or DEFAULT_ROBOT_FORMATS).split(",") if f.strip()]
     bad = [f for f in formats if f not in ROBOT_FORMATS]
     if bad or not formats:

@@ -239,3 +239,15 @@ def test_without_mujoco_every_door_says_how_to_get_it(tmp_path, capsys, monkeypa
         assert answer.status_code == 422 and "MuJoCo is not installed" in answer.json()["error"]
     finally:
         robot_model.load_robot.cache_clear()
+
+
+def test_a_generation_without_a_robot_does_not_load_mujoco(tmp_path):
+    """MuJoCo (about 0.2 s to import) loads only when a robot is asked for, not on every `smf generate`."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from stablemofusion.cli.main import main; "
+            f"rc = main(['generate', 'a person walks', '--seconds', '2', '--seed', '0', '--format', 'json', "
+            f"'--engine', 'onnx', '--out', {str(tmp_path)!r}]); print(rc, 'mujoco' in sys.modules)")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert run.stdout.strip().splitlines()[-1] == "0 False", run.stdout + run.stderr

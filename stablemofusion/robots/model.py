@@ -3,9 +3,8 @@ human joints drive, its feet's soles, its size. Needs MuJoCo (``pip install 'sta
 
 from __future__ import annotations
 
+import copy
 import json
-import os
-import sys
 from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
@@ -15,13 +14,8 @@ import numpy as np
 
 from ..core.errors import SMFError
 from ..motion.skeleton import HUMANML3D
-
-if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
-    os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering without a display (MuJoCo reads it on import)
-try:
-    import mujoco
-except ImportError:  # the optional extra: every entry point says how to install it
-    mujoco = None
+from .kinematics import Chain, chain_of
+from .mj import mujoco
 
 BUILT_IN = ("g1", "h1")  # shipped in assets/robots/<name>/scene.xml (decimated meshes, BSD-3-Clause, Unitree)
 FOOT_JOINTS = ("left_ankle", "right_ankle")
@@ -97,7 +91,8 @@ class Robot:
     """An MJCF humanoid with a free joint at its root, read once: ``model`` (MuJoCo), ``joint_names`` and
     ``ranges`` (J, 2) rad of its hinge joints in qpos order, the sites ``sites`` (K,) driven by the human joints
     ``human`` (K,) with ``weights`` (K,), the two feet's ``soles``, ``leg`` (hip to knee to ankle at rest, m) and
-    ``rest_ankle`` (ankle site above the sole, flat footed, m)."""
+    ``rest_ankle`` (ankle site above the sole, flat footed, m); ``chain`` its tree for kinematics of many poses at
+    once; ``own`` the model for its self-contacts (the world's geoms collide with nothing)."""
 
     def __init__(self, path: str | Path, joint_map: str | Path | None = None, name: str | None = None):
         require_mujoco()
@@ -115,6 +110,8 @@ class Robot:
                                                                         int(mujoco.mjtJoint.mjJNT_SLIDE))]
         if len(hinge) != m.njnt - 1 or m.nq != 7 + len(hinge):
             raise SMFError(f"{self.path}: only one free joint and hinge or slide joints are supported")
+        if np.bincount(m.jnt_bodyid, minlength=m.nbody).max() > 1:
+            raise SMFError(f"{self.path}: a body with more than one joint is not supported (one hinge or slide each)")
         self.joint_names = tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}" for j in hinge)
         lo = np.where(m.jnt_limited[hinge].astype(bool), m.jnt_range[hinge, 0], -np.inf)
         hi = np.where(m.jnt_limited[hinge].astype(bool), m.jnt_range[hinge, 1], np.inf)
@@ -131,6 +128,10 @@ class Robot:
         self.sites = np.array(list(ids.values()))
         self.weights = np.array([weights[j] for j in ids])
         self.free_body = int(m.jnt_bodyid[0])
+        self.chain: Chain = chain_of(m, self.free_body)
+        self.own = copy.deepcopy(m)  # the robot alone: the world's geoms (its floor) collide with nothing
+        fixed = self.own.geom_bodyid == 0
+        self.own.geom_contype[fixed], self.own.geom_conaffinity[fixed] = 0, 0
         data = mujoco.MjData(m)
         self.rest = self.neutral()
         data.qpos[:] = self.rest

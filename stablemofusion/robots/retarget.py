@@ -4,14 +4,14 @@
 2. :func:`planted_feet`: the frames each foot stands (the cleanup's holds, else the kinematic contacts);
 3. :func:`keypoint_targets`: the human joints scaled to the robot's leg length, raised so that a planted ankle sits
    at the robot's ankle height, and each foot's toe point from the human foot's heading and pitch;
-4. :func:`solve_poses`: per frame, damped Gauss-Newton on the weighted target errors from the previous frame's
-   pose, joints kept inside their ranges, the robot's own bodies pushed apart where they would touch;
-5. :func:`lock_feet`: each held ankle and toe kept at its hold's mean place on the floor, eased in and out (foot
-   locking);
-6. :func:`resample_qpos`: the trajectory at the control rate (50 Hz), angles linearly, the base quaternion by
+4. :func:`solve_poses`: every frame at once, damped Gauss-Newton on the weighted target errors (the robot's
+   kinematics from MuJoCo, its Jacobians for all frames together: :mod:`.kinematics`), held feet locked
+   (:func:`lock_targets`: each held ankle and toe kept at its hold's mean place on the floor, eased in and out),
+   joints kept inside their ranges, the robot's own bodies pushed apart where they overlap;
+5. :func:`resample_qpos`: the trajectory at the control rate (50 Hz), angles linearly, the base quaternion by
    normalised linear interpolation;
-7. :func:`separate`: frames in which the robot's own bodies still touch pushed apart;
-8. :func:`floor_feet`: the floating base raised or lowered so that a planted foot's sole is on the floor and no
+6. :func:`separate`: frames in which the robot's own bodies still overlap pushed apart, standing feet held;
+7. :func:`floor_feet`: the floating base raised or lowered so that a planted foot's sole is on the floor and no
    sole goes below it.
 """
 
@@ -24,15 +24,20 @@ import numpy as np
 from ..footskate.contacts import kinematic_contacts
 from ..motion.resample import resample
 from ..motion.rotation import matrix_to_quat
+from . import kinematics as kin
 from .model import Robot, mujoco
 
 CONTROL_FPS = 50.0
 TOE_WEIGHT = 5.0
 BASE_WEIGHT = 2.0  # the floating base turned as the human pelvis (two points 0.2 m off its origin)
 BASE_LEVER = 0.2
-COLLISION_MARGIN = 0.02  # m the retarget keeps between the robot's own bodies (interpolated frames between)
+CLEARANCE = 0.02  # m the retarget pushes apart to between the robot's own bodies (interpolated frames between)
 COLLISION_WEIGHT = 200.0
-EXTRA_ITERATIONS = 8
+COARSE_STRIDE = 2  # the first pass solves every COARSE_STRIDE-th frame,
+COARSE_ITERATIONS = 6  # this many iterations from the reference pose,
+LOCK_ITERATIONS = 3  # then this many with the feet locked (the frames between interpolated),
+ITERATIONS = 1  # then every frame this many
+SEPARATE_ITERATIONS = 24  # at most, per round of pushing the robot's own bodies apart at the control rate
 HELD_BOOST = 10.0  # a held ankle's or toe's weight, times its usual one
 SMOOTH_WEIGHT = 0.02  # pulls each joint toward the previous frames' pace
 SEPARATE_HOLD = 0.01  # how much a pose being pushed apart holds to its own place (times the usual weights)
@@ -40,7 +45,7 @@ LOCK_BLEND = 0.1  # s over which a foot lock eases in before a hold and out afte
 TOLERANCE = 1e-3  # rad (or m): a frame's solve stops when no coordinate moves more
 POSTURE_WEIGHT = 1e-3  # pulls redundant joints (waist, wrists) toward the reference pose
 DAMPING = 1e-2
-MAX_STEP = 0.2  # rad (or m) one iteration may move any coordinate
+MAX_STEP = 0.4  # rad (or m) one iteration may move any coordinate
 
 
 @dataclass
@@ -153,170 +158,188 @@ def count_self_contacts(model, data, below: float = 0.0) -> int:
     return int(((bodies > 0).all(axis=1) & (data.contact.dist[:n] < below)).sum())
 
 
-class _Solver:
-    """Per-frame IK on one MuJoCo data: weighted site and toe-point errors, posture prior, joint ranges, and
-    self-contacts pushed apart."""
+def _layout(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
+    """The points the solve moves: (P,) bodies and (P, 3) places in their frames, the driven sites, the two soles'
+    toe points (left, right), then two points ``BASE_LEVER`` along the base's left and up axes."""
+    m = robot.model
+    bodies = np.concatenate([m.site_bodyid[robot.sites], [f.body for f in robot.soles], [robot.free_body] * 2])
+    local = np.concatenate([m.site_pos[robot.sites], [f.toe for f in robot.soles],
+                            [[0.0, BASE_LEVER, 0.0], [0.0, 0.0, BASE_LEVER]]])
+    return bodies, local
 
-    def __init__(self, robot: Robot):
-        self.r, self.m = robot, robot.model
-        self.d = mujoco.MjData(self.m)
-        nv = self.m.nv
-        self.w = np.concatenate([np.repeat(robot.weights, 3), np.full(6, TOE_WEIGHT), np.full(6, BASE_WEIGHT)])
-        K, names = len(robot.sites), list(robot.human_names)
-        ankles = [names.index(j) for j in ("left_ankle", "right_ankle")]
-        # the rows of the left ankle, left toe point, right ankle, right toe point (the held joints' order)
-        self.feet_rows = [np.arange(3 * k, 3 * k + 3) for k in (ankles[0], K, ankles[1], K + 1)]
-        self.prior = np.zeros(nv)
-        self.prior[6:] = POSTURE_WEIGHT
-        m = self.m
-        self.dof_jnt = m.dof_jntid.copy()
-        self.slide = np.array([int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_SLIDE) for j in m.dof_jntid])
-        # moves[b, v]: dof v moves body b (its joint's body is b or an ancestor of b)
-        self.moves = np.zeros((m.nbody, nv))
-        for b in range(m.nbody):
-            a = b
-            while a > 0:
-                self.moves[b, m.dof_bodyid == a] = 1.0
-                a = int(m.body_parentid[a])
-        self.point_bodies = np.concatenate([m.site_bodyid[robot.sites], [s.body for s in robot.soles],
-                                            [robot.free_body] * 3])
 
-    def _jacobians(self, points: np.ndarray, bodies: np.ndarray) -> np.ndarray:
-        """(P, 3, nv) the world-frame position Jacobians of ``points`` (P, 3) fixed to ``bodies`` (P,), from the
-        current kinematics (MuJoCo's free joint: world translation, then rotation about the body's own axes)."""
-        d = self.d
-        axis, anchor = d.xaxis[self.dof_jnt].copy(), d.xanchor[self.dof_jnt].copy()
-        base = self.r.free_body
-        axis[3:6] = d.xmat[base].reshape(3, 3).T  # rows: the base's own axes
-        anchor[3:6] = d.xpos[base]
-        arm = points[:, None] - anchor[None]  # (P, nv, 3)
-        ax, ay, az = axis[None, :, 0], axis[None, :, 1], axis[None, :, 2]
-        jac = np.stack([ay * arm[..., 2] - az * arm[..., 1], az * arm[..., 0] - ax * arm[..., 2],
-                        ax * arm[..., 1] - ay * arm[..., 0]], axis=1)  # (P, 3, nv) rotation: axis x arm
-        jac[:, :, self.slide] = axis[self.slide].T[None]
-        jac[:, :, 0:3] = np.eye(3)
-        return jac * self.moves[bodies][:, None, :]
+def _wanted(targets: np.ndarray, toes: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """(T, P, 3) where the :func:`_layout` points should be: site targets, toe points, and the pelvis's left and
+    up axes ``BASE_LEVER`` long (relative to the base, whose place is left to the sites)."""
+    return np.concatenate([targets, toes, BASE_LEVER * axes[:, 1:3]], axis=1)
 
-    def weights(self, share: np.ndarray) -> np.ndarray:
-        """The rows' weights with the feet's ankles and toe points weighted up by ``share`` (4,) of ``HELD_BOOST``
-        (1: held, 0: free; the held joints' order)."""
-        w = self.w.copy()
-        for rows, k in zip(self.feet_rows, share):
-            w[rows] *= 1 + (HELD_BOOST - 1) * k
-        return w
 
-    def toe_points(self) -> np.ndarray:
-        """(2, 3) the soles' toe points, left and right, in the current kinematics."""
-        d = self.d
-        return np.stack([d.xmat[f.body].reshape(3, 3) @ f.toe + d.xpos[f.body] for f in self.r.soles])
+def _weights(robot: Robot, share: np.ndarray) -> np.ndarray:
+    """(T, 3P) the rows' weights, the feet's ankles and toe points weighted up by ``share`` (T, 4) of
+    ``HELD_BOOST`` (1: held, 0: free; left ankle, left toe, right ankle, right toe)."""
+    K = len(robot.sites)
+    w = np.concatenate([np.repeat(robot.weights, 3), np.full(6, TOE_WEIGHT), np.full(6, BASE_WEIGHT)])
+    w = np.repeat(w[None], len(share), axis=0)
+    names = list(robot.human_names)
+    for j, point in enumerate((names.index("left_ankle"), K, names.index("right_ankle"), K + 1)):
+        w[:, 3 * point:3 * point + 3] *= 1 + (HELD_BOOST - 1) * share[:, j, None]
+    return w
 
-    def here(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The current pose's own sites, toe points and base axes (the targets that keep it where it is)."""
-        mujoco.mj_kinematics(self.m, self.d)
-        return (self.d.site_xpos[self.r.sites].copy(), self.toe_points(),
-                self.d.xmat[self.r.free_body].reshape(3, 3).T.copy())
 
-    def _errors(self, sites: np.ndarray, toes: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        m, d, r = self.m, self.d, self.r
-        mujoco.mj_kinematics(m, d)
-        base = r.free_body
-        rot, origin = d.xmat[base].reshape(3, 3), d.xpos[base]
-        points = np.concatenate([d.site_xpos[r.sites], self.toe_points(), [origin + BASE_LEVER * rot[:, 1],
-                                                                 origin + BASE_LEVER * rot[:, 2], origin]])
-        jac = self._jacobians(points, self.point_bodies)
-        jac[-3:-1] -= jac[-1]
-        want = np.concatenate([sites, toes, BASE_LEVER * axes[1:3]])
-        have = np.concatenate([points[:-3], BASE_LEVER * rot[:, 1:3].T])
-        return jac[:-1].reshape(-1, m.nv), (want - have).ravel()
+def _places(robot: Robot, data, qpos: np.ndarray) -> np.ndarray:
+    """(T, P, 3) the :func:`_layout` points of (T, nq) poses (kinematics on ``data``, an ``MjData`` of
+    ``robot.own``), the base's two as offsets from the base."""
+    poses = kin.forward(robot.own, data, robot.chain, qpos)
+    at = kin.points(poses, *_layout(robot))
+    at[:, -2:] -= poses.pos[:, robot.free_body, None]
+    return at
 
-    def _contacts(self) -> tuple[np.ndarray, np.ndarray]:
-        """Rows (C, nv) and wanted increases (C,) of the distances between the robot's own bodies that are
-        closer than the margin."""
-        m, d = self.m, self.d
-        mujoco.mj_collision(m, d)
-        n = d.ncon
-        pairs = m.geom_bodyid[d.contact.geom[:n]] if n else np.zeros((0, 2), int)
-        near = (pairs > 0).all(axis=1) & (d.contact.dist[:n] < COLLISION_MARGIN) if n else np.zeros(0, bool)
-        if not near.any():
-            return np.zeros((0, m.nv)), np.zeros(0)
-        points, normals = d.contact.pos[:n][near], d.contact.frame[:n, :3][near]
-        j1, j2 = self._jacobians(points, pairs[near, 0]), self._jacobians(points, pairs[near, 1])
-        rows = np.einsum("ck,ckv->cv", normals, j2 - j1)
-        return rows, COLLISION_MARGIN - d.contact.dist[:n][near]
 
-    def step(self, sites: np.ndarray, toes: np.ndarray, axes: np.ndarray, contacts: bool,
-             weights: np.ndarray | None = None, smooth_to: np.ndarray | None = None) -> float:
-        """One damped Gauss-Newton step toward the targets (``weights`` per row, else the usual ones), the joints
-        also pulled toward ``smooth_to`` (the previous frames' pace); returns the largest coordinate change."""
-        m, d = self.m, self.d
-        jac, err = self._errors(sites, toes, axes)
-        w = self.w if weights is None else weights
-        a = jac.T @ (w[:, None] * jac)
-        g = jac.T @ (w * err)
-        if contacts:
-            rows, want = self._contacts()
-            if len(rows):
-                a += COLLISION_WEIGHT * rows.T @ rows
-                g += COLLISION_WEIGHT * rows.T @ want
-        dq_prior = np.zeros(m.nv)
-        dq_prior[6:] = d.qpos[7:] - self.r.rest[7:]
-        a[np.diag_indices_from(a)] += DAMPING + self.prior
-        g -= self.prior * dq_prior
-        if smooth_to is not None:
-            joints = np.arange(6, m.nv)
-            a[joints, joints] += SMOOTH_WEIGHT
-            g[6:] -= SMOOTH_WEIGHT * (d.qpos[7:] - smooth_to)
-        dq = np.linalg.solve(a, g)
-        q, (lo, hi) = d.qpos[7:], self.r.ranges.T
-        stuck = ((q <= lo + 1e-9) & (dq[6:] < 0)) | ((q >= hi - 1e-9) & (dq[6:] > 0))
-        if stuck.any():  # joints at a limit and pushed past it: held there, the others solved again
-            held = np.concatenate([np.zeros(6, bool), stuck])
-            a[held, :], a[:, held], g[held] = 0.0, 0.0, 0.0
-            a[held, held] = 1.0
-            dq = np.linalg.solve(a, g)
-        dq *= min(1.0, MAX_STEP / max(float(np.abs(dq).max()), 1e-12))
-        mujoco.mj_integratePos(m, d.qpos, dq, 1.0)
-        d.qpos[7:] = np.clip(d.qpos[7:], self.r.ranges[:, 0], self.r.ranges[:, 1])
-        return float(np.abs(dq).max())
+def _contact_rows(robot: Robot, data, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For (T, nq) poses: rows (T, C, nv) of the distances between the robot's own bodies where they overlap (MuJoCo's
+    contacts: points, normals, depths) as functions of the velocity coordinates, and the increases (T, C) that
+    would bring each to ``CLEARANCE`` (rows of zeros where a pose has fewer than C)."""
+    m = robot.own
+    found = []
+    for q in qpos:
+        data.qpos[:] = q
+        mujoco.mj_kinematics(m, data)
+        mujoco.mj_collision(m, data)
+        n = data.ncon
+        pairs, dist = m.geom_bodyid[data.contact.geom[:n]], data.contact.dist[:n]
+        near = (pairs > 0).all(axis=1)
+        found.append((data.contact.pos[:n][near], data.contact.frame[:n, :3][near], pairs[near], CLEARANCE - dist[near]))
+    T, C = len(qpos), max(1, max(len(f[0]) for f in found))
+    at, normals, bodies, more = np.zeros((T, C, 3)), np.zeros((T, C, 3)), np.zeros((T, C, 2), int), np.zeros((T, C))
+    for t, (p, n, b, g) in enumerate(found):
+        at[t, :len(p)], normals[t, :len(p)], bodies[t, :len(p)], more[t, :len(p)] = p, n, b, g
+    poses = kin.forward(m, data, robot.chain, qpos)
+    jac = kin.jacobians(robot.chain, poses, np.concatenate([at, at], 1),
+                        np.concatenate([bodies[..., 0], bodies[..., 1]], 1))
+    return np.einsum("tck,tckv->tcv", normals, jac[:, C:] - jac[:, :C]), more
 
-    def self_contacts(self) -> int:
-        mujoco.mj_kinematics(self.m, self.d)
-        mujoco.mj_collision(self.m, self.d)
-        return count_self_contacts(self.m, self.d, below=COLLISION_MARGIN / 2)
+
+def _touching(robot: Robot, data, qpos: np.ndarray) -> np.ndarray:
+    """(T,) bool: the poses in which two of the robot's own bodies overlap (kinematics and collisions on ``data``,
+    an ``MjData`` of ``robot.own``)."""
+    m = robot.own
+    out = np.zeros(len(qpos), dtype=bool)
+    for t in range(len(qpos)):
+        data.qpos[:] = qpos[t]
+        mujoco.mj_kinematics(m, data)
+        mujoco.mj_collision(m, data)
+        out[t] = data.ncon > 0 and count_self_contacts(m, data) > 0
+    return out
+
+
+def _step(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.ndarray, pull: np.ndarray | None = None,
+          contacts: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """One damped Gauss-Newton step of every pose (T, nq) toward its ``wanted`` (T, P, 3) points, rows weighted by
+    ``weights`` (T, 3P): redundant joints pulled a little toward the reference pose, joints toward ``pull`` (T, J)
+    where given, the distances of ``contacts`` (rows, increases: :func:`_contact_rows`) pushed up, joints at a limit
+    and pushed past it held there (an active set), no coordinate moved more than ``MAX_STEP``. Returns the new
+    poses (joints clipped to their ranges) and each pose's largest coordinate change (T,)."""
+    chain, T = robot.chain, len(qpos)
+    nv = chain.nv
+    poses = kin.forward(robot.own, data, chain, qpos)
+    bodies, local = _layout(robot)
+    at = kin.points(poses, bodies, local)
+    jac = kin.jacobians(chain, poses, at, bodies, np.float32)  # a search direction: single precision will do
+    jac[:, -2:, :, :3] = 0.0  # the base's axes do not move with its place
+    at[:, -2:] -= poses.pos[:, robot.free_body, None]
+    jac, err = jac.reshape(T, -1, nv), (wanted - at).reshape(T, -1)
+    a = np.matmul(np.swapaxes(jac, 1, 2) * weights[:, None, :].astype(np.float32), jac).astype(float)
+    g = np.einsum("trv,tr->tv", jac, weights * err)
+    if contacts is not None:
+        rows, more = contacts
+        a += COLLISION_WEIGHT * np.matmul(np.swapaxes(rows, 1, 2), rows)
+        g += COLLISION_WEIGHT * np.einsum("tcv,tc->tv", rows, more)
+    diagonal = np.full(nv, DAMPING)
+    diagonal[6:] += POSTURE_WEIGHT
+    g[:, 6:] -= POSTURE_WEIGHT * (qpos[:, 7:] - robot.rest[7:])
+    if pull is not None:
+        diagonal[6:] += SMOOTH_WEIGHT
+        g[:, 6:] -= SMOOTH_WEIGHT * (qpos[:, 7:] - pull)
+    a[:, np.arange(nv), np.arange(nv)] += diagonal
+    q, (lo, hi) = qpos[:, 7:], robot.ranges.T
+    # joints at a limit that the gradient pushes past it: held there (an active set), the others solved
+    stuck = ((q <= lo + 1e-9) & (g[:, 6:] < 0)) | ((q >= hi - 1e-9) & (g[:, 6:] > 0))
+    free = np.concatenate([np.ones((T, 6), bool), ~stuck], axis=1)
+    a = a * (free[:, :, None] & free[:, None, :]) + np.eye(nv) * ~free[:, :, None]
+    dq = np.linalg.solve(a, (g * free)[..., None])[..., 0]
+    change = np.abs(dq).max(axis=1)
+    dq *= np.minimum(1.0, MAX_STEP / np.maximum(change, 1e-12))[:, None]
+    out = kin.integrate(qpos, dq)
+    out[:, 7:] = np.clip(out[:, 7:], lo, hi)
+    return out, change
+
+
+def _neighbours(qpos: np.ndarray) -> np.ndarray:
+    """(T, J) each pose's joints' mean over the poses before and after it (the one there is at either end)."""
+    q = qpos[:, 7:]
+    if len(q) < 2:
+        return q.copy()
+    before, after = np.concatenate([q[1:2], q[:-1]]), np.concatenate([q[1:], q[-2:-1]])
+    return (before + after) / 2
+
+
+def _iterate(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.ndarray, iterations: int,
+             touching: np.ndarray | None = None) -> np.ndarray:
+    """``iterations`` :func:`_step` of every pose, each pulled toward its neighbours' mean (no sudden jumps), the
+    robot's own bodies pushed apart in the poses ``touching`` (indices; their contacts found anew each step;
+    kinematics on ``data``, an ``MjData`` of ``robot.own``); stops early once no coordinate moves more than ``TOLERANCE``."""
+    touching = np.zeros(0, int) if touching is None else touching
+    for _ in range(iterations):
+        contacts = None
+        if len(touching):
+            rows, more = _contact_rows(robot, data, qpos[touching])
+            contacts = (np.zeros((len(qpos),) + rows.shape[1:]), np.zeros((len(qpos), rows.shape[1])))
+            contacts[0][touching], contacts[1][touching] = rows, more
+        qpos, change = _step(robot, data, qpos, wanted, weights, _neighbours(qpos), contacts)
+        if change.max() < TOLERANCE:
+            break
+    return qpos
+
+
+def _between(qpos: np.ndarray, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(len(dst), nq) poses at (fractional) frame indices ``dst`` from poses at indices ``src``: positions and
+    angles linearly, the base quaternion normalised after linear interpolation (signs made continuous)."""
+    q = qpos.copy()
+    flip = np.cumprod(np.where(np.einsum("ti,ti->t", q[1:, 3:7], q[:-1, 3:7]) < 0, -1.0, 1.0))
+    q[1:, 3:7] *= flip[:, None]
+    out = np.stack([np.interp(dst, src, q[:, k]) for k in range(q.shape[1])], axis=1)
+    out[:, 3:7] /= np.linalg.norm(out[:, 3:7], axis=1, keepdims=True)
+    return out
 
 
 def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.ndarray,
-                held: np.ndarray | None = None, iterations: int = 4, first_iterations: int = 60) -> np.ndarray:
+                held: np.ndarray | None = None, fps: float | None = None, iterations: int = ITERATIONS,
+                coarse_iterations: int = COARSE_ITERATIONS) -> np.ndarray:
     """(T, nq) poses tracking (T, K, 3) site targets, (T, 2, 3) toe points and the (T, 3, 3) pelvis axes
-    (:func:`pelvis_axes`), frame after frame from the previous pose moved on at its pace (the first from the
-    reference pose turned and moved to the first frame's pelvis): the ankles and toe points of ``held`` (T, 4)
-    feet weighted up, the joints pulled toward the previous frames' pace (no sudden jumps), joints inside their
-    ranges, self-contacts pushed apart (further iterations of a frame while any remain)."""
-    s = _Solver(robot)
-    held = np.zeros((len(targets), 4)) if held is None else held
-    q = robot.rest.copy()
-    pelvis = list(robot.human_names).index("pelvis")
-    q[:2] = targets[0, pelvis, :2]
-    q[3:7] = matrix_to_quat(axes[0].T)
-    s.d.qpos[:] = q
-    out = np.empty((len(targets), robot.model.nq))
-    lo, hi = robot.ranges[:, 0], robot.ranges[:, 1]
-    for t in range(len(targets)):
-        pace = None
-        if t > 1:  # from the previous pose moved on at the previous pace (the base's turn left to the solve)
-            pace = np.clip(2 * out[t - 1, 7:] - out[t - 2, 7:], lo, hi)
-            s.d.qpos[:3] += out[t - 1, :3] - out[t - 2, :3]
-            s.d.qpos[7:] = pace
-        weights = s.weights(held[t])
-        for i in range(first_iterations if t == 0 else iterations):
-            if s.step(targets[t], toes[t], axes[t], False, weights, pace) < TOLERANCE:
-                break
-        for _ in range(EXTRA_ITERATIONS):  # the robot's own bodies still touching: pushed apart further
-            if not s.self_contacts():
-                break
-            s.step(targets[t], toes[t], axes[t], True, weights, pace)
-        out[t] = s.d.qpos
-    return out
+    (:func:`pelvis_axes`), all frames at once, by damped Gauss-Newton (:func:`_step`): every ``COARSE_STRIDE``-th
+    frame first, from the reference pose turned and moved to its pelvis (``coarse_iterations``); given the poses'
+    ``fps``, the ankles and toe points of ``held`` (T, 4) feet then locked where that pass put them
+    (:func:`lock_targets`) and those frames solved again (``LOCK_ITERATIONS``); then every frame, the ones between
+    started halfway (``iterations``), the robot's own bodies pushed apart in the frames where they overlap. Held
+    feet weigh more; each frame's joints are pulled toward its neighbours'; joints stay inside their ranges."""
+    T = len(targets)
+    held = np.zeros((T, 4), bool) if held is None else np.asarray(held, bool)
+    wanted, weights = _wanted(targets, toes, axes), _weights(robot, held.astype(float))
+    q = np.repeat(robot.rest[None], T, axis=0)
+    q[:, :2] = targets[:, list(robot.human_names).index("pelvis"), :2]
+    q[:, 3:7] = matrix_to_quat(np.swapaxes(axes, 1, 2))
+    keys = np.unique(np.concatenate([np.arange(0, T, COARSE_STRIDE), [T - 1]]))
+    data = mujoco.MjData(robot.own)
+    q[keys] = _iterate(robot, data, q[keys], wanted[keys], weights[keys], coarse_iterations)
+    q = _between(q[keys], keys, np.arange(T))
+    if fps is not None and held.any():
+        feet = _feet_points(robot)
+        wanted[:, feet], share = lock_targets(_places(robot, data, q)[:, feet], held, fps, robot.rest_ankle)
+        weights = _weights(robot, np.maximum(held, share))
+        q[keys] = _iterate(robot, data, q[keys], wanted[keys], weights[keys], LOCK_ITERATIONS)
+        q = _between(q[keys], keys, np.arange(T))
+    close = np.nonzero(_touching(robot, data, q))[0]
+    return _iterate(robot, data, q, wanted, weights, iterations, close)
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -325,79 +348,75 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]))
 
 
-def lock_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, iterations: int = 2) -> np.ndarray:
-    """(T, nq) poses whose held ankles and toe points (``held`` (T, 4): left ankle, left toe, right ankle, right
-    toe) stay at the hold's mean place, on the floor (an ankle at the standing ankle height, a toe point at 0), the
-    lock eased in and out over ``LOCK_BLEND`` seconds around each hold (poses at ``fps``): a few Gauss-Newton
-    steps from each pose,
-    every other target its own current place."""
-    s = _Solver(robot)
-    names = list(robot.human_names)
-    ankles = [robot.sites[names.index(j)] for j in ("left_ankle", "right_ankle")]
-    T = len(qpos)
-    spots = np.empty((T, 4, 3))  # where each ankle site and toe point is
-    for t in range(T):
-        s.d.qpos[:] = qpos[t]
-        mujoco.mj_kinematics(robot.model, s.d)
-        spots[t, 0::2], spots[t, 1::2] = s.d.site_xpos[ankles], s.toe_points()
-    anchors, share = spots.copy(), np.zeros((T, 4))  # where each is pulled to, and how fully (1 inside a hold)
+def _feet_points(robot: Robot) -> np.ndarray:
+    """(4,) the :func:`_layout` points of the left ankle, left toe, right ankle, right toe (the held order)."""
+    names, K = list(robot.human_names), len(robot.sites)
+    return np.array([names.index("left_ankle"), K, names.index("right_ankle"), K + 1])
+
+
+def lock_targets(spots: np.ndarray, held: np.ndarray, fps: float, ankle_height: float) -> tuple[np.ndarray, np.ndarray]:
+    """Foot locking, as games do it: (T, 4, 3) targets for the ankles and toe points at ``spots`` (T, 4, 3; left
+    ankle, left toe, right ankle, right toe, metres, at ``fps``) that keep each one held (``held`` (T, 4)) at its
+    hold's mean place on the floor (an ankle at ``ankle_height``, a toe point at 0), and (T, 4) how fully (1 inside
+    a hold), the lock eased in and out over ``LOCK_BLEND`` seconds around each hold (elsewhere the spot itself)."""
+    T = len(spots)
+    anchors, share = spots.copy(), np.zeros((T, 4))
     blend = max(1, round(LOCK_BLEND * fps))
     for j in range(4):
         for a, b in _runs(held[:, j]):
-            spot = np.array([*spots[a:b, j, :2].mean(axis=0), robot.rest_ankle if j % 2 == 0 else 0.0])
+            spot = np.array([*spots[a:b, j, :2].mean(axis=0), ankle_height if j % 2 == 0 else 0.0])
             anchors[a:b, j], share[a:b, j] = spot, 1.0
             for k in range(1, blend + 1):  # eased in before the hold and out after it
                 ease = 1 - k / (blend + 1)
                 for t in (a - k, b - 1 + k):
                     if 0 <= t < T and ease > share[t, j]:
                         anchors[t, j], share[t, j] = spot, ease
-    targets = spots + share[..., None] * (anchors - spots)
-    feet = [names.index(j) for j in ("left_ankle", "right_ankle")]
-    out = qpos.copy()
-    for t in np.nonzero(share.any(axis=1))[0]:
-        s.d.qpos[:] = qpos[t]
-        sites, toes, axes = s.here()
-        sites[feet], toes = targets[t, 0::2], targets[t, 1::2]
-        weights = s.weights(share[t])
-        for _ in range(iterations):
-            if s.step(sites, toes, axes, False, weights) < TOLERANCE:
-                break
-        out[t] = s.d.qpos
-    return out
+    return spots + share[..., None] * (anchors - spots), share
 
 
-def separate(robot: Robot, qpos: np.ndarray, iterations: int = 3 * EXTRA_ITERATIONS, rounds: int = 4) -> np.ndarray:
+def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, iterations: int = SEPARATE_ITERATIONS,
+             rounds: int = 4) -> np.ndarray:
     """(T, nq) poses in which the robot's own bodies touch pushed apart (only those frames, each from its own pose,
-    the targets its current sites, held loosely so that nothing else moves more than it must; up to ``rounds``
-    rounds, each from where the last one stopped)."""
-    s = _Solver(robot)
+    the targets its current places, held loosely so that nothing else moves more than it must, the ankles and toe
+    points of ``held`` (T, 4) feet firmly; up to ``rounds`` rounds, each from where the last one stopped)."""
+    data = mujoco.MjData(robot.own)
     out = qpos.copy()
-    for t in range(len(qpos)):
-        s.d.qpos[:] = qpos[t]
-        for _ in range(rounds):
-            if not s.self_contacts():
+    close = np.nonzero(_touching(robot, data, out))[0]
+    for _ in range(rounds):
+        if not len(close):
+            break
+        here = _places(robot, data, out[close])
+        weights = SEPARATE_HOLD * _weights(robot, np.zeros((len(close), 4)))
+        if held is not None:  # a standing foot stays where it stands
+            firm = _weights(robot, held[close].astype(float))
+            rows = np.repeat(_feet_points(robot), 3) * 3 + np.tile(np.arange(3), 4)
+            weights[:, rows] = np.where(np.repeat(held[close], 3, axis=1), firm[:, rows], weights[:, rows])
+        left = np.arange(len(close))  # the frames of this round still touching
+        for _ in range(iterations):
+            contacts = _contact_rows(robot, data, out[close[left]])
+            out[close[left]], _ = _step(robot, data, out[close[left]], here[left], weights[left], None, contacts)
+            left = left[_touching(robot, data, out[close[left]])]
+            if not len(left):
                 break
-            sites, toes, axes = s.here()
-            for _ in range(iterations):
-                s.step(sites, toes, axes, True, SEPARATE_HOLD * s.w)
-                if not s.self_contacts():
-                    break
-        out[t] = s.d.qpos
+        close = close[left]
     return out
 
 
 def floor_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray) -> np.ndarray:
     """(T, nq) poses with the base moved up or down per frame so that the lowest sole of a planted foot touches the
     floor (z = 0) and no sole is below it."""
-    d = mujoco.MjData(robot.model)
+    low = sole_heights(robot, qpos)
+    standing = np.where(planted, low, np.inf).min(axis=1)
     out = qpos.copy()
-    for t in range(len(qpos)):
-        d.qpos[:] = qpos[t]
-        mujoco.mj_kinematics(robot.model, d)
-        low = np.array([robot.sole_heights(d, sole).min() for sole in robot.soles])
-        standing = low[planted[t]]
-        out[t, 2] += max(-standing.min() if len(standing) else 0.0, -low.min())
+    out[:, 2] += np.maximum(np.where(np.isfinite(standing), -standing, 0.0), -low.min(axis=1))
     return out
+
+
+def sole_heights(robot: Robot, qpos: np.ndarray) -> np.ndarray:
+    """(T, 2) each foot's lowest sole point above the floor (m), left and right, in (T, nq) poses."""
+    poses = kin.forward(robot.own, mujoco.MjData(robot.own), robot.chain, qpos)
+    return np.stack([(kin.points(poses, np.full(len(f.points), f.body), f.points)[..., 2] - f.radius).min(axis=1)
+                     for f in robot.soles], axis=1)
 
 
 def resample_qpos(qpos: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarray:
@@ -421,8 +440,9 @@ def retarget(robot: Robot, joints: np.ndarray, fps: float, contacts: np.ndarray 
     held = held_joints(joints, fps, contacts)
     planted = planted_feet(joints, fps, held)
     targets, toes, scale = keypoint_targets(robot, joints, planted, held)
-    qpos = lock_feet(robot, solve_poses(robot, targets, toes, pelvis_axes(joints), held), held, fps)
+    qpos = solve_poses(robot, targets, toes, pelvis_axes(joints), held, fps)
     qpos = resample_qpos(qpos, fps, out_fps)
     planted = resample(planted.astype(float), fps, out_fps) > 0.5
-    qpos = floor_feet(robot, separate(robot, qpos), planted)
+    qpos = separate(robot, qpos, resample(held.astype(float), fps, out_fps) > 0.5)
+    qpos = floor_feet(robot, qpos, planted)
     return RobotMotion(robot.name, out_fps, qpos, robot.joint_names, planted, scale)

@@ -4,7 +4,6 @@ and every door (library, CLI, HTTP)."""
 
 from __future__ import annotations
 
-import io
 import json
 
 import numpy as np
@@ -18,8 +17,9 @@ from stablemofusion.pipelines.motion_pipeline import MotionPipeline  # noqa: E40
 from stablemofusion.robots.checks import check_motion, limit_violations, self_contacts  # noqa: E402
 from stablemofusion.robots.files import csv_columns, npz_arrays, write_keyframes  # noqa: E402
 from stablemofusion.robots.model import Robot, load_robot, read_joint_map  # noqa: E402
-from stablemofusion.robots.retarget import (_Solver, _runs, lock_feet, pelvis_axes, planted_feet,  # noqa: E402
-                                            resample_qpos, robot_frame, separate, solve_poses)
+from stablemofusion.robots.retarget import (_feet_points, _places, _runs, keypoint_targets,  # noqa: E402
+                                            lock_targets, pelvis_axes, planted_feet, resample_qpos, robot_frame,
+                                            separate, solve_poses)
 
 ROBOTS = ("g1", "h1")
 
@@ -80,16 +80,17 @@ def test_the_solver_reaches_a_pose_the_robot_can_take():
     rng = np.random.default_rng(0)
     q = robot.rest.copy()
     q[7:] = np.clip(q[7:] + rng.normal(0, 0.15, len(q) - 7), robot.ranges[:, 0], robot.ranges[:, 1])
-    s = _Solver(robot)
-    s.d.qpos[:] = q
-    mujoco.mj_kinematics(robot.model, s.d)
-    sites = s.d.site_xpos[robot.sites].copy()
-    toes = np.stack([s.d.xmat[f.body].reshape(3, 3) @ f.toe + s.d.xpos[f.body] for f in robot.soles])
-    axes = s.d.xmat[robot.free_body].reshape(3, 3).T.copy()
-    got = solve_poses(robot, sites[None], toes[None], axes[None], first_iterations=200)[0]
-    s.d.qpos[:] = got
-    mujoco.mj_kinematics(robot.model, s.d)
-    error = np.linalg.norm(s.d.site_xpos[robot.sites] - sites, axis=1)
+    d = mujoco.MjData(robot.own)
+    here = _places(robot, d, q[None])[0]
+    K = len(robot.sites)
+    sites, toes = here[:K], here[K:K + 2]
+    d.qpos[:] = q
+    mujoco.mj_kinematics(robot.model, d)
+    axes = d.xmat[robot.free_body].reshape(3, 3).T.copy()
+    got = solve_poses(robot, sites[None], toes[None], axes[None], coarse_iterations=200)[0]
+    d.qpos[:] = got
+    mujoco.mj_kinematics(robot.model, d)
+    error = np.linalg.norm(d.site_xpos[robot.sites] - sites, axis=1)
     assert np.median(error) < 0.005 and error.max() < 0.03
     assert limit_violations(robot, got[None]) == 0
 
@@ -143,26 +144,29 @@ def test_self_contacts_are_counted_and_pushed_apart():
     assert self_contacts(robot, fixed)[0] == 0 and limit_violations(robot, fixed) == 0
 
 
-def test_a_locked_foot_stays_put_and_eases_in_and_out(waves):
-    """Foot locking on a trajectory made without it: every held ankle keeps one place (within 2 mm) on the floor
-    while held, and the lock eases out over a few frames rather than snapping."""
-    robot = load_robot("h1")
-    motion = waves.to_robot("h1")
-    held = np.zeros((len(motion.qpos), 4), bool)
-    held[20:60, 0] = True  # the left ankle, 0.8 s
-    locked = lock_feet(robot, motion.qpos, held, motion.fps)
-    d = mujoco.MjData(robot.model)
-    site = robot.sites[list(robot.human_names).index("left_ankle")]
-    where = []
-    for q in locked[16:64]:
-        d.qpos[:] = q
-        mujoco.mj_kinematics(robot.model, d)
-        where.append(d.site_xpos[site].copy())
-    where = np.array(where)
-    inside = where[4:44]
-    assert np.abs(inside - inside.mean(axis=0)).max() < 0.002 and abs(inside[:, 2].mean() - robot.rest_ankle) < 0.002
-    assert np.abs(locked[:20] - motion.qpos[:20])[:, 7:].max() > 0  # eased in before the hold
+def test_lock_targets_hold_a_foot_at_its_mean_place_on_the_floor_and_ease_in_and_out():
+    spots = np.cumsum(np.full((80, 4, 3), 0.01), axis=0)  # every point drifting 1 cm a frame on each axis
+    held = np.zeros((80, 4), bool)
+    held[20:60, 0] = True  # the left ankle, 2 s at 20 fps
+    targets, share = lock_targets(spots, held, 20.0, ankle_height=0.07)
+    assert np.allclose(targets[20:60, 0, :2], spots[20:60, 0, :2].mean(axis=0)) and np.allclose(targets[20:60, 0, 2], 0.07)
+    assert (share[20:60, 0] == 1).all() and 0 < share[19, 0] < 1 and 0 < share[60, 0] < 1  # eased in and out
+    assert (share[:18, 0] == 0).all() and np.array_equal(targets[:18], spots[:18]) and (share[:, 1:] == 0).all()
     assert _runs(held[:, 0]) == [(20, 60)]
+
+
+def test_a_held_foot_stays_put_on_the_floor(waves):
+    """The whole solve with a held left ankle (2 s of the waving motion, whose human foot stands): the robot's ankle
+    keeps one place on the floor while held (within 5 mm), the other foot not held in place."""
+    robot = load_robot("h1")
+    held = np.zeros((waves.frames, 4), bool)
+    held[20:60, 0] = True
+    joints = waves.joints.astype(float)
+    targets, toes, _ = keypoint_targets(robot, joints, planted_feet(joints, waves.fps, held), held)
+    q = solve_poses(robot, targets, toes, pelvis_axes(joints), held, waves.fps)
+    ankle = _places(robot, mujoco.MjData(robot.own), q)[:, _feet_points(robot)[0]]
+    inside = ankle[22:58]
+    assert np.abs(inside - inside.mean(axis=0)).max() < 0.005 and abs(inside[:, 2].mean() - robot.rest_ankle) < 0.005
 
 
 def test_the_files_hold_the_trajectory(tmp_path, waves):

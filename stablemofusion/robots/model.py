@@ -19,6 +19,7 @@ from .mj import mujoco
 
 BUILT_IN = ("g1", "h1")  # shipped in assets/robots/<name>/scene.xml (decimated meshes, BSD-3-Clause, Unitree)
 FOOT_JOINTS = ("left_ankle", "right_ankle")
+NEAR = 0.005  # m: two of the robot's own bodies this close are near each other (``Robot.own`` reports them)
 
 
 def require_mujoco() -> None:
@@ -92,7 +93,8 @@ class Robot:
     ``ranges`` (J, 2) rad of its hinge joints in qpos order, the sites ``sites`` (K,) driven by the human joints
     ``human`` (K,) with ``weights`` (K,), the two feet's ``soles``, ``leg`` (hip to knee to ankle at rest, m) and
     ``rest_ankle`` (ankle site above the sole, flat footed, m); ``chain`` its tree for kinematics of many poses at
-    once; ``own`` the model for its self-contacts (the world's geoms collide with nothing)."""
+    once; ``own`` the model for its self-contacts (the world's geoms collide with nothing), ``near`` the same reporting
+    them up to ``NEAR`` apart (slower)."""
 
     def __init__(self, path: str | Path, joint_map: str | Path | None = None, name: str | None = None):
         require_mujoco()
@@ -132,6 +134,8 @@ class Robot:
         self.own = copy.deepcopy(m)  # the robot alone: the world's geoms (its floor) collide with nothing
         fixed = self.own.geom_bodyid == 0
         self.own.geom_contype[fixed], self.own.geom_conaffinity[fixed] = 0, 0
+        self.near = copy.deepcopy(self.own)  # and its contacts reported NEAR apart, not only where bodies overlap
+        self.near.geom_margin[:] = NEAR
         data = mujoco.MjData(m)
         self.rest = self.neutral()
         data.qpos[:] = self.rest

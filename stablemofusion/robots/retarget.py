@@ -25,18 +25,19 @@ from ..footskate.contacts import kinematic_contacts
 from ..motion.resample import resample
 from ..motion.rotation import matrix_to_quat
 from . import kinematics as kin
-from .model import Robot, mujoco
+from .model import NEAR, Robot, mujoco
 
 CONTROL_FPS = 50.0
 TOE_WEIGHT = 5.0
 BASE_WEIGHT = 2.0  # the floating base turned as the human pelvis (two points 0.2 m off its origin)
 BASE_LEVER = 0.2
-CLEARANCE = 0.02  # m the retarget pushes apart to between the robot's own bodies (interpolated frames between)
+CLEARANCE = 0.01  # m the retarget pushes apart to between the robot's own bodies (interpolated frames between)
 COLLISION_WEIGHT = 200.0
 COARSE_STRIDE = 2  # the first pass solves every COARSE_STRIDE-th frame,
 COARSE_ITERATIONS = 6  # this many iterations from the reference pose,
 LOCK_ITERATIONS = 3  # then this many with the feet locked (the frames between interpolated),
 ITERATIONS = 1  # then every frame this many
+SETTLE_ITERATIONS = 6  # at most, then of the frames whose own bodies are still too close
 SEPARATE_ITERATIONS = 24  # at most, per round of pushing the robot's own bodies apart at the control rate
 HELD_BOOST = 10.0  # a held ankle's or toe's weight, times its usual one
 SMOOTH_WEIGHT = 0.02  # pulls each joint toward the previous frames' pace
@@ -187,19 +188,21 @@ def _weights(robot: Robot, share: np.ndarray) -> np.ndarray:
 
 
 def _places(robot: Robot, data, qpos: np.ndarray) -> np.ndarray:
-    """(T, P, 3) the :func:`_layout` points of (T, nq) poses (kinematics on ``data``, an ``MjData`` of
-    ``robot.own``), the base's two as offsets from the base."""
-    poses = kin.forward(robot.own, data, robot.chain, qpos)
+    """(T, P, 3) the :func:`_layout` points of (T, nq) poses (kinematics on ``data``, an ``MjData`` of the robot's
+    model or a copy), the base's two as offsets from the base."""
+    poses = kin.forward(data.model, data, robot.chain, qpos)
     at = kin.points(poses, *_layout(robot))
     at[:, -2:] -= poses.pos[:, robot.free_body, None]
     return at
 
 
 def _contact_rows(robot: Robot, data, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For (T, nq) poses: rows (T, C, nv) of the distances between the robot's own bodies where they overlap (MuJoCo's
-    contacts: points, normals, depths) as functions of the velocity coordinates, and the increases (T, C) that
-    would bring each to ``CLEARANCE`` (rows of zeros where a pose has fewer than C)."""
-    m = robot.own
+    """For (T, nq) poses: rows (T, C, nv) of the distances between the robot's own bodies where they are near each
+    other (MuJoCo's contacts on ``data``, an ``MjData`` of ``robot.own`` or ``robot.near``: points, normals,
+    distances) as functions of the velocity coordinates,
+    and the changes (T, C) wanted of them: up to ``CLEARANCE`` where closer, none where farther (a near pair is
+    kept from closing in; rows of zeros where a pose has fewer than C)."""
+    m = data.model
     found = []
     for q in qpos:
         data.qpos[:] = q
@@ -208,7 +211,7 @@ def _contact_rows(robot: Robot, data, qpos: np.ndarray) -> tuple[np.ndarray, np.
         n = data.ncon
         pairs, dist = m.geom_bodyid[data.contact.geom[:n]], data.contact.dist[:n]
         near = (pairs > 0).all(axis=1)
-        found.append((data.contact.pos[:n][near], data.contact.frame[:n, :3][near], pairs[near], CLEARANCE - dist[near]))
+        found.append((data.contact.pos[:n][near], data.contact.frame[:n, :3][near], pairs[near], np.maximum(CLEARANCE - dist[near], 0.0)))
     T, C = len(qpos), max(1, max(len(f[0]) for f in found))
     at, normals, bodies, more = np.zeros((T, C, 3)), np.zeros((T, C, 3)), np.zeros((T, C, 2), int), np.zeros((T, C))
     for t, (p, n, b, g) in enumerate(found):
@@ -219,16 +222,16 @@ def _contact_rows(robot: Robot, data, qpos: np.ndarray) -> tuple[np.ndarray, np.
     return np.einsum("tck,tckv->tcv", normals, jac[:, C:] - jac[:, :C]), more
 
 
-def _touching(robot: Robot, data, qpos: np.ndarray) -> np.ndarray:
-    """(T,) bool: the poses in which two of the robot's own bodies overlap (kinematics and collisions on ``data``,
-    an ``MjData`` of ``robot.own``)."""
-    m = robot.own
+def _touching(robot: Robot, data, qpos: np.ndarray, below: float = 0.0) -> np.ndarray:
+    """(T,) bool: the poses in which two of the robot's own bodies are closer than ``below`` (m; 0: overlap;
+    kinematics and collisions on ``data``, an ``MjData`` of ``robot.own`` or, for ``below`` > 0, ``robot.near``)."""
+    m = data.model
     out = np.zeros(len(qpos), dtype=bool)
     for t in range(len(qpos)):
         data.qpos[:] = qpos[t]
         mujoco.mj_kinematics(m, data)
         mujoco.mj_collision(m, data)
-        out[t] = data.ncon > 0 and count_self_contacts(m, data) > 0
+        out[t] = data.ncon > 0 and count_self_contacts(m, data, below) > 0
     return out
 
 
@@ -241,7 +244,7 @@ def _step(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.
     poses (joints clipped to their ranges) and each pose's largest coordinate change (T,)."""
     chain, T = robot.chain, len(qpos)
     nv = chain.nv
-    poses = kin.forward(robot.own, data, chain, qpos)
+    poses = kin.forward(data.model, data, chain, qpos)
     bodies, local = _layout(robot)
     at = kin.points(poses, bodies, local)
     jac = kin.jacobians(chain, poses, at, bodies, np.float32)  # a search direction: single precision will do
@@ -287,7 +290,7 @@ def _iterate(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: 
              touching: np.ndarray | None = None) -> np.ndarray:
     """``iterations`` :func:`_step` of every pose, each pulled toward its neighbours' mean (no sudden jumps), the
     robot's own bodies pushed apart in the poses ``touching`` (indices; their contacts found anew each step;
-    kinematics on ``data``, an ``MjData`` of ``robot.own``); stops early once no coordinate moves more than ``TOLERANCE``."""
+    kinematics and contacts on ``data``, an ``MjData`` of ``robot.near``); stops early once no coordinate moves more than ``TOLERANCE``."""
     touching = np.zeros(0, int) if touching is None else touching
     for _ in range(iterations):
         contacts = None
@@ -329,7 +332,7 @@ def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.nd
     q[:, :2] = targets[:, list(robot.human_names).index("pelvis"), :2]
     q[:, 3:7] = matrix_to_quat(np.swapaxes(axes, 1, 2))
     keys = np.unique(np.concatenate([np.arange(0, T, COARSE_STRIDE), [T - 1]]))
-    data = mujoco.MjData(robot.own)
+    data = mujoco.MjData(robot.near)
     q[keys] = _iterate(robot, data, q[keys], wanted[keys], weights[keys], coarse_iterations)
     q = _between(q[keys], keys, np.arange(T))
     if fps is not None and held.any():
@@ -338,8 +341,17 @@ def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.nd
         weights = _weights(robot, np.maximum(held, share))
         q[keys] = _iterate(robot, data, q[keys], wanted[keys], weights[keys], LOCK_ITERATIONS)
         q = _between(q[keys], keys, np.arange(T))
-    close = np.nonzero(_touching(robot, data, q))[0]
-    return _iterate(robot, data, q, wanted, weights, iterations, close)
+    close = np.nonzero(_touching(robot, data, q, NEAR))[0]
+    q = _iterate(robot, data, q, wanted, weights, iterations, close)
+    close = close[_touching(robot, data, q[close], CLEARANCE / 2)]
+    for _ in range(SETTLE_ITERATIONS):  # frames whose own bodies are still too close: pushed apart further
+        if not len(close):
+            break
+        pull = _neighbours(q)[close]
+        q[close], _ = _step(robot, data, q[close], wanted[close], weights[close], pull,
+                            _contact_rows(robot, data, q[close]))
+        close = close[_touching(robot, data, q[close], CLEARANCE / 2)]
+    return q
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -399,6 +411,31 @@ def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, ite
             if not len(left):
                 break
         close = close[left]
+    return _spread(robot, data, qpos, out, held)
+
+
+def _spread(robot: Robot, data, before: np.ndarray, after: np.ndarray, held: np.ndarray | None) -> np.ndarray:
+    """``after`` (T, nq) with the joint changes made to some frames (from ``before``) eased into the untouched
+    frames around them (2/3 of the change one frame away, 1/3 two frames away; the larger where two meet), so that
+    no joint jumps, except the legs of feet ``held`` (T, 4) there; a frame so eased in which the robot's own bodies
+    would overlap keeps its own pose."""
+    change = after[:, 7:] - before[:, 7:]
+    T = len(change)
+    eased = np.zeros_like(change)
+    for k, share in ((1, 2 / 3), (2, 1 / 3)):
+        padded = share * np.pad(change, ((k, k), (0, 0)))
+        for near in (padded[:T], padded[2 * k:2 * k + T]):  # the change k frames before, k frames after
+            eased = np.where(np.abs(near) > np.abs(eased), near, eased)
+    eased[np.abs(change).max(axis=1) > 0] = 0.0
+    if held is not None:  # a standing foot's leg left as it is
+        for f, sole in enumerate(robot.soles):
+            leg = robot.chain.moves[sole.body, 6:] > 0
+            eased[np.ix_(held[:, 2 * f] | held[:, 2 * f + 1], leg)] = 0.0
+    frames = np.nonzero(np.abs(eased).max(axis=1) > 0)[0]
+    out = after.copy()
+    out[frames, 7:] = np.clip(out[frames, 7:] + eased[frames], robot.ranges[:, 0], robot.ranges[:, 1])
+    bad = frames[_touching(robot, data, out[frames])]
+    out[bad] = after[bad]
     return out
 
 

@@ -19,7 +19,7 @@ from .mj import mujoco
 
 BUILT_IN = ("g1", "h1")  # shipped in assets/robots/<name>/scene.xml (decimated meshes, BSD-3-Clause, Unitree)
 FOOT_JOINTS = ("left_ankle", "right_ankle")
-NEAR = 0.005  # m: two of the robot's own bodies this close are near each other (``Robot.own`` reports them)
+NEAR = 0.005  # m: two of the robot's own bodies this close are near each other (``Robot.near`` reports them)
 
 
 def require_mujoco() -> None:

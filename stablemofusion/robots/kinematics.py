@@ -57,9 +57,10 @@ class Poses:
     origin: np.ndarray
 
 
-def forward(model, data, chain: Chain, qpos: np.ndarray) -> Poses:
+def forward(model, data, chain: Chain, qpos: np.ndarray, each=None) -> Poses:
     """The :class:`Poses` of (T, nq) poses, computed by MuJoCo pose by pose on ``data`` (an ``MjData`` of
-    ``model``)."""
+    ``model``); ``each(t, data)``, if given, is called with each pose's kinematics in place (to find its
+    contacts, say)."""
     T = len(qpos)
     rot, pos = np.empty((T, model.nbody, 9)), np.empty((T, model.nbody, 3))
     axis, anchor = np.empty((T, model.njnt, 3)), np.empty((T, model.njnt, 3))
@@ -67,6 +68,8 @@ def forward(model, data, chain: Chain, qpos: np.ndarray) -> Poses:
         data.qpos[:] = qpos[t]
         mujoco.mj_kinematics(model, data)
         rot[t], pos[t], axis[t], anchor[t] = data.xmat, data.xpos, data.xaxis, data.xanchor
+        if each is not None:
+            each(t, data)
     rot = rot.reshape(T, -1, 3, 3)
     base, at = rot[:, chain.root], pos[:, chain.root, None]
     axes = np.concatenate([np.broadcast_to(np.eye(3), (T, 3, 3)), np.swapaxes(base, 1, 2), axis[:, 1:]], axis=1)

@@ -199,46 +199,52 @@ def _places(robot: Robot, data, qpos: np.ndarray) -> np.ndarray:
 
 
 def _contact_rows(robot: Robot, data, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For (T, nq) poses: rows (T, C, nv) of the distances between the robot's own bodies where they are near each
-    other (MuJoCo's contacts on ``data``, an ``MjData`` of ``robot.near``: the closest point, normal and distance of
-    each pair of geoms) as functions of the velocity coordinates, and the changes (T, C) wanted of them: up to
-    ``CLEARANCE`` where closer, none where farther (a near pair is kept from closing in; a pair already that near at
-    the reference pose only kept from overlapping); rows of zeros where a pose has fewer than C."""
+    """For (T, nq) poses: rows (T, C, nv) of the distances between the robot's own bodies where MuJoCo finds them in
+    contact on ``data`` (an ``MjData`` of ``robot.own``: where they overlap; of ``robot.near``: up to ``NEAR``
+    apart), each pair of geoms once, at its closest point, as functions of the velocity coordinates; and the
+    changes (T, C) wanted of them: up to ``CLEARANCE`` where closer, none where farther (a near pair is kept from
+    closing in; a pair already that near at the reference pose only kept from overlapping). Rows of zeros where a
+    pose has fewer than C."""
     m = data.model
-    found = []
-    for q in qpos:
-        data.qpos[:] = q
-        mujoco.mj_kinematics(m, data)
+    found = []  # (frame, geoms, distances, points, normals) of every pose with contacts
+
+    def collide(t: int, data) -> None:
         mujoco.mj_collision(m, data)
         n = data.ncon
-        geoms, dist = data.contact.geom[:n], data.contact.dist[:n]
-        key = geoms[:, 0] * m.ngeom + geoms[:, 1]
-        built = robot.rest_near[geoms[:, 0], geoms[:, 1]]  # pairs near at the reference pose: kept from overlapping
-        own = np.nonzero((m.geom_bodyid[geoms] > 0).all(axis=1) & (~built | (dist < 0)))[0]
-        own = own[np.argsort(dist[own], kind="stable")]
-        own = own[np.unique(key[own], return_index=True)[1]]  # each pair of geoms once, its closest point
-        found.append((data.contact.pos[own], data.contact.frame[own, :3], m.geom_bodyid[geoms[own]],
-                      np.maximum(np.where(built[own], 0.0, CLEARANCE) - dist[own], 0.0)))
-    T, C = len(qpos), max(1, max(len(f[0]) for f in found))
-    at, normals, bodies, more = np.zeros((T, C, 3)), np.zeros((T, C, 3)), np.zeros((T, C, 2), int), np.zeros((T, C))
-    for t, (p, n, b, g) in enumerate(found):
-        at[t, :len(p)], normals[t, :len(p)], bodies[t, :len(p)], more[t, :len(p)] = p, n, b, g
-    poses = kin.forward(m, data, robot.chain, qpos)
+        if n:
+            c = data.contact
+            found.append((np.full(n, t), c.geom[:n].copy(), c.dist[:n].copy(), c.pos[:n].copy(), c.frame[:n, :3].copy()))
+
+    poses = kin.forward(m, data, robot.chain, qpos, collide)
+    T = len(qpos)
+    frame, geoms, dist, points, normals = (np.concatenate(x) for x in zip(*found)) if found else (
+        np.zeros(0, int), np.zeros((0, 2), int), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
+    built = robot.rest_near[geoms[:, 0], geoms[:, 1]]  # pairs near at the reference pose: kept from overlapping
+    keep = np.nonzero((m.geom_bodyid[geoms] > 0).all(axis=1) & (~built | (dist < 0)))[0]
+    pair = frame[keep] * m.ngeom ** 2 + geoms[keep, 0] * m.ngeom + geoms[keep, 1]
+    order = np.lexsort((dist[keep], pair))  # by frame and pair of geoms, the closest first
+    keep = keep[order][np.unique(pair[order], return_index=True)[1]]  # each pair of geoms once, its closest point
+    f = frame[keep]
+    slot = np.arange(len(keep)) - np.searchsorted(f, f)  # its place among its frame's pairs
+    C = int(slot.max()) + 1 if len(keep) else 1
+    at, normal, bodies, more = np.zeros((T, C, 3)), np.zeros((T, C, 3)), np.zeros((T, C, 2), int), np.zeros((T, C))
+    at[f, slot], normal[f, slot], bodies[f, slot] = points[keep], normals[keep], m.geom_bodyid[geoms[keep]]
+    more[f, slot] = np.maximum(np.where(built[keep], 0.0, CLEARANCE) - dist[keep], 0.0)
     jac = kin.jacobians(robot.chain, poses, np.concatenate([at, at], 1),
                         np.concatenate([bodies[..., 0], bodies[..., 1]], 1))
-    return np.einsum("tck,tckv->tcv", normals, jac[:, C:] - jac[:, :C]), more
+    return np.einsum("tck,tckv->tcv", normal, jac[:, C:] - jac[:, :C]), more
 
 
-def _touching(robot: Robot, data, qpos: np.ndarray, below: float = 0.0) -> np.ndarray:
-    """(T,) bool: the poses in which two of the robot's own bodies are closer than ``below`` (m; 0: overlap;
-    kinematics and collisions on ``data``, an ``MjData`` of ``robot.own`` or, for ``below`` > 0, ``robot.near``)."""
+def _touching(robot: Robot, data, qpos: np.ndarray) -> np.ndarray:
+    """(T,) bool: the poses in which two of the robot's own bodies overlap (kinematics and collisions on ``data``,
+    an ``MjData`` of ``robot.own``)."""
     m = data.model
     out = np.zeros(len(qpos), dtype=bool)
     for t in range(len(qpos)):
         data.qpos[:] = qpos[t]
         mujoco.mj_kinematics(m, data)
         mujoco.mj_collision(m, data)
-        out[t] = data.ncon > 0 and count_self_contacts(m, data, below) > 0
+        out[t] = data.ncon > 0 and count_self_contacts(m, data) > 0
     return out
 
 
@@ -398,19 +404,19 @@ def lock_targets(spots: np.ndarray, held: np.ndarray, fps: float, ankle_height: 
 
 
 def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, iterations: int = SEPARATE_ITERATIONS,
-             rounds: int = 2) -> np.ndarray:
-    """(T, nq) poses in which the robot's own bodies overlap pushed apart, with the frames around them so that no
-    joint jumps: each from its own pose, the targets its current places, held loosely so that nothing else moves
-    more than it must, the ankles and toe points of ``held`` (T, 4) feet firmly, every joint pulled toward its
-    neighbours' (``SEPARATE_SMOOTH``); up to ``rounds`` rounds of ``iterations``, each from where the last one
-    stopped, the last one of the frames still touching alone, unpulled, and four times as long."""
+             rounds: int = 9) -> np.ndarray:
+    """(T, nq) poses in which the robot's own bodies overlap pushed apart: each from its own pose, the targets its
+    current places, held loosely so that nothing else moves more than it must, the ankles and toe points of ``held``
+    (T, 4) feet firmly. First with the frames around them, every joint pulled toward its neighbours'
+    (``SEPARATE_SMOOTH``), so that no joint jumps (``iterations``); then up to ``rounds`` - 1 rounds of the frames
+    still touching alone (four times as many iterations each), each from where the last one stopped."""
     data = mujoco.MjData(robot.own)
     out, T = qpos.copy(), len(qpos)
     close = np.nonzero(_touching(robot, data, out))[0]
     for round in range(rounds):
         if not len(close):
             break
-        reach = SEPARATE_REACH if round < rounds - 1 else 0  # the last round: the frames still touching alone
+        reach = SEPARATE_REACH if round == 0 else 0  # after the first round: the frames still touching alone
         window = np.unique(np.clip(close[:, None] + np.arange(-reach, reach + 1), 0, T - 1))
         here = _places(robot, data, out[window])
         weights = SEPARATE_HOLD * _weights(robot, np.zeros((len(window), 4)))
@@ -418,17 +424,17 @@ def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, ite
             firm = _weights(robot, held[window].astype(float))
             rows = np.repeat(_feet_points(robot), 3) * 3 + np.tile(np.arange(3), 4)
             weights[:, rows] = np.where(np.repeat(held[window], 3, axis=1), firm[:, rows], weights[:, rows])
-        apart = np.zeros(len(window), bool)
+        moving = np.arange(len(window))  # the window's frames still being moved
         for _ in range(iterations if reach else 4 * iterations):
             now = _touching(robot, data, out[window])
             if not now.any():
                 break
-            apart |= now
-            rows, more = _contact_rows(robot, data, out[window[apart]])
-            contacts = (np.zeros((len(window),) + rows.shape[1:]), np.zeros((len(window), rows.shape[1])))
-            contacts[0][apart], contacts[1][apart] = rows, more
-            out[window], _ = _step(robot, data, out[window], here, weights, _neighbours(out)[window], contacts,
-                                   SEPARATE_SMOOTH if reach else 0.0)
+            if not reach:  # alone: a frame pushed apart is left there
+                moving = np.nonzero(now)[0]
+            rows, more = _contact_rows(robot, data, out[window[moving]])
+            frames = window[moving]
+            out[frames], _ = _step(robot, data, out[frames], here[moving], weights[moving], _neighbours(out)[frames],
+                                   (rows, more), SEPARATE_SMOOTH if reach else 0.0)
         close = window[_touching(robot, data, out[window])]
     return out
 

@@ -249,12 +249,13 @@ def _touching(robot: Robot, data, qpos: np.ndarray) -> np.ndarray:
 
 
 def _step(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.ndarray, pull: np.ndarray | None = None,
-          contacts: tuple[np.ndarray, np.ndarray] | None = None,
-          smooth: float = SMOOTH_WEIGHT) -> tuple[np.ndarray, np.ndarray]:
+          contacts: tuple[np.ndarray, np.ndarray] | None = None, smooth: float = SMOOTH_WEIGHT,
+          lifted: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One damped Gauss-Newton step of every pose (T, nq) toward its ``wanted`` (T, P, 3) points, rows weighted by
     ``weights`` (T, 3P): redundant joints pulled a little toward the reference pose, joints toward ``pull`` (T, J)
-    where given (by ``smooth``), the distances of ``contacts`` (rows, increases: :func:`_contact_rows`) pushed up, joints at a limit
-    and pushed past it held there (an active set), no coordinate moved more than ``MAX_STEP``. Returns the new
+    where given (by ``smooth``), the distances of ``contacts`` (rows, increases: :func:`_contact_rows`) pushed up,
+    the soles of ``lifted`` (T, 2) feet (left, right: those not standing) kept from going below the floor, joints at
+    a limit and pushed past it held there (an active set), no coordinate moved more than ``MAX_STEP``. Returns the new
     poses (joints clipped to their ranges) and each pose's largest coordinate change (T,)."""
     chain, T = robot.chain, len(qpos)
     nv = chain.nv
@@ -271,6 +272,17 @@ def _step(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.
         rows, more = contacts
         a += COLLISION_WEIGHT * np.matmul(np.swapaxes(rows, 1, 2), rows)
         g += COLLISION_WEIGHT * np.einsum("tcv,tc->tv", rows, more)
+    if lifted is not None and lifted.any():
+        for f, sole in enumerate(robot.soles):
+            body = np.full(len(sole.points), sole.body)
+            points = kin.points(poses, body, sole.points)
+            low = np.argmin(points[..., 2] - sole.radius, axis=1)
+            below = -(points[np.arange(T), low, 2] - sole.radius[low]) * lifted[:, f]
+            if (below > 0).any():
+                row = kin.jacobians(chain, poses, points[np.arange(T), low][:, None], body[:1])[:, 0, 2]
+                row *= (below > 0)[:, None]
+                a += COLLISION_WEIGHT * row[:, :, None] * row[:, None, :]
+                g += COLLISION_WEIGHT * row * np.maximum(below, 0.0)[:, None]
     diagonal = np.full(nv, DAMPING)
     diagonal[6:] += POSTURE_WEIGHT
     g[:, 6:] -= POSTURE_WEIGHT * (qpos[:, 7:] - robot.rest[7:])
@@ -301,12 +313,12 @@ def _neighbours(qpos: np.ndarray) -> np.ndarray:
 
 
 def _iterate(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.ndarray, iterations: int,
-             near=None) -> np.ndarray:
+             near=None, lifted: np.ndarray | None = None) -> np.ndarray:
     """``iterations`` :func:`_step` of every pose (kinematics on ``data``, an ``MjData`` of ``robot.own``), each
     pulled toward its neighbours' mean (no sudden jumps) and, given ``near`` (an ``MjData`` of ``robot.near``), the
     robot's own bodies kept apart in every pose in which they have overlapped before a step (their pairs up to
-    ``NEAR`` apart pushed out to ``CLEARANCE`` or held there: :func:`_contact_rows`); stops early once no
-    coordinate moves more than ``TOLERANCE``."""
+    ``NEAR`` apart pushed out to ``CLEARANCE`` or held there: :func:`_contact_rows`), the soles of ``lifted``
+    (T, 2) feet kept above the floor; stops early once no coordinate moves more than ``TOLERANCE``."""
     apart = np.zeros(len(qpos), bool)
     for _ in range(iterations):
         contacts = None
@@ -317,7 +329,7 @@ def _iterate(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: 
                 rows, more = _contact_rows(robot, near, qpos[touching])
                 contacts = (np.zeros((len(qpos),) + rows.shape[1:]), np.zeros((len(qpos), rows.shape[1])))
                 contacts[0][touching], contacts[1][touching] = rows, more
-        qpos, change = _step(robot, data, qpos, wanted, weights, _neighbours(qpos), contacts)
+        qpos, change = _step(robot, data, qpos, wanted, weights, _neighbours(qpos), contacts, lifted=lifted)
         if change.max() < TOLERANCE:
             break
     return qpos
@@ -352,21 +364,22 @@ def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.nd
     q[:, 3:7] = matrix_to_quat(np.swapaxes(axes, 1, 2))
     keys = np.unique(np.concatenate([np.arange(0, T, COARSE_STRIDE), [T - 1]]))
     data, near = mujoco.MjData(robot.own), mujoco.MjData(robot.near)
-    q[keys] = _iterate(robot, data, q[keys], wanted[keys], weights[keys], coarse_iterations)
+    lifted = ~(held[:, 0::2] | held[:, 1::2])  # a foot not standing: its sole kept above the floor
+    q[keys] = _iterate(robot, data, q[keys], wanted[keys], weights[keys], coarse_iterations, lifted=lifted[keys])
     q = _between(q[keys], keys, np.arange(T))
     if fps is not None and held.any():
         feet = _feet_points(robot)
         wanted[:, feet], share = lock_targets(_places(robot, data, q)[:, feet], held, fps, robot.rest_ankle)
         weights = _weights(robot, np.maximum(held, share))
-        q[keys] = _iterate(robot, data, q[keys], wanted[keys], weights[keys], LOCK_ITERATIONS, near)
+        q[keys] = _iterate(robot, data, q[keys], wanted[keys], weights[keys], LOCK_ITERATIONS, near, lifted[keys])
         q = _between(q[keys], keys, np.arange(T))
-    q = _iterate(robot, data, q, wanted, weights, iterations, near)
+    q = _iterate(robot, data, q, wanted, weights, iterations, near, lifted)
     close = np.nonzero(_touching(robot, data, q))[0]
     for _ in range(SETTLE_ITERATIONS):  # frames whose own bodies still overlap: pushed apart further
         if not len(close):
             break
         q[close], _ = _step(robot, data, q[close], wanted[close], weights[close], _neighbours(q)[close],
-                            _contact_rows(robot, near, q[close]))
+                            _contact_rows(robot, near, q[close]), lifted=lifted[close])
         close = close[_touching(robot, data, q[close])]
     return q
 

@@ -272,17 +272,13 @@ def _step(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.
         rows, more = contacts
         a += COLLISION_WEIGHT * np.matmul(np.swapaxes(rows, 1, 2), rows)
         g += COLLISION_WEIGHT * np.einsum("tcv,tc->tv", rows, more)
+    floor = []  # each lifted foot's sole points: their heights (T, S) and the heights' rows (T, S, nv)
     if lifted is not None and lifted.any():
         for f, sole in enumerate(robot.soles):
             body = np.full(len(sole.points), sole.body)
             points = kin.points(poses, body, sole.points)
-            low = np.argmin(points[..., 2] - sole.radius, axis=1)
-            below = -(points[np.arange(T), low, 2] - sole.radius[low]) * lifted[:, f]
-            if (below > 0).any():
-                row = kin.jacobians(chain, poses, points[np.arange(T), low][:, None], body[:1])[:, 0, 2]
-                row *= (below > 0)[:, None]
-                a += COLLISION_WEIGHT * row[:, :, None] * row[:, None, :]
-                g += COLLISION_WEIGHT * row * np.maximum(below, 0.0)[:, None]
+            rows = kin.jacobians(chain, poses, points, body)[:, :, 2]
+            floor.append((np.where(lifted[:, f, None], points[..., 2] - sole.radius, np.inf), rows))
     diagonal = np.full(nv, DAMPING)
     diagonal[6:] += POSTURE_WEIGHT
     g[:, 6:] -= POSTURE_WEIGHT * (qpos[:, 7:] - robot.rest[7:])
@@ -296,6 +292,15 @@ def _step(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.
     free = np.concatenate([np.ones((T, 6), bool), ~stuck], axis=1)
     a = a * (free[:, :, None] & free[:, None, :]) + np.eye(nv) * ~free[:, :, None]
     dq = np.linalg.solve(a, (g * free)[..., None])[..., 0]
+    # a lifted sole point that is, or would be, below the floor: held on it (the constraint made active), solved again
+    under = [(height < 0) | (height + np.einsum("tsv,tv->ts", rows, dq) < 0) for height, rows in floor]
+    again = np.nonzero(np.any([u.any(axis=1) for u in under], axis=0))[0] if floor else np.zeros(0, int)
+    if len(again):
+        for (height, rows), u in zip(floor, under):
+            r = rows[again] * u[again, :, None] * free[again, None]
+            a[again] += COLLISION_WEIGHT * np.matmul(np.swapaxes(r, 1, 2), r)
+            g[again] -= COLLISION_WEIGHT * np.einsum("tsv,ts->tv", r, np.where(u[again], height[again], 0.0))
+        dq[again] = np.linalg.solve(a[again], (g[again] * free[again])[..., None])[..., 0]
     change = np.abs(dq).max(axis=1)
     dq *= np.minimum(1.0, MAX_STEP / np.maximum(change, 1e-12))[:, None]
     out = kin.integrate(qpos, dq)
@@ -422,7 +427,8 @@ def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, ite
     current places, held loosely so that nothing else moves more than it must, the ankles and toe points of ``held``
     (T, 4) feet firmly. First with the frames around them, every joint pulled toward its neighbours'
     (``SEPARATE_SMOOTH``), so that no joint jumps (``iterations``); then up to ``rounds`` - 1 rounds of the frames
-    still touching alone (four times as many iterations each), each from where the last one stopped."""
+    still touching alone (four times as many iterations each), each from where the last one stopped, the standing
+    feet held loosely too in the second half of the rounds (no overlap is left for a foot's sake)."""
     data = mujoco.MjData(robot.own)
     out, T = qpos.copy(), len(qpos)
     close = np.nonzero(_touching(robot, data, out))[0]
@@ -433,7 +439,7 @@ def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, ite
         window = np.unique(np.clip(close[:, None] + np.arange(-reach, reach + 1), 0, T - 1))
         here = _places(robot, data, out[window])
         weights = SEPARATE_HOLD * _weights(robot, np.zeros((len(window), 4)))
-        if held is not None:  # a standing foot stays where it stands
+        if held is not None and round < rounds // 2:  # a standing foot stays where it stands (until the last rounds)
             firm = _weights(robot, held[window].astype(float))
             rows = np.repeat(_feet_points(robot), 3) * 3 + np.tile(np.arange(3), 4)
             weights[:, rows] = np.where(np.repeat(held[window], 3, axis=1), firm[:, rows], weights[:, rows])

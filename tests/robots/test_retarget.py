@@ -19,7 +19,7 @@ from stablemofusion.robots.files import csv_columns, npz_arrays, write_keyframes
 from stablemofusion.robots.model import Robot, load_robot, read_joint_map  # noqa: E402
 from stablemofusion.robots.retarget import (_feet_points, _places, _runs, keypoint_targets,  # noqa: E402
                                             lock_targets, pelvis_axes, planted_feet, resample_qpos, robot_frame,
-                                            separate, solve_poses)
+                                            separate, sole_heights, solve_poses)
 
 ROBOTS = ("g1", "h1")
 
@@ -142,6 +142,54 @@ def test_self_contacts_are_counted_and_pushed_apart():
     assert self_contacts(robot, q[None])[0] > 0
     fixed = separate(robot, q[None], iterations=20)
     assert self_contacts(robot, fixed)[0] == 0 and limit_violations(robot, fixed) == 0
+
+
+def test_an_arm_swung_into_the_body_is_pushed_out_with_the_frames_around_it():
+    """Twenty frames at rest, the left arm swung into the body in one: separate() pushes it out and moves the frames
+    around it part of the way (the shoulder's largest step between frames well under the 0.3 rad it was swung), the
+    frames far from it untouched."""
+    robot = load_robot("g1")
+    q = np.repeat(robot.rest[None], 20, axis=0)
+    shoulder = 7 + robot.joint_names.index("left_shoulder_roll_joint")
+    q[10, shoulder] = -0.3
+    fixed = separate(robot, q)
+    assert self_contacts(robot, fixed).sum() == 0
+    assert np.abs(np.diff(fixed[:, shoulder])).max() < 0.2 and (fixed[9, 7:] != q[9, 7:]).any()
+    assert np.array_equal(fixed[:5], q[:5]) and np.array_equal(fixed[15:], q[15:])
+
+
+def test_a_foot_in_the_air_is_kept_above_the_floor():
+    """Targets that put the left ankle 10 cm below the floor while neither foot of the left stands: the solve keeps
+    the left sole above the floor (within 5 mm: a stiff penalty, not a hard bound), where the targets alone would
+    sink it."""
+    robot = load_robot("g1")
+    d = mujoco.MjData(robot.own)
+    here = _places(robot, d, robot.rest[None])[0]
+    K = len(robot.sites)
+    sites, toes = here[:K].copy(), here[K:K + 2].copy()
+    ankle = list(robot.human_names).index("left_ankle")
+    sites[ankle, 2] -= 0.1
+    toes[0, 2] -= 0.1
+    d.qpos[:] = robot.rest
+    mujoco.mj_kinematics(robot.model, d)
+    axes = d.xmat[robot.free_body].reshape(3, 3).T.copy()
+    held = np.array([[False, False, True, True]])  # the right foot stands, the left is in the air
+    got = solve_poses(robot, sites[None], toes[None], axes[None], held, coarse_iterations=60)
+    assert sole_heights(robot, got)[0, 0] > -0.005
+    standing = solve_poses(robot, sites[None], toes[None], axes[None], np.ones((1, 4), bool), coarse_iterations=60)
+    assert sole_heights(robot, standing)[0, 0] < -0.02  # a standing foot is not lifted: it follows its targets
+
+
+def test_pairs_of_geoms_close_at_the_reference_pose_are_known():
+    """The G1's build puts some of its geoms within 2 cm of each other at the reference pose (they are only kept
+    from overlapping); a pair far apart there is not among them; the table is symmetric."""
+    robot = load_robot("g1")
+    assert robot.rest_near.any() and np.array_equal(robot.rest_near, robot.rest_near.T)
+    m = robot.model
+    names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in m.geom_bodyid]
+    hand = names.index("left_wrist_yaw_link")
+    foot = names.index("right_ankle_roll_link")
+    assert not robot.rest_near[hand, foot]
 
 
 def test_lock_targets_hold_a_foot_at_its_mean_place_on_the_floor_and_ease_in_and_out():

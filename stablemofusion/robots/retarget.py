@@ -445,12 +445,12 @@ def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, ite
             weights[:, rows] = np.where(np.repeat(held[window], 3, axis=1), firm[:, rows], weights[:, rows])
         moving = np.arange(len(window))  # the window's frames still being moved
         for _ in range(iterations if reach else 4 * iterations):
-            now = _touching(robot, data, out[window])
+            rows, more = _contact_rows(robot, data, out[window[moving]])
+            now = (more > 0).any(axis=1)  # the frames whose bodies touch
             if not now.any():
                 break
             if not reach:  # alone: a frame pushed apart is left there
-                moving = np.nonzero(now)[0]
-            rows, more = _contact_rows(robot, data, out[window[moving]])
+                moving, rows, more = moving[now], rows[now], more[now]
             frames = window[moving]
             out[frames], _ = _step(robot, data, out[frames], here[moving], weights[moving], _neighbours(out)[frames],
                                    (rows, more), SEPARATE_SMOOTH if reach else 0.0)

@@ -31,8 +31,8 @@ CONTROL_FPS = 50.0
 TOE_WEIGHT = 5.0
 BASE_WEIGHT = 2.0  # the floating base turned as the human pelvis (two points 0.2 m off its origin)
 BASE_LEVER = 0.2
-CLEARANCE = 0.01  # m the retarget pushes apart to between the robot's own bodies (interpolated frames between)
-COLLISION_WEIGHT = 200.0
+CLEARANCE = 0.01  # m the retarget pushes the robot's own bodies apart to (interpolated frames lie between)
+COLLISION_WEIGHT = 200.0  # of a contact's or a lifted sole's row, against the targets' weights
 COARSE_STRIDE = 2  # the first pass solves every COARSE_STRIDE-th frame,
 COARSE_ITERATIONS = 6  # this many iterations from the reference pose,
 LOCK_ITERATIONS = 3  # then this many with the feet locked (the frames between interpolated),
@@ -40,12 +40,12 @@ ITERATIONS = 1  # then every frame this many
 SETTLE_ITERATIONS = 6  # at most, then of the frames whose own bodies are still too close
 SEPARATE_ITERATIONS = 6  # at most, per round of pushing the robot's own bodies apart at the control rate
 HELD_BOOST = 10.0  # a held ankle's or toe's weight, times its usual one
-SMOOTH_WEIGHT = 0.02  # pulls each joint toward the previous frames' pace
+SMOOTH_WEIGHT = 0.02  # pulls each joint toward its neighbouring frames' mean
 SEPARATE_HOLD = 0.01  # how much a pose being pushed apart holds to its own place (times the usual weights)
 SEPARATE_REACH = 3  # frames on either side pushed apart with it
 SEPARATE_SMOOTH = 0.05  # how much each joint is pulled toward its neighbours' meanwhile
 LOCK_BLEND = 0.1  # s over which a foot lock eases in before a hold and out after it
-TOLERANCE = 1e-3  # rad (or m): a frame's solve stops when no coordinate moves more
+TOLERANCE = 1e-3  # rad (or m): a pass stops when no coordinate of any frame moves more
 POSTURE_WEIGHT = 1e-3  # pulls redundant joints (waist, wrists) toward the reference pose
 DAMPING = 1e-2
 MAX_STEP = 0.4  # rad (or m) one iteration may move any coordinate
@@ -359,8 +359,10 @@ def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.nd
     frame first, from the reference pose turned and moved to its pelvis (``coarse_iterations``); given the poses'
     ``fps``, the ankles and toe points of ``held`` (T, 4) feet then locked where that pass put them
     (:func:`lock_targets`) and those frames solved again (``LOCK_ITERATIONS``); then every frame, the ones between
-    started halfway (``iterations``), the robot's own bodies pushed apart in the frames where they overlap. Held
-    feet weigh more; each frame's joints are pulled toward its neighbours'; joints stay inside their ranges."""
+    started halfway (``iterations``); then the frames whose own bodies still overlap (``SETTLE_ITERATIONS`` at
+    most). Held feet weigh more; a foot that does not stand is kept above the floor; each frame's joints are pulled
+    toward its neighbours'; joints stay inside their ranges; once the robot's own bodies overlap in a frame, they
+    are pushed apart and kept apart (:func:`_iterate`)."""
     T = len(targets)
     held = np.zeros((T, 4), bool) if held is None else np.asarray(held, bool)
     wanted, weights = _wanted(targets, toes, axes), _weights(robot, held.astype(float))

@@ -213,7 +213,8 @@ def _contact_rows(robot: Robot, data, qpos: np.ndarray) -> tuple[np.ndarray, np.
         n = data.ncon
         if n:
             c = data.contact
-            found.append((np.full(n, t), c.geom[:n].copy(), c.dist[:n].copy(), c.pos[:n].copy(), c.frame[:n, :3].copy()))
+            found.append((np.full(n, t), c.geom[:n].copy(), c.dist[:n].copy(), c.pos[:n].copy(),
+                          c.frame[:n, :3].copy()))
 
     poses = kin.forward(m, data, robot.chain, qpos, collide)
     T = len(qpos)

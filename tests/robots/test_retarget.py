@@ -197,7 +197,8 @@ def test_lock_targets_hold_a_foot_at_its_mean_place_on_the_floor_and_ease_in_and
     held = np.zeros((80, 4), bool)
     held[20:60, 0] = True  # the left ankle, 2 s at 20 fps
     targets, share = lock_targets(spots, held, 20.0, ankle_height=0.07)
-    assert np.allclose(targets[20:60, 0, :2], spots[20:60, 0, :2].mean(axis=0)) and np.allclose(targets[20:60, 0, 2], 0.07)
+    assert np.allclose(targets[20:60, 0, :2], spots[20:60, 0, :2].mean(axis=0))
+    assert np.allclose(targets[20:60, 0, 2], 0.07)
     assert (share[20:60, 0] == 1).all() and 0 < share[19, 0] < 1 and 0 < share[60, 0] < 1  # eased in and out
     assert (share[:18, 0] == 0).all() and np.array_equal(targets[:18], spots[:18]) and (share[:, 1:] == 0).all()
     assert _runs(held[:, 0]) == [(20, 60)]

@@ -8,7 +8,8 @@ import numpy as np
 
 from ..motion.resample import resample
 from .model import Robot, mujoco
-from .retarget import RobotMotion, count_self_contacts, held_joints, keypoint_targets, planted_feet, robot_frame
+from .retarget import (RobotMotion, count_self_contacts, foot_points, held_joints, keypoint_targets, planted_feet,
+                       robot_frame, sole_heights)
 
 
 def limit_violations(robot: Robot, qpos: np.ndarray, tolerance: float = 1e-9) -> int:
@@ -40,14 +41,7 @@ def self_contacts(robot: Robot, qpos: np.ndarray) -> np.ndarray:
 def sole_tracks(robot: Robot, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(T, 2) each foot's lowest sole height above the floor (m); (T, 4, 2) on the floor (x, y) the points that
     stand for the human's left ankle, left toe, right ankle, right toe: the ankle sites and the soles' toe points."""
-    low, points = np.empty((len(qpos), 2)), np.empty((len(qpos), 4, 2))
-    names = list(robot.human_names)
-    for t, d in poses(robot, qpos):
-        for f, (sole, ankle) in enumerate(zip(robot.soles, ("left_ankle", "right_ankle"))):
-            low[t, f] = robot.sole_heights(d, sole).min()
-            points[t, 2 * f] = d.site_xpos[robot.sites[names.index(ankle)], :2]
-            points[t, 2 * f + 1] = (d.xmat[sole.body].reshape(3, 3) @ sole.toe + d.xpos[sole.body])[:2]
-    return low, points
+    return sole_heights(robot, qpos), foot_points(robot, qpos)[..., :2]
 
 
 def site_positions(robot: Robot, qpos: np.ndarray) -> np.ndarray:

@@ -151,14 +151,13 @@ def pelvis_axes(joints: np.ndarray) -> np.ndarray:
     return np.stack([np.cross(left, up), left, up], axis=1)
 
 
-def count_self_contacts(model, data, below: float = 0.0) -> int:
-    """How many of ``data``'s contacts (after ``mj_collision``) join two of the robot's own bodies closer than
-    ``below`` (m; 0: penetrating)."""
+def count_self_contacts(model, data) -> int:
+    """How many of ``data``'s contacts (after ``mj_collision``) join two of the robot's own bodies that overlap."""
     n = data.ncon
     if n == 0:
         return 0
     bodies = model.geom_bodyid[data.contact.geom[:n]]
-    return int(((bodies > 0).all(axis=1) & (data.contact.dist[:n] < below)).sum())
+    return int(((bodies > 0).all(axis=1) & (data.contact.dist[:n] < 0)).sum())
 
 
 def _layout(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
@@ -469,6 +468,12 @@ def floor_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray) -> np.ndarra
     out = qpos.copy()
     out[:, 2] += np.maximum(np.where(np.isfinite(standing), -standing, 0.0), -low.min(axis=1))
     return out
+
+
+def foot_points(robot: Robot, qpos: np.ndarray) -> np.ndarray:
+    """(T, 4, 3) the points that stand for the human's left ankle, left toe, right ankle, right toe in (T, nq) poses:
+    the ankle sites and the soles' toe points, metres."""
+    return _places(robot, mujoco.MjData(robot.own), qpos)[:, _feet_points(robot)]
 
 
 def sole_heights(robot: Robot, qpos: np.ndarray) -> np.ndarray:

@@ -63,6 +63,17 @@ def test_a_map_whose_left_site_is_on_the_right_is_refused(tmp_path):
         Robot("g1", bad)
 
 
+def test_a_robot_with_two_joints_on_one_body_is_refused_in_one_line(tmp_path):
+    """The kinematics take one hinge or slide per body; an MJCF with two on one body gets a one-line error."""
+    path = tmp_path / "two.xml"
+    path.write_text("""<mujoco><worldbody><body name="base"><freejoint/><geom size="0.1"/>
+      <body name="arm"><joint name="a" type="hinge"/><joint name="b" type="hinge" axis="1 0 0"/><geom size="0.05"/>
+      </body></body></worldbody></mujoco>""")
+    with pytest.raises(SMFError, match="a body with more than one joint is not supported") as err:
+        Robot(path)
+    assert "\n" not in str(err.value)
+
+
 @pytest.mark.parametrize("text, message", [("{", "not JSON"), ('{"sites": {"nose": "x"}}', "does not have: nose"),
                                            ('{"sites": {"pelvis": "BODY_25:MidHip"}}', "must map left_ankle")])
 def test_bad_joint_maps_get_one_line(tmp_path, text, message):

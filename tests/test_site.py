@@ -187,9 +187,10 @@ def test_a_site_that_cannot_be_written_is_one_line_and_leaves_nothing(tmp_path, 
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
-def test_the_form_predicts_the_length_warns_of_sequences_and_names_downloads_after_the_prompt(served):
+def test_the_form_predicts_the_length_makes_sequences_part_by_part_and_names_downloads_after_the_prompt(served):
     """Seconds left empty by default (the length is predicted from the text, as the command line does), a prompt
-    of several parts warned about in the page, and a download named after its prompt."""
+    of several parts made part after part (the walk, then the wave: a wrist above its shoulder only in the wave's
+    span) with the parts in the status line, and a download named after its prompt."""
     with playwright.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS)
         page = browser.new_page(viewport={"width": 900, "height": 600})
@@ -199,9 +200,15 @@ def test_the_form_predicts_the_length_warns_of_sequences_and_names_downloads_aft
         page.fill("#prompt", "a tired man walks in a circle then waves")
         page.click("#generate")
         page.wait_for_function("window.smf.lastMotion && window.smf.lastMotion.prompt.includes('then waves')",
-                               timeout=60_000)
-        assert "asks for 2 things one after another" in page.inner_text("#warning")
-        assert page.evaluate("window.smf.lastMotion.joints.length") > 80  # predicted: not the old default of 4 s
+                               timeout=120_000)
+        motion = page.evaluate("window.smf.lastMotion")
+        assert [part for part, _ in motion["sequence"]] == ["a tired man walks in a circle", "a tired man waves"]
+        assert "a tired man waves" in page.inner_text("#status") and "one after another" not in page.inner_text("#warning")
+        joints = np.asarray(motion["joints"])
+        cut = int(round(motion["sequence"][0][1] * motion["fps"]))
+        assert len(joints) == cut + int(round(motion["sequence"][1][1] * motion["fps"])) > 80  # predicted lengths
+        up = (joints[:, 20, 1] > joints[:, 16, 1]) | (joints[:, 21, 1] > joints[:, 17, 1])  # a wrist above its shoulder
+        assert up[:cut].mean() < 0.1 and up[cut:].mean() > 0.5
         with page.expect_download() as download:
             page.click("#bvh")
         assert download.value.suggested_filename == "a_tired_man_walks_in_a_circle_then_waves.bvh"

@@ -35,6 +35,7 @@ from ..motion.rigid import DEFAULT_FIT
 from ..motion.bvh import BVH_ORDER
 from ..motion.rigid_batch import fit_joints, pose_joints
 from ..motion.rotation import matrix_to_euler
+from ..core.edit_plan import continue_features
 from ..core.path_plan import bend_features, follow_features
 
 from .onnx_graphs import FORMAT, MANIFEST, TABLE_FIELDS, VERSION
@@ -404,13 +405,19 @@ class _FollowGraph(nn.Module):
         return follow_features(features, points, times, timed, self.fps, finite_check=False)
 
 
+class _ContinueGraph(nn.Module):
+    def forward(self, features, known, keep):
+        return continue_features(features, known, keep)
+
+
 class _PoseGraph(nn.Module):
     def forward(self, joints, bone_lengths):
         offsets, local = pose_joints(joints, bone_lengths)
         return offsets, local, matrix_to_euler(local, BVH_ORDER)
 
 
-FINAL_STAGE_GRAPHS = ("rigid.onnx", "bend.onnx", "follow.onnx", "contacts.onnx", "cleanup.onnx", "pose.onnx")
+FINAL_STAGE_GRAPHS = ("rigid.onnx", "bend.onnx", "follow.onnx", "contacts.onnx", "cleanup.onnx", "pose.onnx",
+                      "continue.onnx")
 MIN_GRAPH_FRAMES = 4  # the graphs' shortest motion (the lean needs 3 frames; a model's shortest is 40)
 
 
@@ -433,7 +440,10 @@ def export_final_stage(out: Path, fps: float = 20.0) -> list[Path]:
     - ``pose.onnx``: ``joints`` (B, T, 22, 3) rigid, ``bone_lengths`` (B, 22) -> the skeleton's rest ``offsets``
       (B, 22, 3) metres, each joint's ``rotations`` (B, T, 22, 3, 3) in its parent's frame and the same as BVH
       channel angles ``euler`` (B, T, 22, 3) degrees, order BVH_ORDER (:func:`~stablemofusion.motion.rigid_batch.
-      pose_joints`, :func:`~stablemofusion.motion.rotation.matrix_to_euler`).
+      pose_joints`, :func:`~stablemofusion.motion.rotation.matrix_to_euler`);
+    - ``continue.onnx``: ``features`` (B, T, 263) a timeline window's raw features, ``known`` (B, T, 263) the
+      motion's last K frames first, ``keep`` (1,) int64 K (2 to T - 2) -> ``features`` whose first K frames are
+      those and whose next ones are blended into them (:func:`~stablemofusion.core.edit_plan.continue_features`).
 
     Each is the Python function itself, traced (they are written against the array API, loop-free)."""
     import warnings
@@ -467,7 +477,9 @@ def export_final_stage(out: Path, fps: float = 20.0) -> list[Path]:
             ("cleanup.onnx", _CleanupGraph(fps, config), (joints, lengths), ["joints", "bone_lengths"],
              ["joints_out", "held"], (motion, per)),
             ("pose.onnx", _PoseGraph(), (joints, lengths), ["joints", "bone_lengths"], ["offsets", "rotations", "euler"],
-             (motion, per))):
+             (motion, per)),
+            ("continue.onnx", _ContinueGraph(), (features, features.flip(1), torch.tensor([20])),
+             ["features", "known", "keep"], ["features_out"], (motion, motion, None))):
         with torch.no_grad(), warnings.catch_warnings():
             warnings.simplefilter("ignore")
             torch.onnx.export(module.eval(), args, str(out / name), input_names=inputs, output_names=outputs,

@@ -148,41 +148,83 @@ def x0_constraint(plan: EditPlan, mean: np.ndarray, std: np.ndarray):
     return hook
 
 
+def _seam_dims(xp, f):
+    """(D,) True on the per-frame features a seam blends: not the root's yaw and XZ velocities (they integrate) nor the
+    foot contacts."""
+    dims = np.ones(f.shape[-1], dtype=bool)
+    dims[:3] = False
+    dims[-4:] = False
+    return xp.asarray(dims, device=array_device(f))
+
+
+def _fade(i, frames: int):
+    """Weights of the position and the velocity offsets at ``i`` frames after a seam (any shape, float): the first
+    frame (0) takes the whole position offset, the second the position plus the whole velocity offset, and both fade
+    to zero value and zero slope at ``frames`` (cubic Hermite curves on frames 1..frames)."""
+    xp = namespace(i)
+    s = xp.clip((i - 1) / (frames - 1), min=0)
+    h0 = 2 * s ** 3 - 3 * s ** 2 + 1
+    h1 = i * xp.clip(1 - i / frames, min=0) ** 2 * frames ** 2 / (frames - 1) ** 2  # integer constants: exact in a graph
+    return h0, h1
+
+
+def blend_after(features, start, n, frames: int = SEAM_FRAMES):
+    """Features (..., T, D) whose ``n`` generated frames from ``start`` on continue the kept frames before
+    ``start`` (at least 2) without a jump in position or velocity: the offset that puts frame ``start`` where the
+    kept block's last step leads, with the block's last velocity, fading out over ``frames`` frames (:func:`_fade`).
+    Loop-free and shape-free: ``start`` and ``n`` are ints or 1-element integer arrays (the graph ``continue.onnx``
+    runs it); needs ``start + 1 < T`` and ``n <= frames``."""
+    xp = namespace(features)
+    f = features
+    T = f.shape[-2]
+
+    def row(k):
+        return xp.take(f, xp.reshape(xp.asarray(k, device=array_device(f)), (1,)), axis=-2)  # (..., 1, D)
+
+    last, before, first, second = row(start - 1), row(start - 2), row(start), row(start + 1)
+    v_kept = last - before
+    dp = last + v_kept - first
+    dv = v_kept - (second - first)
+    i = xp.astype(xp.arange(T, device=array_device(f))[:, None] - start, f.dtype)  # (T, 1) frames after the seam
+    inside = (i >= 0) & (i < n)
+    h0, h1 = _fade(i, frames)
+    zero = xp.zeros_like(h0)
+    offset = xp.where(inside, h0, zero) * dp + xp.where(inside, h1, zero) * dv
+    return f + xp.where(_seam_dims(xp, f), offset, xp.zeros_like(offset))
+
+
+def continue_features(features, known, keep):
+    """A window's features (..., T, D) in dataset units whose first ``keep`` frames continue a motion, made to
+    continue it: those frames replaced by ``known`` (..., T, D; the motion's last ``keep`` frames first, the rest
+    unread) and the generated frames after them blended into it (:func:`blend_after`; what
+    :meth:`PlanTensors.project` does for a prefix edit). ``keep``: an int or a 1-element integer array, 2 to T - 2.
+    A timeline's windows run it (Python), and so does the graph ``continue.onnx`` (JavaScript)."""
+    xp = namespace(features, known)
+    T = features.shape[-2]
+    kept = xp.arange(T, device=array_device(features))[:, None] < keep  # (T, 1)
+    f = xp.where(kept, xp.astype(known, features.dtype), features)
+    return blend_after(f, keep, SEAM_FRAMES)
+
+
 def blend_seams(features, kept, frames: int = SEAM_FRAMES):
     """Make the generated frames next to each block of ``kept`` (T,) frames continue it without a jump in
     position or velocity (inertialisation, as game engines blend animations): the first generated frame
     after a block gets an offset that puts it where the block's last step leads and gives it the block's
     last velocity; the offset fades to zero over ``frames`` frames along a cubic Hermite curve (value and
-    slope at the seam, zero value and slope at the end). The same, backwards, before a block. Applies to
-    every per-frame feature (root height, joint positions, rotations, velocities), not to the root's yaw
-    and XZ velocities (which integrate) nor to the foot contacts. features (T, D) -> (T, D), numpy or torch."""
+    slope at the seam, zero value and slope at the end; :func:`blend_after`). The same, backwards, before a
+    block. Applies to every per-frame feature (root height, joint positions, rotations, velocities), not to
+    the root's yaw and XZ velocities (which integrate) nor to the foot contacts. features (T, D) -> (T, D),
+    numpy or torch."""
     xp = namespace(features)
     f = features + 0  # a copy
     T = len(f)
-    dims = np.ones(f.shape[1], dtype=bool)
-    dims[:3] = False
-    dims[-4:] = False
-    dims = xp.asarray(dims, device=array_device(f))
+    dims = _seam_dims(xp, f)
     k = [bool(v) for v in (kept.tolist() if hasattr(kept, "tolist") else kept)]
-
-    def fade(n: int):
-        """Per-frame weights (n, 1) of the position and the velocity offsets: the first frame takes the whole
-        position offset, the second the position plus the whole velocity offset, and both fade to zero value
-        and zero slope at ``frames`` (cubic Hermite curves on frames 1..frames)."""
-        i = xp.arange(n, dtype=f.dtype, device=array_device(f))[:, None]
-        s = xp.clip((i - 1) / (frames - 1), min=0)
-        h0 = 2 * s ** 3 - 3 * s ** 2 + 1
-        h1 = i * xp.clip(1 - i / frames, min=0) ** 2 / (1 - 1 / frames) ** 2
-        return h0, h1
 
     for b in range(2, T - 1):
         if k[b - 1] and k[b - 2] and not k[b]:  # a block ends at b - 1: blend forwards from b
             n = min(frames, next((i for i in range(b, T) if k[i]), T) - b)
-            v_kept = f[b - 1] - f[b - 2]
-            dp = f[b - 1] + v_kept - f[b]
-            dv = v_kept - (f[b + 1] - f[b])
-            h0, h1 = fade(n)
-            f[b:b + n, dims] += (h0 * dp + h1 * dv)[:, dims]
+            f = blend_after(f, b, n, frames)
     for b in range(T - 2, 1, -1):
         if k[b] and k[b + 1] and not k[b - 1]:  # a block starts at b: blend backwards from b - 1
             prev = next((i for i in range(b - 1, -1, -1) if k[i]), -1)
@@ -190,7 +232,8 @@ def blend_seams(features, kept, frames: int = SEAM_FRAMES):
             v_kept = f[b + 1] - f[b]
             dp = f[b] - v_kept - f[b - 1]
             dv = v_kept - (f[b - 1] - f[b - 2])
-            h0, h1 = fade(n)  # going backwards in time the slope of the offset is -dv
+            h0, h1 = _fade(xp.astype(xp.arange(n, device=array_device(f)), f.dtype)[:, None], frames)
+            # going backwards in time the slope of the offset is -dv
             f[b - n:b, dims] += xp.flip(h0 * dp - h1 * dv, axis=0)[:, dims]
     return f
 
@@ -304,4 +347,4 @@ def plan_edit(mode: str, source: np.ndarray, skeleton: Skeleton, *, keep_start: 
 
 
 __all__ = ["EDIT_MODES", "IMPOSE", "EditPlan", "PlanTensors", "check_edit_inputs", "plan_edit", "body_mask",
-           "blend_seams", "plan_edit_for", "source_features", "splice_rigid", "x0_constraint"]
+           "blend_after", "blend_seams", "continue_features", "plan_edit_for", "source_features", "splice_rigid", "x0_constraint"]

@@ -19,7 +19,12 @@ SUBJECT = re.compile(r"^\s*(?:(?:a|an|the|this|that|some|one)\s+(?:[\w'-]+\s+){0
                      r"someone|somebody|people|adult|elder|worker)|someone|somebody|he|she|they|it|i|you)\b",
                      re.IGNORECASE)
 PRONOUN = re.compile(r"^\s*(?:he|she|they|it)\b\s*", re.IGNORECASE)
+LEADING = re.compile(r"^(?:and|to)\s+", re.IGNORECASE)  # words a later part drops ("..., and then to wave")
+DEFAULT_SUBJECT = "a person"  # the subject of the later parts when the first has none
 MAX_PARTS = 8  # parts of one prompt at most; a prompt of more sequence words is left whole
+# a prompt of sequence words this close (cosine similarity) to one of the model's example sentences is that one
+# action ("a person walks forward then turns left" is a caption of the corpus's walk-turn-left), not split
+ONE_ACTION_SIMILARITY = 0.95
 
 
 def split_sequence(prompt: str) -> list[str]:
@@ -31,10 +36,10 @@ def split_sequence(prompt: str) -> list[str]:
     if len(parts) < 2 or len(parts) > MAX_PARTS:
         return [prompt]
     found = SUBJECT.match(parts[0])
-    subject = found.group(0).strip() if found and not PRONOUN.match(found.group(0)) else "a person"
+    subject = found.group(0).strip() if found and not PRONOUN.match(found.group(0)) else DEFAULT_SUBJECT
     out = [parts[0]]
     for p in parts[1:]:
-        p = re.sub(r"^(?:and|to)\s+", "", p, flags=re.IGNORECASE)
+        p = LEADING.sub("", p, count=1)
         if PRONOUN.match(p):
             p = PRONOUN.sub(subject + " ", p, count=1)
         elif not SUBJECT.match(p):
@@ -58,4 +63,13 @@ def share_seconds(total: float, own: list[float], minimum: float = 0.0) -> list[
         short |= under
 
 
-__all__ = ["MAX_PARTS", "split_sequence", "share_seconds"]
+def sequence_lexicon() -> dict:
+    """What the JavaScript runtime needs to split a prompt as :func:`split_sequence` does (the page's and Node.js's
+    ``splitSequence``): the patterns (JavaScript reads them with the ``i`` flag), the default subject, the most
+    parts, the similarity to an example sentence that keeps a prompt whole."""
+    return {"words": SEQUENCE.pattern, "subject": SUBJECT.pattern, "pronoun": PRONOUN.pattern,
+            "leading": LEADING.pattern, "default_subject": DEFAULT_SUBJECT, "max_parts": MAX_PARTS,
+            "one_action_similarity": ONE_ACTION_SIMILARITY}
+
+
+__all__ = ["DEFAULT_SUBJECT", "MAX_PARTS", "ONE_ACTION_SIMILARITY", "split_sequence", "share_seconds", "sequence_lexicon"]

@@ -15,15 +15,10 @@ from ..core.language import language_message, not_english
 from ..core.limits import DEFAULT_SECONDS, LENGTH_MULTIPLE, base_seed
 from ..core.path_plan import PromptPaths, follow, placed
 from ..core.reliability import WEAK_MARGIN, weak_message
-from ..core.sequence_plan import share_seconds, split_sequence
+from ..core.sequence_plan import ONE_ACTION_SIMILARITY, share_seconds, split_sequence
 from ..core.result import MotionResult
 from ..core.settings import Settings
 from .timeline import TimelinePipeline
-
-
-# a prompt of sequence words this close (cosine similarity) to one of the model's example sentences is that one
-# action ("a person walks forward then turns left" is a caption of the corpus's walk-turn-left), not split
-ONE_ACTION_SIMILARITY = 0.95
 
 
 class TextToMotionPipeline:

@@ -7,7 +7,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..backends.base import Backend, Known
-from ..core.edit_plan import plan_edit
+from ..core.edit_plan import continue_features, plan_edit
 from ..core.limits import base_seed
 from ..core.path_plan import Waypoints, bend_segments, follow, path_segments, placed
 from ..core.timeline_plan import DEFAULT_OVERLAP, plan_windows, segment_frames
@@ -48,7 +48,8 @@ class TimelinePipeline:
             else:
                 plan = plan_edit("prefix", out[-w.keep:], b.skeleton, keep_start=w.keep, frames=frames)
                 raw = b.raw_features([w.prompt], [frames], settings, [base + j], known=Known.of_plan(plan, impose))[0]
-                raw = plan.project(raw.astype(np.float64)).astype(np.float32)  # exact on the kept part
+                # exact on the kept part, the seam blended (the graph continue.onnx is this function)
+                raw = continue_features(raw.astype(np.float64), plan.known, w.keep).astype(np.float32)
             out = np.concatenate([out, raw[w.keep:w.keep + w.new].astype(np.float64)])
         # 4. post-process: an explicit path followed, else each segment's path bent; the final stage
         placing = None

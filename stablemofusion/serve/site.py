@@ -24,13 +24,14 @@ from ..motion.gltf import BODY_COLOUR, BONE_RADIUS, DEFAULT_RADIUS, HAND_LENGTH,
 from ..core.path_plan import KINDS, MAX_PATH_METRES, MAX_PATH_SPEED, MAX_WAYPOINTS, MIN_TRAVEL
 from ..core.language import language_lexicon
 from ..core.reliability import WEAK_MARGIN, graphs_reliability
-from ..core.sequence_plan import MAX_PARTS, SEQUENCE
-from ..core.limits import LENGTH_MULTIPLE, MAX_PROMPT_CHARS
+from ..core.sequence_plan import sequence_lexicon
+from ..core.timeline_plan import DEFAULT_OVERLAP, TAIL
+from ..core.limits import LENGTH_MULTIPLE, MAX_PROMPT_CHARS, MAX_SECONDS
 from ..motion.rigid import DEFAULT_FIT
 from ..motion.skeleton import get_skeleton
 
 SITE_GRAPHS = ("text_encoder", "condition", "denoise", "length", "ood")  # what the page runs: the student's path
-FINAL_STAGE = ("rigid", "bend", "follow", "contacts", "cleanup", "pose")  # and the final stage's graphs (the package's, any model: final_stage_graph)
+FINAL_STAGE = ("rigid", "bend", "follow", "contacts", "cleanup", "pose", "continue")  # and the final stage's graphs (the package's, any model: final_stage_graph)
 # ONNX Runtime Web's WebGPU build (?backend=webgpu, 26.9 MB): not in the package; `smf site --webgpu DIR` copies it
 # from the dist/ folder of the npm package onnxruntime-web of the version the package vendors (vendored_ort_web_version)
 WEBGPU_FILES = ("ort.webgpu.min.mjs", "ort-wasm-simd-threaded.asyncify.mjs", "ort-wasm-simd-threaded.asyncify.wasm")
@@ -73,7 +74,9 @@ def web_description(graphs) -> dict:
         "skeleton": {"name": sk.name, "names": list(sk.joint_names), "parents": [int(p) for p in sk.parents],
                      "bone_lengths": list(sk.bone_lengths)},
         "paths": path_lexicon(), "path_kinds": list(KINDS), "bvh_order": BVH_ORDER,
-        "sequence_words": SEQUENCE.pattern, "sequence_max_parts": MAX_PARTS,  # a prompt of several parts (Python)
+        # a prompt of several parts: split as core/sequence_plan.py splits it, made as a timeline (core/timeline_plan.py)
+        "sequence": {**sequence_lexicon(), "overlap_frames": int(round(DEFAULT_OVERLAP * m.fps)), "tail": TAIL,
+                     "max_seconds": MAX_SECONDS},
         "languages": language_lexicon(),  # the word lists that tell a prompt that is not English (core/language.py)
         "weak_actions": weak_actions(graphs),  # actions the model draws badly, and the margin (core/reliability.py)
         "glb_body": {"bone_radius": dict(BONE_RADIUS), "default_radius": DEFAULT_RADIUS, "head_radius": HEAD_RADIUS,

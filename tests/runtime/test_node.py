@@ -11,11 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from stablemofusion.core.sequence_plan import share_seconds, split_sequence
+from stablemofusion.core.timeline_plan import DEFAULT_OVERLAP, plan_windows
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 from stablemofusion.serve.site import write_site
 
 NODE = shutil.which("node")
-# one prompt of 300 characters (no sequence words: those make a timeline in Python, which the page does not)
+# one prompt of 300 characters (no sequence words: those make a timeline, tested below)
 LONG_PROMPT = ("a tired old man in a heavy winter coat walks slowly forward along a quiet street, stops for a moment "
                "to catch his breath, looks around at the houses and the trees on both sides, and raises his right "
                "hand to wave at a neighbour across the road and carries on walking with small careful steps home, now")
@@ -63,14 +65,68 @@ def test_node_reproduces_the_python_runtime(site, prompt, seconds, seed, footska
     assert abs(got["similarity"] - want.domain.similarity) < 1e-4
 
 
-def test_node_says_it_makes_a_sequence_prompt_as_one_motion(site):
-    """The Python runtimes make "... then ..." as a timeline of its parts; the JavaScript runtime makes one motion of
-    the whole prompt and says so in its warnings (the page shows them); a prompt of one part has none."""
-    folder, _ = site
-    two = json.loads(node_generate(folder, "a person bows and then runs forward", "--seconds", "3").stdout)
-    one = json.loads(node_generate(folder, "a person bows politely", "--seconds", "3").stdout)
-    assert len(two["warnings"]) == 1 and "2 things one after another" in two["warnings"][0]
-    assert one["warnings"] == []
+SEQUENCE_SPLITS = ["a man runs forward, after that he bows", "an old man waves before walking away",
+                   "turns left and then walks forward, then waves", "a person waves both hands and smiles",
+                   "a man walks then", "a woman bows, and then to wave", "She jumps and afterwards she sits down",
+                   "one two then three then four then five then six then seven then eight then nine"]
+
+
+def test_node_splits_and_plans_sequences_as_the_python_does(site):
+    """splitSequence, shareSeconds and planWindows (sequence.js) give the Python's answers (split_sequence,
+    share_seconds, plan_windows) on every benchmark prompt and on awkward ones."""
+    folder, pipe = site
+    bench = Path(__file__).resolve().parents[2] / "benchmarks"
+    prompts = [json.loads(line)["prompt"] for name in ("prompts_sequences.jsonl", "prompts_plain.jsonl")
+               for line in (bench / name).read_text(encoding="utf-8").splitlines() if line] + SEQUENCE_SPLITS
+    shares = [(6.0, [2.0, 4.0], 0.0), (4.0, [3.0, 2.5], 2.0), (5.0, [10.0, 1.0, 1.0], 1.5), (3.0, [3.0, 2.0], 2.0),
+              (7.3, [1.1, 2.9, 4.05], 2.0)]
+    timelines = [[("a", 60), ("b", 300)], [("a", 10), ("b", 41), ("c", 180)], [("a", 196)]]
+    script = ("import { splitSequence, shareSeconds, planWindows, roundHalfEven } from './runtime/sequence.js';\n"
+              "import { readFileSync } from 'node:fs';\n"
+              "const info = JSON.parse(readFileSync('./model/web.json', 'utf8'));\n"
+              "const [prompts, shares, timelines] = JSON.parse(readFileSync(0, 'utf8'));\n"
+              "console.log(JSON.stringify([prompts.map((p) => splitSequence(p, info.sequence)),\n"
+              "  shares.map(([t, own, m]) => shareSeconds(t, own, m)),\n"
+              "  timelines.map((s) => planWindows(s, info.max_frames, info.sequence.overlap_frames, info.sequence.tail)),\n"
+              "  [0.5, 1.5, 2.5, 2.4999, 40.5, 41.5].map(roundHalfEven)]));\n")
+    (folder / "seq.mjs").write_text(script)
+    run = subprocess.run([NODE, str(folder / "seq.mjs")], input=json.dumps([prompts, shares, timelines]),
+                         capture_output=True, text=True, timeout=120, cwd=folder)
+    assert run.returncode == 0, run.stderr
+    splits, shared, windows, rounded = json.loads(run.stdout)
+    assert splits == [split_sequence(p) for p in prompts]
+    assert sum(len(s) > 1 for s in splits) >= 12  # the benchmark's ten and the awkward ones do split
+    for got, (total, own, minimum) in zip(shared, shares):
+        assert np.allclose(got, share_seconds(total, own, minimum), rtol=0, atol=1e-12)
+    info = json.loads((folder / "model" / "web.json").read_text())
+    for got, segments in zip(windows, timelines):
+        want = plan_windows(segments, info["max_frames"], int(round(DEFAULT_OVERLAP * info["fps"])), info["min_frames"])
+        assert got == [{"prompt": w.prompt, "keep": w.keep, "new": w.new, "segment": w.segment, "tail": w.tail}
+                       for w in want]
+    assert rounded == [round(x) for x in (0.5, 1.5, 2.5, 2.4999, 40.5, 41.5)]
+
+
+@pytest.mark.parametrize("prompt, seconds, seed, footskate", [
+    ("a tired man walks in a circle then waves", None, 0, "post"),
+    ("a person bows and then runs forward", 7, 3, "off"),
+    ("someone raises both hands, then walks forward and then turns left", None, 11, "post")])
+def test_node_makes_a_sequence_prompt_as_the_python_does(site, prompt, seconds, seed, footskate):
+    """A prompt that asks for one thing after another is a timeline of its parts in JavaScript too: the same parts,
+    lengths, windows (each continuing the last through continue.onnx), path words per part and joints as the
+    Python runtime's."""
+    folder, pipe = site
+    extra = [] if seconds is None else ["--seconds", seconds]
+    run = node_generate(folder, prompt, *extra, "--seed", seed, "--footskate", footskate)
+    assert run.returncode == 0, run.stderr
+    got = json.loads(run.stdout)
+    want = pipe(prompt, seconds=seconds, seed=seed, footskate=footskate)[0]
+    assert [p for p, _ in got["sequence"]] == [p for p, _ in want.sequence]
+    assert np.allclose([s for _, s in got["sequence"]], [s for _, s in want.sequence], rtol=0, atol=1e-9)
+    joints = np.asarray(got["joints"])
+    assert joints.shape == want.joints.shape
+    assert np.abs(joints - want.joints).max() < 5e-6
+    assert not any("one after another" in w for w in got["warnings"])
+    assert abs(got["similarity"] - want.domain.similarity) < 1e-4
 
 
 def test_node_gives_one_clear_error_for_bad_input(site):

@@ -1,9 +1,10 @@
 """The final stage's graphs (assets/final_stage/: the path words' bend, following explicit points, decoding and the
-rigid fit, the cleanup and its contacts, the pose; exported from the Python functions) against the Python functions
-themselves, on the same inputs: every path kind and explicit waypoints (timed and not), walks, runs and standing
-motions; run by ONNX Runtime in Python and by ONNX Runtime Web in Node.js, as the page and Node run them. Everything
-computes in float64, so they agree to rounding (goal: 1e-3 mm; asserted 1e-9 m, 1e-9 rad, 1e-6 degrees). A change to
-the Python final stage that is not exported again (`smf export --final-stage`) fails here."""
+rigid fit, the cleanup and its contacts, the pose, a timeline window's continuation; exported from the Python
+functions) against the Python functions themselves, on the same inputs: every path kind and explicit waypoints (timed
+and not), walks, runs and standing motions; run by ONNX Runtime in Python and by ONNX Runtime Web in Node.js, as the
+page and Node run them. Everything computes in float64, so they agree to rounding (goal: 1e-3 mm; asserted 1e-9 m,
+1e-9 rad, 1e-6 degrees). A change to the Python final stage that is not exported again (`smf export --final-stage`)
+fails here."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ import numpy as np
 import onnxruntime as ort
 import pytest
 
+from stablemofusion.core.edit_plan import continue_features
 from stablemofusion.footskate.cleanup import CleanupConfig, clean_joints, detect_contacts
 from stablemofusion.motion.bvh import BVH_ORDER
 from stablemofusion.motion.features import joints_from_features
@@ -73,10 +75,17 @@ def jobs():
     pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
     lengths = np.asarray(pipe.skeleton.bone_lengths)[None]
     config = CleanupConfig()
-    out = []
+    out, last = [], None
     for k, (prompt, path) in enumerate(CASES):
         spec = parse_path(prompt)
         raw = pipe(prompt if spec is None else spec.prompt, seconds=4, seed=k, footskate="off")[0].features
+        if last is not None and k < 4:  # a timeline's window continuing the motion before it (the last 1 s, or 2 frames)
+            keep = 20 if k < 3 else 2
+            known = np.zeros_like(raw)
+            known[:keep] = last[-keep:]
+            out.append((prompt, "continue", feed(features=raw[None], known=known[None], keep=np.array([keep])),
+                        [continue_features(raw, known, keep)[None]]))
+        last = raw
         if path is not None:
             wp = Waypoints.read(path)
             timed = wp.times is not None

@@ -8,6 +8,7 @@
 import { normal } from './noise.js';
 import { parsePath, placeJoints, readWaypoints, waypointSeconds } from './paths.js';
 import { bvhText, recentre } from './motion.js';
+import { planWindows, roundHalfEven, shareSeconds, splitSequence } from './sequence.js';
 
 const SCRIPTS = ['Cyrillic', 'Greek', 'Arabic', 'Hebrew', 'Devanagari', 'Thai', 'Armenian', 'Georgian', 'Bengali',
   'Tamil', 'Ethiopic'];
@@ -35,6 +36,13 @@ export function notEnglish(prompt, lex) {
     return `${lex.names[language]} words`;
   }
   return null;
+}
+
+// A length in seconds given by the user, as a number; RangeError unless it is a finite number above 0.
+function checkSeconds(seconds) {
+  const s = Number(seconds);
+  if (!(s > 0) || !Number.isFinite(s)) throw new RangeError(`seconds must be more than 0, got ${seconds}`);
+  return s;
 }
 
 export class MotionRuntime {
@@ -134,29 +142,143 @@ export class MotionRuntime {
     return { similarity: score, closest: order, outOfDomain: score < a.threshold && !taught };
   }
 
+  // The length model's frames for an encoding, within the model's range (the Python's predict_frames, clipped).
+  async predicted(enc) {
+    const i = this.info;
+    const out = await this.sessions.length.run({ tokens: enc.tokens, mask: this.mask(enc.L) });
+    return Math.min(Math.max(Math.trunc(Number(out.frames.data[0])), i.min_frames), i.max_frames);
+  }
+
   // The length of a motion in frames: `seconds` rounded as every runtime rounds it, or the length model's.
   async frames(enc, seconds) {
     const i = this.info;
     let n;
     if (seconds === undefined || seconds === null || seconds === '') {
-      const out = await this.sessions.length.run({ tokens: enc.tokens, mask: this.mask(enc.L) });
-      n = Math.min(Math.max(Number(out.frames.data[0]), i.min_frames), i.max_frames);
+      n = await this.predicted(enc);
     } else {
-      const s = Number(seconds);
-      if (!(s > 0) || !Number.isFinite(s)) throw new RangeError(`seconds must be more than 0, got ${seconds}`);
-      n = Math.round(s * i.fps);
+      n = Math.round(checkSeconds(seconds) * i.fps);
     }
     n = Math.floor(Math.max(n, i.min_frames) / i.length_multiple) * i.length_multiple;
     if (n > i.max_frames) throw new RangeError(`this page makes motions of at most ${(i.max_frames / i.fps).toFixed(1)} s`);
     return n;
   }
 
-  // One motion: {joints (T x J x 3 nested arrays, metres), frames, fps, prompt, seed, similarity, closest,
-  // outOfDomain}.
-  // `path`: a root path to follow ([[x, z], ...] metres, or {points, times}), its length the motion's unless seconds
-  // are given.
-  async generate({ prompt, seconds, seed = 0, footskate = 'post', path = null }) {
+  // The model's raw features (n x D, dataset units, float32 values) for an encoded prompt: the sampler table on the
+  // portable noise (stream 0 of the seed), frames padded to pad_multiple. `start`: the first K frames known (K x D
+  // features of the motion so far), imposed on every prediction (the Python's x0 hook of a prefix edit).
+  async sample(enc, n, seed, start = null) {
     const i = this.info, T = this.ort.Tensor;
+    const cond = await this.sessions.condition.run({ tokens: enc.tokens, mask: this.mask(enc.L),
+      guidance: new T('float32', Float32Array.of(i.guidance), [1]) });
+    const D = i.motion_dim, P = Math.ceil(n / i.pad_multiple) * i.pad_multiple;
+    const tab = i.table;
+    const motionMask = new Uint8Array(P);
+    motionMask.fill(1, 0, n);
+    const inputs = { features: cond.features, text_mask: this.mask(enc.L), keep: new T('bool', Uint8Array.of(1), [1]),
+      motion_mask: new T('bool', motionMask, [1, P]) };
+    if (cond.sentence) inputs.sentence = cond.sentence;
+    // the known frames normalised, in float32 as the Python computes them
+    const known = start && Float32Array.from(start, (v, e) => Math.fround(Math.fround(v) - i.mean[e % D]) / i.std[e % D]);
+    let x = normal(seed, n * D, { stream: 0, draw: 0 }).map((v) => v * tab.init_sigma);
+    let prev = new Float32Array(n * D);
+    for (let k = 0; k < tab.t.length; k++) {
+      const xin = new Float32Array(P * D);
+      for (let e = 0; e < n * D; e++) xin[e] = x[e] * tab.c_in[k];
+      const out = await this.sessions.denoise.run({ ...inputs, x: new T('float32', xin, [1, P, D]),
+        t: new T('float32', Float32Array.of(tab.t[k]), [1]) });
+      const x0 = Float32Array.from(out.x0.data.subarray(0, n * D));
+      if (known) x0.set(known);
+      const noise = tab.stochastic ? normal(seed, n * D, { stream: 0, draw: 1 + k }) : null;
+      const next = new Float32Array(n * D);
+      for (let e = 0; e < n * D; e++) next[e] = tab.a[k] * x[e] + tab.b[k] * x0[e] + tab.c[k] * prev[e] + (noise ? tab.d[k] * noise[e] : 0);
+      prev = x0;
+      x = next;
+    }
+    const features = new Float64Array(n * D);
+    // in float32, as the Python runtime computes it (its sampler works in float32 throughout)
+    for (let e = 0; e < n * D; e++) features[e] = Math.fround(Math.fround(x[e] * i.std[e % D]) + i.mean[e % D]);
+    return features;
+  }
+
+  // A prompt's parts: split at its sequence words (sequence.js), unless the whole prompt is nearly one of the
+  // model's example sentences (the Python's TextToMotionPipeline.parts).
+  async parts(prompt) {
+    const i = this.info, q = i.sequence;
+    const parts = q ? splitSequence(prompt, q) : [prompt];
+    if (parts.length < 2) return parts;
+    const spec = parsePath(prompt, i.paths);
+    const whole = await this.domain(await this.encode(spec ? spec.prompt : prompt));
+    return (whole.closest?.[0]?.[1] ?? 0) >= q.one_action_similarity ? [prompt] : parts;
+  }
+
+  // The segments of a prompt's parts: each part as long as its path words say, else as the length model predicts; a
+  // length given for the whole (`total` seconds, or null) shared among them (the Python's TextToMotionPipeline.
+  // segments and segment_frames). [{prompt, asked (without path words), spec, seconds, frames}].
+  async segments(parts, total) {
+    const i = this.info, q = i.sequence;
+    const specs = parts.map((p) => parsePath(p, i.paths));
+    const own = [];
+    for (let k = 0; k < parts.length; k++) {
+      own.push(specs[k]?.seconds ?? (await this.predicted(await this.encode(parts[k]))) / i.fps);
+    }
+    const shortest = i.min_frames / i.fps;
+    const shared = total === null ? own : shareSeconds(total, own, shortest);
+    if (Math.min(...shared) < shortest) {
+      throw new RangeError(`${parts.length} parts (${parts.join('; ')}) need at least ${shortest} s each; ${total} s is too short for them`);
+    }
+    const sum = shared.reduce((a, b) => a + b, 0);
+    if (!(sum <= q.max_seconds)) throw new RangeError(`a timeline's total seconds must be more than 0 and at most ${q.max_seconds} s, got ${sum}`);
+    return parts.map((p, k) => ({ prompt: p, asked: specs[k] ? specs[k].prompt : p, spec: specs[k], seconds: shared[k],
+      frames: roundHalfEven(shared[k] * i.fps) }));
+  }
+
+  // The raw features of a timeline of segments, window after window (seed + j for window j), each later window
+  // continuing the motion so far: its first frames known while sampling, then continue.onnx (the Python's
+  // TimelinePipeline, steps 2-3).
+  async timeline(segs, seed) {
+    const i = this.info, q = i.sequence, D = i.motion_dim;
+    const windows = planWindows(segs.map((s) => [s.asked, s.frames]), i.max_frames, q.overlap_frames, q.tail);
+    const total = segs.reduce((a, s) => a + s.frames, 0);
+    const out = new Float64Array(total * D);
+    let made = 0;
+    for (let j = 0; j < windows.length; j++) {
+      const w = windows[j];
+      const frames = Math.max(w.keep + w.new + w.tail, i.min_frames);
+      const start = w.keep ? out.slice((made - w.keep) * D, made * D) : null;
+      let raw = await this.sample(await this.encode(w.prompt), frames, seed + j, start);
+      if (start) {
+        const known = new Float64Array(frames * D);
+        known.set(start);
+        const got = await this.stage('continue', { features: ['float64', raw, [1, frames, D]],
+          known: ['float64', known, [1, frames, D]], keep: ['int64', BigInt64Array.of(BigInt(w.keep)), [1]] });
+        raw = Float64Array.from(got.features_out.data, Math.fround);
+      }
+      out.set(raw.subarray(w.keep * D, (w.keep + w.new) * D), made * D);
+      made += w.new;
+    }
+    return out;
+  }
+
+  // A warning when the closest known action of a prompt's domain is one the model draws badly (its reliability table,
+  // web.json), by the Python's margin; else null.
+  weakWarning(prompt, domain) {
+    const i = this.info;
+    const weak = i.weak_actions?.actions ?? {};
+    const [action, similarity] = domain.closest?.[0] ?? [null, 0];
+    const wellDrawn = (domain.closest ?? []).filter(([a]) => !(a in weak)).map(([, s]) => s);
+    if (domain.outOfDomain || !(action in weak) || !(similarity - (wellDrawn.length ? Math.max(...wellDrawn) : 0) > i.weak_actions.margin)) return null;
+    const w = weak[action];
+    return `"${prompt}" is closest to "${action}", which this model draws badly (it was taught by ${w.clips} ` +
+      `clip${w.clips === 1 ? '' : 's'}${w.accuracy === null ? '' : `; ${Math.round(w.accuracy * 100)}% of its motions for ` +
+      'other wordings were judged right'}): the motion may not show it`;
+  }
+
+  // One motion: {joints (T x J x 3 nested arrays, metres), frames, fps, prompt, seed, similarity, closest,
+  // outOfDomain, warnings, sequence (a prompt of several parts: [[part, seconds], ...]), contacts}.
+  // `path`: a root path to follow ([[x, z], ...] metres, or {points, times}), its length the motion's unless seconds
+  // are given. A prompt that asks for one thing after another ("... then ...") is made as a timeline of its parts.
+  async generate({ prompt, seconds, seed = 0, footskate = 'post', path = null }) {
+    const i = this.info;
     prompt = String(prompt ?? '').trim();
     if (!prompt) throw new RangeError('the prompt must be a non-empty text');
     if (/[\uD800-\uDFFF]/u.test(prompt)) throw new RangeError('the prompt must be valid text: it holds a lone surrogate');
@@ -166,46 +288,45 @@ export class MotionRuntime {
     if (footskate !== 'off' && footskate !== 'post') {
       throw new RangeError(`footskate must be 'post' or 'off' here, got '${footskate}' ('loop' runs in the torch sampler)`);
     }
-    // 1. text: path words (the model is given the prompt without them), tokens, condition, domain, length (a
-    // path's, else the length model's on the whole prompt)
-    const spec = i.paths ? parsePath(prompt, i.paths) : null;
-    const enc = await this.encode(spec ? spec.prompt : prompt);
-    const domain = await this.domain(enc);
+    // 1. text: the parts ("... then ..."), path words (the model is given the prompt without them), domains, lengths
+    // (a path's, else the length model's on the whole prompt or part)
     const unset = seconds === undefined || seconds === null || seconds === '';
+    if (!unset) checkSeconds(seconds);
     const wp = path === null || path === undefined ? null : readWaypoints(path, i.path_limits);
-    const own = wp ? waypointSeconds(wp, prompt, i.paths, i.fps, i.length_multiple) : spec && spec.seconds;
-    const n = await this.frames(spec ? await this.encode(prompt) : enc, unset && own ? own : seconds);
-    const cond = await this.sessions.condition.run({ tokens: enc.tokens, mask: this.mask(enc.L),
-      guidance: new T('float32', Float32Array.of(i.guidance), [1]) });
-    // 2. denoise: the sampler table on the portable noise (stream 0 of the seed), frames padded to pad_multiple
-    const D = i.motion_dim, P = Math.ceil(n / i.pad_multiple) * i.pad_multiple;
-    const tab = i.table;
-    const motionMask = new Uint8Array(P);
-    motionMask.fill(1, 0, n);
-    const inputs = { features: cond.features, text_mask: this.mask(enc.L), keep: new T('bool', Uint8Array.of(1), [1]),
-      motion_mask: new T('bool', motionMask, [1, P]) };
-    if (cond.sentence) inputs.sentence = cond.sentence;
-    let x = normal(seed, n * D, { stream: 0, draw: 0 }).map((v) => v * tab.init_sigma);
-    let prev = new Float32Array(n * D);
-    for (let k = 0; k < tab.t.length; k++) {
-      const xin = new Float32Array(P * D);
-      for (let e = 0; e < n * D; e++) xin[e] = x[e] * tab.c_in[k];
-      const out = await this.sessions.denoise.run({ ...inputs, x: new T('float32', xin, [1, P, D]),
-        t: new T('float32', Float32Array.of(tab.t[k]), [1]) });
-      const x0 = out.x0.data.subarray(0, n * D);
-      const noise = tab.stochastic ? normal(seed, n * D, { stream: 0, draw: 1 + k }) : null;
-      const next = new Float32Array(n * D);
-      for (let e = 0; e < n * D; e++) next[e] = tab.a[k] * x[e] + tab.b[k] * x0[e] + tab.c[k] * prev[e] + (noise ? tab.d[k] * noise[e] : 0);
-      prev = Float32Array.from(x0);
-      x = next;
+    const parts = await this.parts(prompt);
+    const warnings = [];
+    let n, features, segs = null, domain, spec = null;
+    if (parts.length === 1) {
+      spec = i.paths ? parsePath(prompt, i.paths) : null;
+      const enc = await this.encode(spec ? spec.prompt : prompt);
+      domain = await this.domain(enc);
+      const own = wp ? waypointSeconds(wp, prompt, i.paths, i.fps, i.length_multiple) : spec && spec.seconds;
+      n = await this.frames(spec ? await this.encode(prompt) : enc, unset && own ? own : seconds);
+      // 2. denoise
+      features = await this.sample(enc, n, seed);
+      const weak = this.weakWarning(prompt, domain);
+      if (weak) warnings.push(weak);
+    } else {
+      segs = await this.segments(parts, !unset ? Number(seconds) : wp ? waypointSeconds(wp, prompt, i.paths, i.fps, i.length_multiple) : null);
+      const domains = [];
+      for (const s of segs) domains.push(await this.domain(await this.encode(s.asked)));
+      domain = domains.reduce((a, d) => (d.similarity < a.similarity ? d : a));
+      for (const [k, d] of domains.entries()) {
+        const weak = this.weakWarning(segs[k].prompt, d);
+        if (weak && !warnings.includes(weak)) warnings.push(weak);
+      }
+      n = segs.reduce((a, s) => a + s.frames, 0);
+      // 2. denoise window after window, each continuing the motion so far
+      features = await this.timeline(segs, seed);
     }
-    let features = new Float64Array(n * D);
-    // in float32, as the Python runtime computes it (its sampler works in float32 throughout)
-    for (let e = 0; e < n * D; e++) features[e] = Math.fround(Math.fround(x[e] * i.std[e % D]) + i.mean[e % D]);
-    // 3. the final stage, each step a graph: the path followed (explicit points, else the path words'), decoded and
-    // fitted with one skeleton of fixed bone lengths, the cleanup; then the first root at the origin
-    const J = i.skeleton.parents.length, sk = i.skeleton;
+    // 3. the final stage, each step a graph: the path followed (explicit points, else the path words' of the prompt or
+    // of each part), decoded and fitted with one skeleton of fixed bone lengths, the cleanup; then the first root at
+    // the origin
+    const D = i.motion_dim, J = i.skeleton.parents.length, sk = i.skeleton;
     const f64 = (v, dims) => ['float64', Float64Array.from(v), dims];
+    const bend = async (f, s, T) => (await this.stage('bend', { features: f64(f, [1, T, D]),
+      kind: ['int64', BigInt64Array.of(BigInt(i.path_kinds.indexOf(s.kind))), [1]],
+      angle: f64([s.angle * (Math.PI / 180)], [1]) })).features_out.data;
     let placing = null;
     if (wp) {
       const K = wp.points.length;
@@ -214,9 +335,17 @@ export class MotionRuntime {
       features = out.features_out.data;
       placing = { start: out.start.data[0], origin: Array.from(out.origin.data) };
     } else if (spec) {
-      const kind = ['int64', BigInt64Array.of(BigInt(i.path_kinds.indexOf(spec.kind))), [1]];
-      features = (await this.stage('bend', { features: f64(features, [1, n, D]), kind,
-        angle: f64([spec.angle * (Math.PI / 180)], [1]) })).features_out.data;
+      features = await bend(features, spec, n);
+    } else if (segs) {
+      // each part bent by its own path words (the Python's bend_segments: features are body-relative, so a later
+      // part continues from where the bent one leaves the body)
+      features = Float64Array.from(features);
+      let a = 0;
+      for (const s of segs) {
+        const b = Math.min(a + s.frames, n);
+        if (s.spec && b - a >= 2) features.set(await bend(features.subarray(a * D, b * D), s.spec, b - a), a * D);
+        a = b;
+      }
     }
     let flat = Float64Array.from((await this.stage('rigid', { features: f64(features, [1, n, D]),
       bone_lengths: f64(sk.bone_lengths, [1, J]) })).joints.data);
@@ -231,31 +360,15 @@ export class MotionRuntime {
       for (let j = 0; j < J; j++) frame.push([flat[(f * J + j) * 3], flat[(f * J + j) * 3 + 1], flat[(f * J + j) * 3 + 2]]);
       joints.push(frame);
     }
-    // contacts: the frames the cleanup held each foot joint (left ankle, left toe, right ankle, right toe), 4 x T 0/1
-    // a prompt that asks for one thing after another: the Python runtimes make it as a timeline of its parts; this
-    // runtime makes one motion of the whole prompt, and says so
-    const warnings = [];
-    const parts = i.sequence_words ? prompt.split(new RegExp(i.sequence_words, 'i')).filter((p) => p && p.trim()) : [];
-    if (parts.length > 1 && parts.length <= (i.sequence_max_parts ?? Infinity)) {
-      warnings.push(`"${prompt}" asks for ${parts.length} things one after another; this page makes one motion of the ` +
-        'whole prompt, which may draw only the first (smf generate and smf serve make each part in turn)');
-    }
+    // 4. what the motion carries for the user: its prompt not English, an action the model draws badly
     const foreign = i.languages ? notEnglish(prompt, i.languages) : null;
     if (foreign) {
       warnings.unshift(`"${prompt}" does not look like English (${foreign}): the model knows English prompts only, so ` +
         'the motion may not follow it');
     }
-    // the closest known action one the model draws badly (its reliability table, web.json), by the Python's margin
-    const weak = i.weak_actions?.actions ?? {};
-    const [action, similarity] = domain.closest?.[0] ?? [null, 0];
-    const wellDrawn = (domain.closest ?? []).filter(([a]) => !(a in weak)).map(([, s]) => s);
-    if (!domain.outOfDomain && action in weak && similarity - (wellDrawn.length ? Math.max(...wellDrawn) : 0) > i.weak_actions.margin) {
-      const w = weak[action];
-      warnings.push(`"${prompt}" is closest to "${action}", which this model draws badly (it was taught by ${w.clips} ` +
-        `clip${w.clips === 1 ? '' : 's'}${w.accuracy === null ? '' : `; ${Math.round(w.accuracy * 100)}% of its motions for ` +
-        'other wordings were judged right'}): the motion may not show it`);
-    }
+    // contacts: the frames the cleanup held each foot joint (left ankle, left toe, right ankle, right toe), 4 x T 0/1
     const motion = { joints, frames: n, fps: i.fps, prompt, seed, ...domain, warnings,
+      ...(segs ? { sequence: segs.map((s) => [s.prompt, s.seconds]) } : {}),
       ...(contacts ? { contacts: contacts.map((c) => Array.from(c)) } : {}) };
     Object.defineProperty(motion, 'flat', { value: flat }); // (T x J x 3) as one array, not serialised
     Object.defineProperty(motion, 'planted', { value: planted }); // the feet the cleanup held or would count planted

@@ -1,7 +1,8 @@
 // The static site: text to motion in the page (runtime/smf.js on ONNX Runtime Web), played on the viewer's stick
 // figure. window.smf is the page's API (for tests and pages that embed it):
 //   await window.smf.generate({prompt, seconds, seed, footskate: 'off'}) -> the motion; window.smf.lastMotion
-//   {joints (frames x 22 x 3 metres), fps, prompt, seed}; window.smf.ready: a promise of the loaded model;
+//   {joints (frames x 22 x 3 metres), fps, prompt, seed, sequence (a prompt of several parts: [[part, seconds], ...])};
+//   window.smf.ready: a promise of the loaded model;
 //   window.smf.timings: {loadMs, firstMotionMs, lastMotionMs, threads, backend ('webgpu' or 'wasm')}; await window.smf.file('bvh' | 'glb' | 'json') -> the
 //   last motion's download (a string, or bytes for glb).
 import { OrbitControls } from './vendor/three/OrbitControls.js';
@@ -79,7 +80,8 @@ smf.generate = async (request) => {
   const ms = performance.now() - t0;
   smf.timings.lastMotionMs = ms;
   if (smf.timings.firstMotionMs === undefined) smf.timings.firstMotionMs = performance.now() - started;
-  smf.lastMotion = { joints: motion.joints, fps: motion.fps, prompt: motion.prompt, seed: motion.seed };
+  smf.lastMotion = { joints: motion.joints, fps: motion.fps, prompt: motion.prompt, seed: motion.seed,
+    ...(motion.sequence ? { sequence: motion.sequence } : {}) };
   made = motion;
   show(motion, ms);
   return motion;
@@ -123,7 +125,9 @@ function show(motion, ms) {
   $('scrub').max = String(player.frames - 1);
   for (const id of ['scrub', 'play', ...Object.keys(DOWNLOADS)]) $(id).disabled = false;
   setFrame(0);
-  status(`${motion.prompt}: ${motion.frames} frames, seed ${motion.seed}, made in ${ms.toFixed(0)} ms`);
+  // a prompt of several parts: each made in turn, and the status says how it was split
+  const parts = motion.sequence ? ` (${motion.sequence.map(([p, s]) => `${p}: ${s.toFixed(1)} s`).join(', then ')})` : '';
+  status(`${motion.prompt}: ${motion.frames} frames${parts}, seed ${motion.seed}, made in ${ms.toFixed(0)} ms`);
   $('warning').textContent = [...(motion.outOfDomain
     ? [`"${motion.prompt}" is unlike the actions this model knows (closest: ${motion.closest.map((c) => c[0]).join(', ')}); the motion may not follow it.`]
     : []), ...(motion.warnings ?? [])].join('\n');  // one line each (viewer.css: pre-line)

@@ -39,10 +39,10 @@ def shoot(page, url: str, shots: dict[str, str], out: Path) -> None:
         page.wait_for_function("!document.getElementById('generate').disabled", timeout=120_000)
         page.fill("#prompt", prompt)
         page.fill("#seed", "0")
+        before = page.inner_text("#status")
         page.click("#generate")
-        page.wait_for_function(f"document.getElementById('status').textContent.includes('frames') && "
-                               f"document.getElementById('status').textContent.startsWith({prompt!r})",
-                               timeout=120_000)
+        page.wait_for_function("([before]) => { const s = document.getElementById('status').textContent; "
+                               "return s.includes('frames') && s !== before; }", arg=[before], timeout=120_000)
         page.wait_for_timeout(1500)
         page.screenshot(path=str(out / name))
         print(f"wrote {out / name}: {page.inner_text('#status')}")

@@ -38,6 +38,7 @@ import torch
 from ..diffusion.config import LENGTH_MULTIPLE
 from ..core.errors import SMFError
 from ..core.limits import SEED_RANGE
+from ..data.captions import paraphrases
 from .clips import Clip
 from .file import Adapter, AdapterInfo, weights_hash
 from .lora import LoraConfig, add_lora, load_lora_state, lora_state, no_fast_path
@@ -73,6 +74,9 @@ class AdaptConfig:
     # measured (docs/adapters.md), it taught running to a base that walked for it, and hopping less well
     contrast_auto: bool = True
     lexicon: str = "bandai"  # the base corpus's caption lexicon (replayed captions); "": its known-action examples
+    # other ways to say each taught caption, from that lexicon's grammar (paraphrases; 0: none): the move then answers
+    # to people's words, not only to the captions' (docs/adapters.md)
+    paraphrases: int = 8
     pool: int = 512  # student targets per side (taught captions, replay)
     target_guidance: float | None = None  # guidance of the adapted teacher for the student's targets (None: its own)
     # guidance rescale of those targets (rescale_guidance; 0: none): measured (docs/adapters.md), plain guidance made
@@ -95,8 +99,9 @@ class AdaptConfig:
             raise SMFError(f"--target-rescale is a share in [0, 1], got {self.target_rescale}")
         if not 0 <= self.replay < 1:
             raise SMFError(f"--replay is a share of each batch in [0, 1), got {self.replay}")
-        if self.contrast < 0:
-            raise SMFError(f"--contrast must not be negative, got {self.contrast}")
+        if self.contrast < 0 or self.paraphrases < 0:
+            raise SMFError(f"--contrast and --paraphrases must not be negative, got {self.contrast}, "
+                           f"{self.paraphrases}")
         if self.teacher_lr <= 0 or self.student_lr <= 0 or self.pool < 1 or self.checkpoint_every < 1:
             raise SMFError("learning rates, --pool and --checkpoint-every must be positive")
         return self
@@ -293,6 +298,11 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
     mean, std = torch.as_tensor(teacher_pipe.mean), torch.as_tensor(teacher_pipe.std)
     motions = [(torch.from_numpy(c.features).float() - mean) / std for c in clips]
     taught = sorted({cap for c in clips for cap in c.captions})
+    # what each clip is said to be: its captions, and each said other ways (paraphrases, seeded by the clip)
+    said = [tuple(dict.fromkeys(c.captions + tuple(p for cap in c.captions for p in paraphrases(
+        cap, cfg.paraphrases, seed=f"{cfg.seed}|{c.file}", lexicon=cfg.lexicon)))) if cfg.lexicon else c.captions
+        for c in clips]
+    other_ways = sorted({cap for s in said for cap in s} - set(taught))
     text = student_pipe.text_cache
     rows: dict[str, torch.Tensor] = {}  # caption -> its frozen token states, encoded once in a fixed order
 
@@ -334,7 +344,7 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
             contrast = [c for c, a in zip(contrast, named_actions(known, contrast, embed)) if a not in retaught]
         contrast *= cfg.contrast
     replay = contrast + replay
-    encode(taught + replay)
+    encode(taught + other_ways + replay)
     replay_frames = [_frames(round(s * student_pipe.fps), lo, hi) for s in student_pipe.predict_seconds(replay)] \
         if replay and student_pipe.length_estimator is not None else [_frames(80, lo, hi)] * len(replay)
     replay_motion = []
@@ -408,7 +418,7 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
         items, captions = [], []
         for _ in range(cfg.batch_size - n_replay):
             i = int(torch.randint(len(motions), (), generator=g))
-            m, caps = motions[i], clips[i].captions
+            m, caps = motions[i], said[i]
             n = _frames(int(torch.randint(lo, min(len(m), hi) + 1, (), generator=g)), lo, hi)
             s = int(torch.randint(0, len(m) - n + 1, (), generator=g))
             items.append(m[s:s + n])
@@ -465,7 +475,7 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
             step_noise = torch.zeros((steps_s,) + tuple(eps.shape), device=device)
             return student_sample(model, eps, tokens, tmask, drop, mask, w, student_table, step_noise)
 
-        caps = [clips[i].captions[k // len(clips) % len(clips[i].captions)] for k, (i, _) in enumerate(new_items)]
+        caps = [said[i][k // len(clips) % len(said[i])] for k, (i, _) in enumerate(new_items)]
         pool["taught"] = targets(caps, [n for _, n in new_items], teacher_target)
         if n_replay:
             picks = [k * len(replay) // cfg.pool if len(replay) > cfg.pool else k % len(replay) for k in range(cfg.pool)]
@@ -492,12 +502,14 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
 
     # 5. the adapter file
     seconds = time.perf_counter() - t_start
-    info = AdapterInfo(name=name, actions={name: taught}, clips=[(c.file, cap) for c in clips for cap in c.captions],
+    info = AdapterInfo(name=name, actions={name: taught + other_ways},
+                       clips=[(c.file, cap) for c in clips for cap in c.captions],
                        licence=licence, base=hashes, lora=lora, guidance=guidance,
                        training={"config": cfg.to_dict(), "clips": len(clips),
                                  "motion_seconds": round(sum(c.frames for c in clips) / student_pipe.fps, 1),
                                  "captions_from": source, "replay_prompts": len(replay) - len(contrast),
-                                 "contrast_prompts": len(set(contrast)), "taught_in_domain": round(in_domain, 3),
+                                 "contrast_prompts": len(set(contrast)), "paraphrased": len(other_ways),
+                                 "taught_in_domain": round(in_domain, 3),
                                  "not_replayed": sorted(retaught),
                                  "teacher_loss": _ends(losses[1]), "student_loss": _ends(losses[2]),
                                  "seconds": round(seconds, 1), "teacher_guidance": teacher_guidance})

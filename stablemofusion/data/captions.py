@@ -240,6 +240,82 @@ def captions_for(content: str, style: str, n: int = 6, seed: int | str = 0, *, h
     return [(c.text, c.tokens) for c in generate(content, style, n, seed, heldout=heldout, lexicon=lexicon)]
 
 
+# ------------------------------------------------------------------------------------------- paraphrases
+
+PARAPHRASE_HEADS = 3  # a content is described by a verb that heads at least this many of its training phrasings
+_WORD = re.compile(r"[a-z]+")
+_BACK = frozenset(("back", "backward", "backwards", "backing", "reverse", "turn", "turns", "turning", "around"))
+# direction words besides the lexicon's mirror words
+
+
+def _phrase_words(phrase: str) -> set[str]:
+    """The words of a phrasing, each marked verb in all its forms."""
+    words = set(_WORD.findall(re.sub(r"<[^<>]+>", " ", phrase).lower()))
+    return words.union(*(set(forms) for forms in marked_verbs(phrase)))
+
+
+def described_by(caption: str, lexicon: str = "bandai") -> list[str]:
+    """The lexicon's contents that its training phrasings describe with one of the caption's words (any form) as
+    their head verb, in at least PARAPHRASE_HEADS phrasings, at least half of which go where the caption goes
+    (:func:`same_direction`): "a person runs forward" -> run and dash (running, sprinting); "walks forward" -> walk,
+    not walking backwards."""
+    words = set(_WORD.findall(caption.lower()))
+    out = []
+    for label, phrasings in load_lexicon(lexicon).contents.items():
+        heads = [marked_verbs(p)[0] for p in phrasings.train if marked_verbs(p)]
+        alike = [p for p in phrasings.train if same_direction(_phrase_words(p), words, lexicon)]
+        if sum(bool(set(forms) & words) for forms in heads) >= PARAPHRASE_HEADS and \
+                2 * len(alike) >= len(phrasings.train):
+            out.append(label)
+    return out
+
+
+def same_direction(words: set[str], caption_words: set[str], lexicon: str = "bandai") -> bool:
+    """Whether a text of ``words`` goes where a caption of ``caption_words`` goes: no direction word (left, right,
+    clockwise, back, around, ...) the caption lacks, and one of the caption's where it has any."""
+    every = set(load_lexicon(lexicon).mirror) | _BACK
+    theirs, ours = words & every, caption_words & every
+    return theirs <= ours and (bool(theirs) or not ours)
+
+
+def caption_style(caption: str, lexicon: str = "bandai") -> str:
+    """The lexicon's style whose training adjectives and adverbs share the most words with ``caption`` (the
+    grammar's subjects aside); "normal" when none does."""
+    lex = load_lexicon(lexicon)
+    words = set(_WORD.findall(caption.lower()))
+    common = set(w for subject, _ in common_words()["subjects"] for w in _WORD.findall(subject.lower()))
+    best, style = 0, "normal"
+    for label, sw in lex.styles.items():
+        vocab = {w for kind in ("adjectives", "adverbs") for phrase in sw.kind(kind).train
+                 for w in _WORD.findall(phrase.lower())} - common
+        n = len(words & vocab)
+        if n > best:
+            best, style = n, label
+    return style
+
+
+def paraphrases(caption: str, n: int, seed: int | str = 0, lexicon: str = "bandai") -> list[str]:
+    """Up to ``n`` other ways to say ``caption``, from the caption grammar of a corpus lexicon: captions of the
+    contents its phrasings describe with the caption's verbs (:func:`described_by`; "an active person runs forward":
+    run and dash, so jogging and sprinting words), in the caption's style (:func:`caption_style`), with the
+    grammar's subjects, sentence structures and typing noise; each going where the caption goes
+    (:func:`same_direction`). Empty where the lexicon describes no content with the caption's verbs.
+    Deterministic for a ``seed``."""
+    words = set(_WORD.findall(caption.lower()))
+    contents = described_by(caption, lexicon)
+    if n <= 0 or not contents:
+        return []
+    style = caption_style(caption, lexicon)
+    out: list[str] = []
+    for k, content in enumerate(contents):
+        want = (n - len(out)) // (len(contents) - k) if k < len(contents) - 1 else n - len(out)
+        made = generate(content, style, 4 * want, seed=f"{seed}|{caption}", lexicon=lexicon)
+        keep = [c.text for c in made if same_direction(set(_WORD.findall(c.text.lower())), words, lexicon)
+                and c.text.lower() != caption.lower() and c.text not in out]
+        out += keep[:want]
+    return out
+
+
 # --------------------------------------------------------------------------------------------- mirroring
 
 _MIRROR_WORDS = {

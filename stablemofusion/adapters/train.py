@@ -74,8 +74,8 @@ class AdaptConfig:
     # measured (docs/adapters.md), it taught running to a base that walked for it, and hopping less well
     contrast_auto: bool = True
     lexicon: str = "bandai"  # the base corpus's caption lexicon (replayed captions); "": its known-action examples
-    # other ways to say each taught caption, from that lexicon's grammar (paraphrases; 0: none): the move then answers
-    # to people's words, not only to the captions' (docs/adapters.md)
+    # other ways to say each taught caption, from that lexicon's phrasings (data.captions.paraphrases; 0: none), so that
+    # the move answers to people's words, not only to the captions' (docs/adapters.md)
     paraphrases: int = 8
     pool: int = 512  # student targets per side (taught captions, replay)
     target_guidance: float | None = None  # guidance of the adapted teacher for the student's targets (None: its own)

@@ -22,8 +22,9 @@ _FLAGS = {  # AdaptConfig field -> help
                 "adapter learns which of your words name your move); 0: none",
     "lexicon": "caption lexicon of the base's corpus, whose captions are replayed ('' for the model's known-action "
                "examples)",
-    "paraphrases": "other ways to say each of your captions, from the lexicon's caption grammar, taught with your "
-                   "clips (where the lexicon describes a move with your captions' verbs); 0: none",
+    "paraphrases": "other ways to say each of your captions, taught with your clips: its verb phrase replaced by the "
+                   "lexicon's phrasings of the moves it describes with your caption's verb (none where it has no "
+                   "such move); 0: none",
     "contrast_auto": "replay contrast captions only when the base model takes 90%% of your captions for moves it knows "
                      "(--no-contrast-auto: always)",
     "target_guidance": "guidance of the adapted teacher's samples the student learns (default: the student's own)",

@@ -278,42 +278,29 @@ def same_direction(words: set[str], caption_words: set[str], lexicon: str = "ban
     return theirs <= ours and (bool(theirs) or not ours)
 
 
-def caption_style(caption: str, lexicon: str = "bandai") -> str:
-    """The lexicon's style whose training adjectives and adverbs share the most words with ``caption`` (the
-    grammar's subjects aside); "normal" when none does."""
-    lex = load_lexicon(lexicon)
-    words = set(_WORD.findall(caption.lower()))
-    common = set(w for subject, _ in common_words()["subjects"] for w in _WORD.findall(subject.lower()))
-    best, style = 0, "normal"
-    for label, sw in lex.styles.items():
-        vocab = {w for kind in ("adjectives", "adverbs") for phrase in sw.kind(kind).train
-                 for w in _WORD.findall(phrase.lower())} - common
-        n = len(words & vocab)
-        if n > best:
-            best, style = n, label
-    return style
-
-
 def paraphrases(caption: str, n: int, seed: int | str = 0, lexicon: str = "bandai") -> list[str]:
-    """Up to ``n`` other ways to say ``caption``, from the caption grammar of a corpus lexicon: captions of the
-    contents its phrasings describe with the caption's verbs (:func:`described_by`; "an active person runs forward":
-    run and dash, so jogging and sprinting words), in the caption's style (:func:`caption_style`), with the
-    grammar's subjects, sentence structures and typing noise; each going where the caption goes
-    (:func:`same_direction`). Empty where the lexicon describes no content with the caption's verbs.
-    Deterministic for a ``seed``."""
-    words = set(_WORD.findall(caption.lower()))
+    """Up to ``n`` other ways to say ``caption``: its verb phrase replaced by other training phrasings of the
+    contents the corpus lexicon describes with the caption's verb (:func:`described_by`; "an active person runs
+    forward": run and dash, so "an active person jogs ahead", "an active person sprints flat out"), its subject and
+    style words kept, each going where the caption goes (:func:`same_direction`). Empty where the lexicon describes no
+    content with the caption's verb, or the caption has no subject before it. Deterministic for a ``seed``."""
+    lex = load_lexicon(lexicon)
     contents = described_by(caption, lexicon)
     if n <= 0 or not contents:
         return []
-    style = caption_style(caption, lexicon)
-    out: list[str] = []
-    for k, content in enumerate(contents):
-        want = (n - len(out)) // (len(contents) - k) if k < len(contents) - 1 else n - len(out)
-        made = generate(content, style, 4 * want, seed=f"{seed}|{caption}", lexicon=lexicon)
-        keep = [c.text for c in made if same_direction(set(_WORD.findall(c.text.lower())), words, lexicon)
-                and c.text.lower() != caption.lower() and c.text not in out]
-        out += keep[:want]
-    return out
+    heads = {form for c in contents for p in lex.contents[c].train if marked_verbs(p) for form in marked_verbs(p)[0]}
+    verb = next((m for m in re.finditer(r"[A-Za-z]+", caption) if m.group(0).lower() in heads), None)
+    subject = caption[:verb.start()].strip() if verb is not None else ""
+    if not subject:
+        return []
+    words = set(_WORD.findall(caption.lower()))
+    pos = _possessive(subject, "their")
+    own = caption[verb.start():].strip().lower().rstrip(".")
+    phrases = sorted({re.sub(r"<([^<>]+)>", lambda m: verb_forms(m.group(1))[1], p).replace("{pos}", pos)
+                      for c in contents for p in lex.contents[c].train if marked_verbs(p)})
+    phrases = [p for p in phrases if p.lower() != own and same_direction(set(_WORD.findall(p.lower())), words, lexicon)]
+    random.Random(zlib.crc32(f"{seed}|{caption}".encode())).shuffle(phrases)
+    return [f"{subject} {p}" for p in phrases[:n]]
 
 
 # --------------------------------------------------------------------------------------------- mirroring

@@ -197,6 +197,7 @@ def test_the_form_predicts_the_length_makes_sequences_part_by_part_and_names_dow
         page.goto(served, wait_until="load")
         page.wait_for_function("!document.getElementById('generate').disabled", timeout=60_000)
         assert page.input_value("#seconds") == ""
+        assert page.get_attribute("#seconds", "max") == "120"  # a prompt of several parts may be longer than a window
         page.fill("#prompt", "a tired man walks in a circle then waves")
         page.click("#generate")
         page.wait_for_function("window.smf.lastMotion && window.smf.lastMotion.prompt.includes('then waves')",

@@ -69,6 +69,13 @@ async function load() {
   smf.timings.threads = ort.env.wasm.numThreads;
   smf.timings.backend = backend;
   $('licence-text').textContent = runtime.info.licence;
+  // the longest length the form takes: a prompt of several parts is made window by window, one action in one window
+  const one = (runtime.info.max_frames / runtime.info.fps).toFixed(1), whole = runtime.info.sequence?.max_seconds;
+  if (whole) {
+    $('seconds').max = String(whole);
+    $('seconds').title = `leave empty: the length is predicted from the text (at most ${one} s for one action, ` +
+      `${whole} s for a prompt of several parts)`;
+  }
   return runtime;
 }
 smf.ready = load();

@@ -15,20 +15,12 @@ import json
 import warnings
 from pathlib import Path
 
+from stablemofusion.core.reliability import weak_action
 from stablemofusion.eval.prompts import load_prompts
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline
 
 HERE = Path(__file__).resolve().parent
 FILES = ("prompts_heldout_lexicon.jsonl", "prompts_weak_dev.jsonl", "prompts_freeform.jsonl")
-
-
-def warned(domain, weak: set[str], margin: float) -> bool:
-    """The pipeline's rule (TextToMotionPipeline.weak) at ``margin``."""
-    if domain is None or domain.out_of_domain or not domain.closest:
-        return False
-    action, similarity = domain.closest[0]
-    drawn_well = [s for a, s in domain.closest if a not in weak]
-    return action in weak and similarity - max(drawn_well, default=0.0) > margin
 
 
 def main() -> None:
@@ -37,14 +29,15 @@ def main() -> None:
     ap.add_argument("--margins", type=float, nargs="*", default=[0.03, 0.05, 0.07, 0.09])
     args = ap.parse_args()
     backend = MotionPipeline.from_pretrained(backend="onnx", threads=1).backend
-    weak = {a for a, r in (backend.reliability or {}).items() if r.weak}
+    table = backend.reliability or {}
+    weak = {a for a, r in table.items() if r.weak}
     for path in args.prompts:
         items = [it for it in load_prompts(path) if not it.ood]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             domains = backend.domains([it.prompt for it in items])
         for margin in args.margins:
-            hit = [warned(d, weak, margin) for d in domains]
+            hit = [weak_action(d, table, margin) is not None for d in domains]
             should = [bool(set(it.contents) & weak) for it in items]
             print(json.dumps({"file": path.name, "margin": margin,
                               "weak_warned": f"{sum(h and s for h, s in zip(hit, should))}/{sum(should)}",

@@ -260,6 +260,16 @@ def adapt(base: str | Path | None, clips: list[Clip], out: str | Path, cfg: Adap
                       stop_after=stop_after, source=source)
 
 
+def said_of(clip: Clip, cfg: AdaptConfig) -> tuple[str, ...]:
+    """What a clip is taught as: its captions, then each said ``cfg.paraphrases`` other ways from the lexicon
+    (:func:`~stablemofusion.data.captions.paraphrases`, seeded by the clip; none without a lexicon)."""
+    if not cfg.lexicon:
+        return clip.captions
+    other = [p for cap in clip.captions
+             for p in paraphrases(cap, cfg.paraphrases, seed=f"{cfg.seed}|{clip.file}", lexicon=cfg.lexicon)]
+    return tuple(dict.fromkeys(clip.captions + tuple(other)))
+
+
 def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop_after, source) -> Adapter | None:
     from accelerate import Accelerator
     from tqdm import tqdm
@@ -298,10 +308,7 @@ def _adapt(base, clips, out, cfg, *, name, licence, work, resume, progress, stop
     mean, std = torch.as_tensor(teacher_pipe.mean), torch.as_tensor(teacher_pipe.std)
     motions = [(torch.from_numpy(c.features).float() - mean) / std for c in clips]
     taught = sorted({cap for c in clips for cap in c.captions})
-    # what each clip is said to be: its captions, and each said other ways (paraphrases, seeded by the clip)
-    said = [tuple(dict.fromkeys(c.captions + tuple(p for cap in c.captions for p in paraphrases(
-        cap, cfg.paraphrases, seed=f"{cfg.seed}|{c.file}", lexicon=cfg.lexicon)))) if cfg.lexicon else c.captions
-        for c in clips]
+    said = [said_of(c, cfg) for c in clips]
     other_ways = sorted({cap for s in said for cap in s} - set(taught))
     text = student_pipe.text_cache
     rows: dict[str, torch.Tensor] = {}  # caption -> its frozen token states, encoded once in a fixed order
@@ -529,4 +536,4 @@ def _ends(values: list[float], n: int = 20) -> list[float]:
     return [round(float(np.mean(values[:n])), 5), round(float(np.mean(values[-n:])), 5)]
 
 
-__all__ = ["AdaptConfig", "adapt", "contrast_captions", "lexicon_replay", "replay_prompts", "retaught_actions"]
+__all__ = ["AdaptConfig", "adapt", "contrast_captions", "lexicon_replay", "replay_prompts", "retaught_actions", "said_of"]

@@ -52,6 +52,18 @@ def graphs_reliability(graphs_folder: str | Path) -> dict[str, ActionReliability
     return read_reliability(companion_file(folder, RELIABILITY_FILE)) if (folder / CONFIG).is_file() else None
 
 
+def weak_action(domain, table: dict[str, ActionReliability] | None, margin: float = WEAK_MARGIN) -> str | None:
+    """The action to warn about for a prompt's domain check: its closest known action when the model draws it badly
+    (``table``) and it is closer than every action drawn well by more than ``margin``; None for an out-of-domain
+    prompt, without a table or a check."""
+    if table is None or domain is None or domain.out_of_domain or not domain.closest:
+        return None
+    action, similarity = domain.closest[0]
+    drawn_well = [s for a, s in domain.closest if not (a in table and table[a].weak)]
+    weak = action in table and table[action].weak and similarity - max(drawn_well, default=0.0) > margin
+    return action if weak else None
+
+
 def weak_message(prompt: str, action: str, r: ActionReliability) -> str:
     """One warning line for a prompt whose closest known action the model draws badly."""
     measured = "" if r.accuracy is None else f"; {r.accuracy:.0%} of its motions for other wordings were judged right"
@@ -59,4 +71,5 @@ def weak_message(prompt: str, action: str, r: ActionReliability) -> str:
             f"clip{'s' if r.clips != 1 else ''}{measured}): the motion may not show it")
 
 
-__all__ = ["ActionReliability", "RELIABILITY_FILE", "WEAK_MARGIN", "graphs_reliability", "read_reliability", "weak_message"]
+__all__ = ["ActionReliability", "RELIABILITY_FILE", "WEAK_MARGIN", "graphs_reliability", "read_reliability", "weak_action",
+           "weak_message"]

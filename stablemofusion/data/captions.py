@@ -262,7 +262,7 @@ def described_by(caption: str, lexicon: str = "bandai") -> list[str]:
     words = set(_WORD.findall(caption.lower()))
     out = []
     for label, phrasings in load_lexicon(lexicon).contents.items():
-        heads = [marked_verbs(p)[0] for p in phrasings.train if marked_verbs(p)]
+        heads = [verbs[0] for verbs in map(marked_verbs, phrasings.train) if verbs]
         alike = [p for p in phrasings.train if same_direction(_phrase_words(p), words, lexicon)]
         if sum(bool(set(forms) & words) for forms in heads) >= PARAPHRASE_HEADS and \
                 2 * len(alike) >= len(phrasings.train):
@@ -288,7 +288,8 @@ def paraphrases(caption: str, n: int, seed: int | str = 0, lexicon: str = "banda
     contents = described_by(caption, lexicon)
     if n <= 0 or not contents:
         return []
-    heads = {form for c in contents for p in lex.contents[c].train if marked_verbs(p) for form in marked_verbs(p)[0]}
+    heads = {form for c in contents for verbs in map(marked_verbs, lex.contents[c].train) if verbs
+             for form in verbs[0]}
     verb = next((m for m in re.finditer(r"[A-Za-z]+", caption) if m.group(0).lower() in heads), None)
     subject = caption[:verb.start()].strip() if verb is not None else ""
     if not subject:

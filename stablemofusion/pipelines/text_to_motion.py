@@ -14,7 +14,7 @@ from ..core.final import (NotEnglishWarning, WeakActionWarning, asked_frames, ch
 from ..core.language import language_message, not_english
 from ..core.limits import DEFAULT_SECONDS, LENGTH_MULTIPLE, base_seed
 from ..core.path_plan import PromptPaths, follow, placed
-from ..core.reliability import WEAK_MARGIN, weak_message
+from ..core.reliability import weak_action, weak_message
 from ..core.sequence_plan import ONE_ACTION_SIMILARITY, share_seconds, split_sequence
 from ..core.result import MotionResult
 from ..core.settings import Settings
@@ -141,11 +141,8 @@ class TextToMotionPipeline:
         table = self.b.reliability
         out = {}
         for p, d in zip(prompts, domains):
-            if table is None or d is None or d.out_of_domain or not d.closest or p in out:
-                continue
-            action, similarity = d.closest[0]
-            drawn_well = [s for a, s in d.closest if not (a in table and table[a].weak)]
-            if action in table and table[action].weak and similarity - max(drawn_well, default=0.0) > WEAK_MARGIN:
+            action = weak_action(d, table)
+            if action is not None and p not in out:
                 out[p] = weak_message(p, action, table[action])
                 warnings.warn(out[p], WeakActionWarning, stacklevel=4)
         return out

@@ -118,6 +118,8 @@ def test_node_gives_one_clear_error_for_bad_input(site):
     folder, _ = site
     for args, why in [(["", "--seed", "1"], "prompt"), (["a person walks", "--seed", "-3"], "seed"),
                       (["a person walks", "--seconds", "30"], "at most"),
+                      (["a person bows and then runs forward", "--seconds", "3"], "too short for them"),
+                      (["a person bows and then runs forward", "--seconds", "500"], "at most 120 s"),
                       (["a person walks", "--footskate", "loop"], "footskate"),
                       (["a person walks", "--path", "[[0, 0]]"], "2 to 256"),
                       (["a person walks", "--path", "[[1e15, 0], [1e15, 3]]"], "within 200 m of the origin"),

@@ -10,7 +10,8 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from stablemofusion.core.noise import batch_noise, draw_key, draws, mix, noise, normal
+from stablemofusion.core.noise import (LENGTH_DRAW, batch_noise, draw_key, draws, length_level, mix, noise, normal,
+                                       uniform)
 
 
 def test_mix_is_the_published_bijection_on_known_values():
@@ -56,19 +57,32 @@ def test_seeds_out_of_range_are_refused():
         draw_key(-1)
 
 
+def test_a_draws_uniform_is_uniform_and_its_own():
+    u = np.array([uniform(s, stream=k, draw=d) for s in range(2000) for k in range(3) for d in (0, LENGTH_DRAW)])
+    assert 0 < u.min() and u.max() < 1 and abs(u.mean() - 0.5) < 0.01 and abs(u.var() - 1 / 12) < 0.005
+    assert np.histogram(u, 10, (0, 1))[0].min() > 0.9 * len(u) / 10
+    assert len(np.unique(u)) > 0.99 * len(u)
+    # the definition: the first word of the draw's pair 0
+    a = int(mix(np.array([int(mix(np.array([0], np.uint32))[0]) ^ draw_key(7, 1, 3)], np.uint32))[0])
+    assert uniform(7, stream=1, draw=3) == ((a >> 8) + 0.5) / 2**24
+    assert length_level(7, 1) == uniform(7, stream=1, draw=LENGTH_DRAW) != uniform(7, stream=1, draw=0)
+
+
 @pytest.mark.skipif(shutil.which("node") is None, reason="needs Node.js for the JavaScript twin")
 def test_javascript_gives_the_same_numbers(tmp_path):
     js = resources.files("stablemofusion") / "assets" / "runtime" / "noise.js"
     cases = [(0, 0, 0, 80, 263), (2**53 - 1, 3, 2, 5, 7), (2147853511, 31, 9, 13, 263), (123456789012345, 0, 1, 1, 3)]
     script = tmp_path / "run.mjs"
-    script.write_text(f"import {{ noise, drawKey }} from {json.dumps(js.as_uri())};\n"
+    script.write_text(f"import {{ noise, drawKey, uniform }} from {json.dumps(js.as_uri())};\n"
                       f"const cases = {json.dumps(cases)};\n"
                       "console.log(JSON.stringify(cases.map(([s, st, d, f, n]) => "
-                      "({key: drawKey(s, st, d), values: Array.from(noise(s, f, n, {stream: st, draw: d}))}))));\n")
+                      "({key: drawKey(s, st, d), values: Array.from(noise(s, f, n, {stream: st, draw: d})), "
+                      f"uniform: uniform(s, {{stream: st, draw: d}}), length: uniform(s, {{stream: st, draw: {LENGTH_DRAW}}})}}))));\n")
     out = json.loads(subprocess.run(["node", str(script)], capture_output=True, text=True, check=True,
                                     timeout=60).stdout)
     for (s, st, d, f, n), got in zip(cases, out):
         assert got["key"] == draw_key(s, st, d)
+        assert got["uniform"] == uniform(s, stream=st, draw=d) and got["length"] == length_level(s, st)
         want = noise(s, f, n, stream=st, draw=d).ravel()
         js_values = np.asarray(got["values"], dtype=np.float32)
         assert js_values.shape == want.shape

@@ -81,8 +81,10 @@ class Backend(Protocol):
     def check_continues(self, settings: Settings, what: str) -> None:
         """SMFError unless resolved ``settings`` can keep a known part at every step (``what`` names the task)."""
 
-    def predict_seconds(self, prompts: str | list[str]) -> list[float]:
-        """Each prompt's expected length in seconds (one text is one prompt); SMFError without a length model."""
+    def predict_seconds(self, prompts: str | list[str], levels: list[float] | None = None) -> list[float]:
+        """Each prompt's length in seconds (one text is one prompt): the length model's quantile at each of
+        ``levels`` (:func:`~stablemofusion.core.noise.length_level`; None: the median); SMFError without a length
+        model."""
 
     def domains(self, prompts: list[str]) -> list[DomainCheck | None]:
         """Each prompt's closest known action (None without known actions), warning once per out-of-domain one."""

@@ -107,12 +107,12 @@ class OnnxBackend:
             tokens[i, :len(t)], mask[i, :len(t)] = t, True
         return tokens, mask, np.stack([s for _, s in rows])
 
-    def predict_seconds(self, prompts: str | list[str]) -> list[float]:
-        """The length each prompt's motion is expected to have (seconds), from the length model; one text is one
-        prompt (not one per character)."""
+    def predict_seconds(self, prompts: str | list[str], levels: list[float] | None = None) -> list[float]:
+        """The length each prompt's motion is expected to have (seconds), from the length model: its distribution's
+        quantile at each of ``levels`` (None: the median); one text is one prompt (not one per character)."""
         prompts = [prompts] if isinstance(prompts, str) else list(prompts)
         tokens, mask, _ = self.encode(prompts)
-        frames = self.graphs.predict_frames(tokens, mask)
+        frames = self.graphs.predict_frames(tokens, mask, levels)
         if frames is None:
             raise SMFError("this model has no length model; give the length")
         return [int(f) / self.fps for f in np.clip(frames, self.min_frames, self.max_frames)]

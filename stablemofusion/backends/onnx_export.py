@@ -13,7 +13,8 @@ cleanup, the known actions' similarities) stays numpy, shared with the torch pat
   (B, L, latent), ``sentence`` (B, C)); ``denoise.onnx`` one step (``x`` (B, T, D) with T a multiple of
   ``pad_multiple``, ``t`` (B,) float32, ``features``, ``text_mask`` bool, ``keep`` (B,) bool, ``sentence``,
   ``motion_mask`` (B, T) bool -> ``x0`` (B, T, D)); the sampler tables of every (sampler, steps) it takes;
-- ``length.onnx`` (``tokens``, ``mask`` -> ``frames`` (B,) int64, the median length) and ``ood.onnx``
+- ``length.onnx`` (``tokens``, ``mask``, ``level`` (B,) -> ``frames`` (B,) int64, the length distribution's
+  quantile at each level) and ``ood.onnx``
   (``sentence`` (B, 384) -> ``score`` (B,) in-domain score); the actions' example embeddings (``actions.npy``).
 """
 
@@ -87,8 +88,18 @@ class _LengthGraph(nn.Module):
         super().__init__()
         self.estimator = estimator
 
-    def forward(self, tokens, mask):
-        return self.estimator.predict_frames(tokens, mask).long()
+    def forward(self, tokens, mask, level):
+        return self.estimator.predict_frames(tokens, mask, level).long()
+
+
+def export_length_graph(estimator, path: Path) -> None:
+    """``length.onnx`` of a length estimator: ``tokens`` (B, L, C), ``mask`` (B, L), ``level`` (B,) float32 ->
+    ``frames`` (B,) int64, each distribution's quantile at its level."""
+    tokens, mask = torch.randn(2, 7, 384), torch.ones(2, 7, dtype=torch.bool)
+    mask[1, 4:] = False
+    _export(_LengthGraph(estimator.eval()), (tokens, mask, torch.tensor([0.5, 0.25])), path,
+            ["tokens", "mask", "level"], ["frames"],
+            {"tokens": {0: "B", 1: "L"}, "mask": {0: "B", 1: "L"}, "level": {0: "B"}, "frames": {0: "B"}})
 
 
 class _OODGraph(nn.Module):
@@ -303,10 +314,7 @@ def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder_
             manifest["teacher"]["folder"] = "teacher"
         if student.length_estimator is not None:
             est = student.length_estimator.eval()
-            tokens, mask = torch.randn(2, 7, 384), torch.ones(2, 7, dtype=torch.bool)
-            mask[1, 4:] = False
-            _export(_LengthGraph(est), (tokens, mask), tmp / "length.onnx", ["tokens", "mask"], ["frames"],
-                    {"tokens": {0: "B", 1: "L"}, "mask": {0: "B", 1: "L"}, "frames": {0: "B"}})
+            export_length_graph(est, tmp / "length.onnx")
             manifest["length"] = {"file": "length.onnx"}
         known = student.known_actions
         if known is not None:

@@ -197,11 +197,15 @@ class PortableGraphs:
     def has_length_model(self) -> bool:
         return "length" in self.manifest
 
-    def predict_frames(self, tokens: np.ndarray, mask: np.ndarray) -> np.ndarray | None:
-        """(B,) the length model's frames (median), or None for a folder without one."""
+    def predict_frames(self, tokens: np.ndarray, mask: np.ndarray, levels: np.ndarray | None = None) -> np.ndarray | None:
+        """(B,) the length model's frames, each its distribution's quantile at ``levels`` (B,) (None: the median),
+        or None for a folder without one. A graph exported before the levels gives the median."""
         if self._length is None:
             return None
-        return self._length.run(None, {"tokens": tokens, "mask": mask})[0]
+        feed = {"tokens": tokens, "mask": mask}
+        if "level" in {i.name for i in self._length.get_inputs()}:
+            feed["level"] = np.full(len(tokens), 0.5, np.float32) if levels is None else np.asarray(levels, np.float32)
+        return self._length.run(None, feed)[0]
 
     def known_actions(self, text_cache):
         """The model's :class:`~stablemofusion.text.known.KnownActions` (None without), its examples' embeddings

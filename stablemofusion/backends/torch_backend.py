@@ -284,15 +284,18 @@ class TorchBackend:
             return cond, None
         return cond, self.model.condition(tokens, tmask, torch.ones(B, dtype=torch.bool, device=self.device))
 
-    def predict_seconds(self, prompts: str | list[str]) -> list[float]:
+    def predict_seconds(self, prompts: str | list[str], levels: list[float] | None = None) -> list[float]:
         """The length each prompt's motion is expected to have (seconds), from the model's length estimator
-        (``smf train-length``); SMFError for a model without one."""
+        (``smf train-length``): its distribution's quantile at each of ``levels`` (None: the median); SMFError for a
+        model without one."""
         prompts = [prompts] if isinstance(prompts, str) else list(prompts)
         if self.length_estimator is None:
             raise SMFError("this model has no length estimator (length.safetensors); give the length, or train one "
                            "with `smf train-length`")
         tokens, mask = self.encode_text(prompts)
-        frames = self.length_estimator.predict_frames(tokens.cpu(), mask.cpu()).clamp(self.min_frames, self.max_frames)
+        q = None if levels is None else torch.tensor(levels, dtype=torch.float32)
+        frames = self.length_estimator.predict_frames(tokens.cpu(), mask.cpu(), q).clamp(self.min_frames,
+                                                                                        self.max_frames)
         return [int(f) / self.fps for f in frames]
 
     def frames_for(self, seconds: float | None, frames: int | None) -> int:

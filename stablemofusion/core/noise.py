@@ -15,11 +15,14 @@ Definition (all integers unsigned 32-bit, ``*`` wrapping multiplication, ``^`` x
   pair p = i >> 1, whose two words are ``a = mix(mix(2p) ^ k)``, ``b = mix(mix(2p + 1) ^ k)``;
 - Box-Muller in float64 on 24-bit uniforms: ``u = ((a >> 8) + 1) / 2**24`` in (0, 1], ``v = (b >> 8) / 2**24``;
   ``r = sqrt(-2 ln u)``; element 2p is ``r cos(2 pi v)``, element 2p + 1 is ``r sin(2 pi v)``; rounded to
-  float32. |values| <= 5.77.
+  float32. |values| <= 5.77;
+- the uniform of a draw: ``((a >> 8) + 0.5) / 2**24`` in (0, 1), ``a`` the first word of its pair 0.
 
 How the pipeline uses it: a sampling call's item k draws with ``stream`` k when the call has one seed, with
 stream 0 and its own seed when each item has one; the initial noise is ``draw`` 0, a sampler's step noise draws
-1, 2, ... in order.
+1, 2, ... in order. A motion whose length the model predicts takes the length at the quantile ``uniform(seed,
+stream, LENGTH_DRAW)`` of the length model's distribution, with its noise's seed and stream (a prompt's part k of
+a timeline: stream k of the timeline's seed).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ NOISE_VERSION = 1  # bump when any number above changes
 _MASK = 0xFFFFFFFF
 _M1, _M2, _GOLDEN = 0x7FEB352D, 0x846CA68B, 0x9E3779B9
 SEED_LIMIT = 2**53
+LENGTH_DRAW = 0xFFFFFFFF  # the draw of a motion's length quantile (a sampler's draws count up from 0)
 CHUNK = 1 << 22  # elements made at once on a CPU (about 100 MB of temporaries); a GPU takes 16 times more
 
 
@@ -125,6 +129,18 @@ def normal(seed: int, count: int, *, stream: int = 0, draw: int = 0) -> np.ndarr
     return _box_muller([draw_key(seed, stream, draw)], count)[0]
 
 
+def uniform(seed: int, *, stream: int = 0, draw: int = 0) -> float:
+    """The uniform of one draw: a float in (0, 1), a multiple of 2**-25 (the definition above)."""
+    a = _mix_int(_mix_int(0) ^ draw_key(seed, stream, draw))
+    return ((a >> 8) + 0.5) / 2**24
+
+
+def length_level(seed: int, stream: int = 0) -> float:
+    """The quantile of the length model's distribution at which a motion of this seed and stream takes its length
+    (:data:`LENGTH_DRAW`)."""
+    return uniform(seed, stream=stream, draw=LENGTH_DRAW)
+
+
 def noise(seed: int, frames: int, dims: int, *, stream: int = 0, draw: int = 0) -> np.ndarray:
     """(frames, dims) float32: one item's draw (its first n frames are the same for any ``frames`` >= n)."""
     return normal(seed, int(frames) * int(dims), stream=stream, draw=draw).reshape(int(frames), int(dims))
@@ -167,4 +183,5 @@ def batch_noise(seed: int | list[int], lengths: list[int], dims: int, *, draw: i
     return draws(seed, lengths, dims, [draw])[0]
 
 
-__all__ = ["NOISE_VERSION", "batch_noise", "draw_key", "draws", "mix", "noise", "normal"]
+__all__ = ["LENGTH_DRAW", "NOISE_VERSION", "batch_noise", "draw_key", "draws", "length_level", "mix", "noise", "normal",
+           "uniform"]

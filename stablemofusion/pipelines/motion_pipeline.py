@@ -103,7 +103,8 @@ class MotionPipeline:
         return self.backend.settings(settings, edit=edit, hooks=hooks)
 
     def predict_seconds(self, prompts: str | list[str]) -> list[float]:
-        """The length each prompt's motion is expected to have (seconds); one text is one prompt."""
+        """The median of the length each prompt's motion may have (seconds); one text is one prompt. A motion whose
+        length is not given takes the length model's quantile at its seed's level, so seeds differ in length."""
         return self.backend.predict_seconds(prompts)
 
     def with_adapters(self, adapters) -> "MotionPipeline":

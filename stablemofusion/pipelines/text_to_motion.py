@@ -13,6 +13,7 @@ from ..core.final import (NotEnglishWarning, WeakActionWarning, asked_frames, ch
                           frames_for)
 from ..core.language import language_message, not_english
 from ..core.limits import DEFAULT_SECONDS, LENGTH_MULTIPLE, base_seed
+from ..core.noise import length_level
 from ..core.path_plan import PromptPaths, follow, placed
 from ..core.reliability import weak_action, weak_message
 from ..core.sequence_plan import ONE_ACTION_SIMILARITY, share_seconds, split_sequence
@@ -47,11 +48,20 @@ class TextToMotionPipeline:
         paths = PromptPaths.read(prompts, path)
         given, (asked, secs) = list(secs), (paths.asked, paths.seconds(prompts, secs, frs))
         unknown = [i for i in range(n) if secs[i] is None and frs[i] is None and one[i]]
+        base = None if per_item else base_seed(seed)
+        # the batches of one window each (a length the model predicts is within one), and each item's seed and
+        # stream there: its noise's, and its length's quantile in the length model's distribution
+        long = [i for i in range(n) if one[i] and i not in unknown and frames_for(secs[i], frs[i], b.fps,
+                                                                                   b.min_frames) > b.max_frames]
+        short = [i for i in range(n) if one[i] and i not in long]
+        batches = [short[a:a + settings.batch_size] for a in range(0, len(short), settings.batch_size)]
+        draw = {i: (seed[i], 0) if per_item else (base + k, j) for k, idx in enumerate(batches)
+                for j, i in enumerate(idx)}
         if unknown and b.has_length_model:
-            for i, s in zip(unknown, b.predict_seconds([prompts[i] for i in unknown])):
+            levels = [length_level(*draw[i]) for i in unknown]
+            for i, s in zip(unknown, b.predict_seconds([prompts[i] for i in unknown], levels)):
                 secs[i] = s
         lengths = [frames_for(s, f, b.fps, b.min_frames) if one[i] else 0 for i, (s, f) in enumerate(zip(secs, frs))]
-        base = None if per_item else base_seed(seed)
         foreign = {p: why for p in dict.fromkeys(prompts) if (why := not_english(p)) is not None}
         for p, why in foreign.items():
             warnings.warn(language_message(p, why), NotEnglishWarning, stacklevel=3)
@@ -66,7 +76,7 @@ class TextToMotionPipeline:
         for i in (i for i in range(n) if not one[i]):
             total = given[i] if given[i] is not None or paths.explicit[i] is None else \
                 paths.explicit[i].seconds(prompts[i])
-            segments = self.segments(parts[i], total, frs[i])
+            segments = self.segments(parts[i], total, frs[i], seed[i] if per_item else base + i)
             r = TimelinePipeline(b)(segments, seed=seed[i] if per_item else base + i, settings=request,
                                     path=paths.explicit[i])
             checks = b.domains(PromptPaths.read(parts[i]).asked)
@@ -75,16 +85,13 @@ class TextToMotionPipeline:
             r.warnings = [d.message(p) for d, p in zip(checks, parts[i]) if d is not None and d.out_of_domain]
             r.warnings += list(self.weak(parts[i], checks).values())
             results[i] = r
-        for i in (i for i in range(n) if one[i] and lengths[i] > b.max_frames):
+        for i in long:
             r = TimelinePipeline(b)([(prompts[i], lengths[i] / b.fps)], seed=seed[i] if per_item else base + i,
                                     settings=request, path=paths.explicit[i])
             r.prompt, r.domain = prompts[i], domains[i]
             results[i] = r
         # 4. denoise the others in batches
-        short = [i for i in range(n) if results[i] is None]
-        starts = range(0, len(short), settings.batch_size)
-        for k, start in enumerate(tqdm(starts, desc="generate", unit="batch", disable=not progress)):
-            idx = short[start:start + settings.batch_size]
+        for k, idx in enumerate(tqdm(batches, desc="generate", unit="batch", disable=not progress)):
             batch_seed = [seed[i] for i in idx] if per_item else base + k
             raw = b.raw_features([asked[i] for i in idx], [lengths[i] for i in idx], settings, batch_seed)
             # 5. post-process: each path followed, the final stage of the batch's motions (their rigid fits together)
@@ -147,15 +154,17 @@ class TextToMotionPipeline:
                 warnings.warn(out[p], WeakActionWarning, stacklevel=4)
         return out
 
-    def segments(self, parts: list[str], seconds: float | None, frames: int | None) -> list[tuple[str, float]]:
+    def segments(self, parts: list[str], seconds: float | None, frames: int | None,
+                 seed: int) -> list[tuple[str, float]]:
         """The (prompt, seconds) segments of a prompt's parts: each part as long as its path words say, else as the
-        length model predicts (else the default length); a length given for the whole prompt shared among them in
-        those proportions."""
+        length model predicts (part k at the level of stream k of the timeline's ``seed``; else the default
+        length); a length given for the whole prompt shared among them in those proportions."""
         b = self.b
         own = PromptPaths.read(parts).seconds(parts, [None] * len(parts), [None] * len(parts))
         todo = [k for k, s in enumerate(own) if s is None]
         if todo and b.has_length_model:
-            for k, s in zip(todo, b.predict_seconds([parts[k] for k in todo])):
+            levels = [length_level(seed, k) for k in todo]
+            for k, s in zip(todo, b.predict_seconds([parts[k] for k in todo], levels)):
                 own[k] = s
         own = [DEFAULT_SECONDS if s is None else s for s in own]
         total = frames / b.fps if frames is not None else seconds

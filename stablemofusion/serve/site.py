@@ -27,6 +27,7 @@ from ..core.reliability import WEAK_MARGIN, graphs_reliability
 from ..core.sequence_plan import sequence_lexicon
 from ..core.timeline_plan import DEFAULT_OVERLAP, TAIL
 from ..core.limits import LENGTH_MULTIPLE, MAX_PROMPT_CHARS, MAX_SECONDS
+from ..core.noise import LENGTH_DRAW
 from ..motion.rigid import DEFAULT_FIT
 from ..motion.skeleton import get_skeleton
 
@@ -73,6 +74,7 @@ def web_description(graphs) -> dict:
         "mean": m.mean.astype(np.float64).tolist(), "std": m.std.astype(np.float64).tolist(),
         "skeleton": {"name": sk.name, "names": list(sk.joint_names), "parents": [int(p) for p in sk.parents],
                      "bone_lengths": list(sk.bone_lengths)},
+        "length_draw": LENGTH_DRAW,  # the noise draw of a motion's length quantile (core/noise.py)
         "paths": path_lexicon(), "path_kinds": list(KINDS), "bvh_order": BVH_ORDER,
         # a prompt of several parts: split as core/sequence_plan.py splits it, made as a timeline (core/timeline_plan.py)
         "sequence": {**sequence_lexicon(), "overlap_frames": int(round(DEFAULT_OVERLAP * m.fps)), "tail": TAIL,

@@ -1,8 +1,9 @@
 """Length from text: a small estimator of a motion's length from the frozen encoder's tokens.
 
 A two-layer MLP maps a summary of the caption to a distribution over lengths in ``unit``-frame bins from
-``min_frames`` to ``max_frames``; the prediction is the distribution's median (the value that minimises the
-expected absolute error). The summary (``LengthConfig.inputs``) is the frozen encoder's sentence embedding
+``min_frames`` to ``max_frames``; a motion takes the distribution's quantile at its seed's level
+(:func:`~stablemofusion.core.noise.length_level`: different seeds, different lengths, as real takes of one action
+differ), the median (the value that minimises the expected absolute error) where no level is given. The summary (``LengthConfig.inputs``) is the frozen encoder's sentence embedding
 (``"sentence"``, :func:`~stablemofusion.text.frozen.sentence_embedding`), the pooled tokens of a frozen copy of a
 trained model's text transformer (``"text"``, kept inside the estimator; that transformer was trained to tell
 motions apart, and tells held-out verbs apart where the sentence embedding does not: docs/history.md), or the two
@@ -118,16 +119,23 @@ class LengthEstimator(nn.Module):
         return self.net(features)
 
     @torch.no_grad()
-    def predict_frames(self, tokens: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        """(B,) predicted lengths in frames for frozen tokens (B, L, C), mask (B, L): the median of each
-        predicted distribution."""
-        return self.median_frames(self.features(tokens, mask))
+    def predict_frames(self, tokens: torch.Tensor, mask: torch.Tensor, levels: torch.Tensor | None = None) -> torch.Tensor:
+        """(B,) predicted lengths in frames for frozen tokens (B, L, C), mask (B, L): each predicted distribution's
+        quantile at ``levels`` (B,) in (0, 1) (None: its median)."""
+        return self.quantile_frames(self.features(tokens, mask), levels)
 
     @torch.no_grad()
     def median_frames(self, features: torch.Tensor) -> torch.Tensor:
-        """(B,) predicted lengths in frames from :meth:`features` (B, in_dim)."""
+        """(B,) predicted lengths in frames from :meth:`features` (B, in_dim): each distribution's median."""
+        return self.quantile_frames(features)
+
+    @torch.no_grad()
+    def quantile_frames(self, features: torch.Tensor, levels: torch.Tensor | None = None) -> torch.Tensor:
+        """(B,) lengths in frames from :meth:`features` (B, in_dim): the first bin of each predicted distribution
+        whose cumulative probability reaches its level (``levels`` (B,) float32 in (0, 1); None: 0.5, the median)."""
         p = self(features.float()).softmax(-1).cumsum(-1)
-        return self.config.frames_of((p < 0.5).sum(-1).clamp(max=self.config.bins - 1))
+        q = torch.full(p.shape[:1], 0.5) if levels is None else levels.to(p.dtype)
+        return self.config.frames_of((p < q[:, None]).sum(-1).clamp(max=self.config.bins - 1))
 
     def save(self, folder: str | Path, metrics: dict | None = None) -> None:
         """Write ``length.safetensors`` and ``length.json`` (config and training metrics) into ``folder``; the

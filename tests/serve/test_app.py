@@ -9,6 +9,7 @@ import httpx
 import numpy as np
 import pytest
 
+from stablemofusion.core.noise import length_level
 from stablemofusion.cli.main import main
 from stablemofusion.motion.bvh import forward_kinematics, read_bvh
 from stablemofusion.motion.skeleton import HUMANML3D
@@ -216,8 +217,9 @@ def test_generate_without_seconds_predicts_the_length(checkpoint, tmp_path):
     app = create_app(pipe)
     walk, hands = call(app, ("POST", "/v1/generate", {"prompt": "a person walks forward", "seed": 0, "steps": 1}),
                        ("POST", "/v1/generate", {"prompt": "a person raises both hands", "seed": 0, "steps": 1}))
-    expected = [int(round(s * 20)) // 4 * 4 for s in pipe.predict_seconds(["a person walks forward",
-                                                                            "a person raises both hands"])]
+    # each request its own seed: its length the quantile of stream 0 of seed 0
+    expected = [int(round(s * 20)) // 4 * 4 for s in pipe.backend.predict_seconds(
+        ["a person walks forward", "a person raises both hands"], [length_level(0)] * 2)]
     assert [walk.json()["frames"], hands.json()["frames"]] == expected and expected[0] > expected[1]
 
 

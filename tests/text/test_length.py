@@ -9,6 +9,7 @@ import torch
 
 from stablemofusion.cli.main import main
 from stablemofusion.core.errors import SMFError
+from stablemofusion.core.noise import length_level
 from stablemofusion.pipelines.motion_pipeline import MotionPipeline, default_model_path
 from stablemofusion.text.length import LengthConfig, LengthEstimator
 
@@ -92,14 +93,37 @@ def test_text_inputs_need_a_model(corpus, tmp_path, capsys):
 
 def test_shipped_estimator_and_pipeline_lengths():
     pipe = MotionPipeline.from_pretrained(device="cpu")
-    walk, hands = pipe.predict_seconds(["a person walks forward", "a person raises both hands"])
+    prompts = ["a person walks forward", "a person raises both hands"]
+    walk, hands = pipe.predict_seconds(prompts)
     assert walk >= 2 * hands  # corpus medians: walk 149 frames, raise-up-both-hands 57
-    r = pipe(["a person walks forward", "a person raises both hands"], steps=2, seed=0)
-    assert [len(x.joints) for x in r] == [round(walk * pipe.fps), round(hands * pipe.fps)]
+    # a motion takes the quantile of its seed and stream: one seed for the call, item k stream k
+    r = pipe(prompts, steps=2, seed=0)
+    drawn = pipe.backend.predict_seconds(prompts, [length_level(0, 0), length_level(0, 1)])
+    assert [len(x.joints) for x in r] == [round(s * pipe.fps) // 4 * 4 for s in drawn]
+    assert pipe.backend.predict_seconds(prompts, [0.5, 0.5]) == [walk, hands]
     given = pipe("a person walks forward", seconds=3.0, steps=2, seed=0)[0]
     assert len(given.joints) == 60
     meta = json.loads((default_model_path() / "length.json").read_text())
     assert meta["metrics"]["test"]["reduction"] >= 0.25  # the bar: 25% lower error than the median
+
+
+def test_seeds_draw_their_lengths_from_the_length_models_distribution():
+    """Different seeds, different lengths, as real takes of one action differ: each the distribution's quantile at
+    its seed's level, the same alone as in a batch of seeds, and a higher level never shorter."""
+    pipe = MotionPipeline.from_pretrained(backend="onnx")
+    prompt = "a man runs forward"
+    batch = [r.frames for r in pipe([prompt] * 6, seed=list(range(6)), footskate="off")]
+    alone = [pipe(prompt, seed=s, footskate="off")[0].frames for s in range(6)]
+    assert batch == alone and len(set(batch)) >= 3
+    levels = np.linspace(0.02, 0.98, 25)
+    frames = [round(s * pipe.fps) for s in pipe.backend.predict_seconds([prompt] * 25, list(levels))]
+    assert frames == sorted(frames) and frames[-1] - frames[0] >= 20
+    # the torch estimator gives the graph's lengths at any level
+    torch_pipe = MotionPipeline.from_pretrained(device="cpu")
+    assert torch_pipe.backend.predict_seconds([prompt] * 25, list(levels)) == pipe.backend.predict_seconds(
+        [prompt] * 25, list(levels))
+    # a length given is kept, whatever the seed
+    assert {pipe(prompt, seconds=3, seed=s, footskate="off")[0].frames for s in range(4)} == {60}
 
 
 def test_an_estimator_of_another_text_encoder_is_refused(tmp_path, save_tiny_checkpoint):

@@ -42,6 +42,12 @@ export function normal(seed, count, { stream = 0, draw = 0 } = {}) {
   return out;
 }
 
+// The uniform of a draw: a number in (0, 1), from the first word of its pair 0 (the Python's uniform).
+export function uniform(seed, { stream = 0, draw = 0 } = {}) {
+  const a = mix((mix(0) ^ drawKey(seed, stream, draw)) >>> 0);
+  return ((a >>> 8) + 0.5) / 16777216;
+}
+
 export function noise(seed, frames, dims, opts = {}) {
   return normal(seed, frames * dims, opts);
 }

@@ -5,7 +5,7 @@
 // (contacts.onnx) are the Python's own functions exported as graphs, run like the model's. It runs in a browser and
 // in Node.js; the caller passes ONNX Runtime (onnxruntime-web) and the Tokenizer class (@huggingface/tokenizers) and
 // a function that reads a file of the folder.
-import { normal } from './noise.js';
+import { normal, uniform } from './noise.js';
 import { parsePath, placeJoints, readWaypoints, waypointSeconds } from './paths.js';
 import { bvhText, recentre } from './motion.js';
 import { planWindows, roundHalfEven, shareSeconds, splitSequence } from './sequence.js';
@@ -142,19 +142,21 @@ export class MotionRuntime {
     return { similarity: score, closest: order, outOfDomain: score < a.threshold && !taught };
   }
 
-  // The length model's frames for an encoding, within the model's range (the Python's predict_frames, clipped).
-  async predicted(enc) {
-    const i = this.info;
-    const out = await this.sessions.length.run({ tokens: enc.tokens, mask: this.mask(enc.L) });
+  // The length model's frames for an encoding, within the model's range: its distribution's quantile at the level of
+  // the seed's stream (the Python's predict_seconds with length_level(seed, stream)).
+  async predicted(enc, seed, stream = 0) {
+    const i = this.info, T = this.ort.Tensor;
+    const level = Float32Array.of(uniform(seed, { stream, draw: i.length_draw }));
+    const out = await this.sessions.length.run({ tokens: enc.tokens, mask: this.mask(enc.L), level: new T('float32', level, [1]) });
     return Math.min(Math.max(Math.trunc(Number(out.frames.data[0])), i.min_frames), i.max_frames);
   }
 
-  // The length of a motion in frames: `seconds` rounded as every runtime rounds it, or the length model's.
-  async frames(enc, seconds) {
+  // The length of a motion in frames: `seconds` rounded as every runtime rounds it, or the length model's for the seed.
+  async frames(enc, seconds, seed) {
     const i = this.info;
     let n;
     if (seconds === undefined || seconds === null || seconds === '') {
-      n = await this.predicted(enc);
+      n = await this.predicted(enc, seed);
     } else {
       n = Math.round(checkSeconds(seconds) * i.fps);
     }
@@ -211,15 +213,16 @@ export class MotionRuntime {
     return (whole.closest?.[0]?.[1] ?? 0) >= q.one_action_similarity ? [prompt] : parts;
   }
 
-  // The segments of a prompt's parts: each part as long as its path words say, else as the length model predicts; a
-  // length given for the whole (`total` seconds, or null) shared among them (the Python's TextToMotionPipeline.
-  // segments and segment_frames). [{prompt, asked (without path words), spec, seconds, frames}].
-  async segments(parts, total) {
+  // The segments of a prompt's parts: each part as long as its path words say, else as the length model predicts
+  // (part k at the level of stream k of the seed); a length given for the whole (`total` seconds, or null) shared
+  // among them (the Python's TextToMotionPipeline.segments and segment_frames). [{prompt, asked (without path words),
+  // spec, seconds, frames}].
+  async segments(parts, total, seed) {
     const i = this.info, q = i.sequence;
     const specs = parts.map((p) => parsePath(p, i.paths));
     const own = [];
     for (let k = 0; k < parts.length; k++) {
-      own.push(specs[k]?.seconds ?? (await this.predicted(await this.encode(parts[k]))) / i.fps);
+      own.push(specs[k]?.seconds ?? (await this.predicted(await this.encode(parts[k]), seed, k)) / i.fps);
     }
     const shortest = i.min_frames / i.fps;
     const shared = total === null ? own : shareSeconds(total, own, shortest);
@@ -301,13 +304,13 @@ export class MotionRuntime {
       const enc = await this.encode(spec ? spec.prompt : prompt);
       domain = await this.domain(enc);
       const own = wp ? waypointSeconds(wp, prompt, i.paths, i.fps, i.length_multiple) : spec && spec.seconds;
-      n = await this.frames(spec ? await this.encode(prompt) : enc, unset && own ? own : seconds);
+      n = await this.frames(spec ? await this.encode(prompt) : enc, unset && own ? own : seconds, seed);
       // 2. denoise
       features = await this.sample(enc, n, seed);
       const weak = this.weakWarning(prompt, domain);
       if (weak) warnings.push(weak);
     } else {
-      segs = await this.segments(parts, !unset ? Number(seconds) : wp ? waypointSeconds(wp, prompt, i.paths, i.fps, i.length_multiple) : null);
+      segs = await this.segments(parts, !unset ? Number(seconds) : wp ? waypointSeconds(wp, prompt, i.paths, i.fps, i.length_multiple) : null, seed);
       const domains = [];
       for (const s of segs) domains.push(await this.domain(await this.encode(s.asked)));
       domain = domains.reduce((a, d) => (d.similarity < a.similarity ? d : a));

@@ -1,14 +1,16 @@
 """How different the motions of one prompt are across seeds, against how different the corpus's own takes of the
 same action and style are.
 
-    python benchmarks/seed_variety.py --data CORPUS [--seeds 5] [--frames 64]
+    python benchmarks/seed_variety.py --data CORPUS [--classifier CL] [--seeds 5] [--frames 64]
 
 Per prompt of benchmarks/prompts_plain.jsonl (each names the corpus label it asks for: content and style, dataset
 2, whose labels have many takes): ``--seeds`` motions at the model's length. Per label: its real takes (up to 12).
 Every motion is put at the origin facing +Z at its first frame, resampled to ``--frames`` frames over its length,
 and a set's variety is the mean over its pairs of the mean joint distance (m). The ratio generated / real per
 label, of the whole motion and of the pose alone (joints relative to the root: the body without its path); the
-table lists the prompts furthest below their label's variety.
+table lists the prompts furthest below their label's variety. With ``--classifier``: how many of the motions the
+motion classifier names with their label's content and style (dataset 2's labels), so that variety is not bought
+with accuracy.
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--frames", type=int, default=64)
     ap.add_argument("--takes", type=int, default=12)
+    ap.add_argument("--classifier", type=Path, default=None)
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     rows = [json.loads(x) for x in (HERE / "prompts_plain.jsonl").read_text().splitlines() if x.strip()]
@@ -62,6 +65,12 @@ def main() -> None:
         if c["dataset"] == "2":
             takes.setdefault((c["content"], c["style"]), []).append(c["id"])
     pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
+    hits: list[tuple[bool, bool]] = []
+    if args.classifier is not None:
+        from stablemofusion.data.labels import corpus_labels
+        from stablemofusion.eval.classifier import dataset_labels, load_classifier
+
+        classifier, allowed = load_classifier(args.classifier), dataset_labels(corpus_labels(args.data), 2)
     real: dict[tuple[str, str], float] = {}
     out = []
     for row in rows:
@@ -73,8 +82,11 @@ def main() -> None:
             chosen = [ids[i] for i in np.linspace(0, len(ids) - 1, min(args.takes, len(ids))).astype(int)]
             motions = [aligned(np.load(args.data / "new_joints" / f"{i}.npy"), args.frames) for i in chosen]
             real[label] = (variety(motions), variety(motions, pose_only=True))
-        made = [aligned(r.joints, args.frames) for r in pipe([row["prompt"]] * args.seeds,
-                                                             seed=list(range(args.seeds)))]
+        results = pipe([row["prompt"]] * args.seeds, seed=list(range(args.seeds)))
+        made = [aligned(r.joints, args.frames) for r in results]
+        if args.classifier is not None:
+            hits += [(c == label[0], s == label[1]) for c, s in classifier.predict([r.features for r in results],
+                                                                                  [allowed] * len(results))]
         gen, pose = variety(made), variety(made, pose_only=True)
         out.append({"prompt": row["prompt"], "label": "/".join(label), "generated_m": round(gen, 3),
                     "real_m": round(real[label][0], 3), "ratio": round(gen / real[label][0], 2),
@@ -88,7 +100,9 @@ def main() -> None:
                       "pose_ratio_p10_p90": [round(float(np.percentile(poses, q)), 2) for q in (10, 90)],
                       "prompts_pose_below_half": int((poses < 0.5).sum()),
                       "generated_m_median": round(float(np.median([o["generated_m"] for o in out])), 3),
-                      "real_m_median": round(float(np.median([o["real_m"] for o in out])), 3)}))
+                      "real_m_median": round(float(np.median([o["real_m"] for o in out])), 3),
+                      **({"content_accuracy": round(float(np.mean([h[0] for h in hits])), 3),
+                          "style_accuracy": round(float(np.mean([h[1] for h in hits])), 3)} if hits else {})}))
     for o in sorted(out, key=lambda o: o["ratio"])[:12]:
         print(json.dumps(o))
 

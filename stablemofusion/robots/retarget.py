@@ -49,6 +49,10 @@ TOLERANCE = 1e-3  # rad (or m): a pass stops when no coordinate of any frame mov
 POSTURE_WEIGHT = 1e-3  # pulls redundant joints (waist, wrists) toward the reference pose
 DAMPING = 1e-2
 MAX_STEP = 0.4  # rad (or m) one iteration may move any coordinate
+LEVEL_HEIGHT = 0.015  # m: a planted foot's lowest sole point higher than this is brought down (level_feet)
+LEVEL_ITERATIONS = 4
+LEVEL_SHARES = (0.75, 0.5, 0.25, 0.0)  # of a levelling change tried in turn where the whole of it makes bodies touch
+LEVEL_SMOOTH = 0.05  # how much each joint is pulled toward its neighbours' meanwhile
 
 
 @dataclass
@@ -470,6 +474,45 @@ def floor_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray) -> np.ndarra
     return out
 
 
+def level_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray, iterations: int = LEVEL_ITERATIONS) -> np.ndarray:
+    """(T, nq) poses (on the floor: :func:`floor_feet`) in which a planted foot whose lowest sole point is more than
+    ``LEVEL_HEIGHT`` above the floor (``planted`` (T, 2): left, right) is brought down to it: its ankle and toe
+    point lowered by that height, the other planted foot held where it is, the rest held loosely to its place, each
+    joint pulled toward its neighbours', the robot's own bodies kept ``CLEARANCE`` apart (:func:`_contact_rows`); the
+    base then floored again. A frame whose levelled pose still makes them touch takes the largest of
+    ``LEVEL_SHARES`` of its change that does not (none of it at worst)."""
+    out = floor_feet(robot, qpos, planted)
+    frames = np.nonzero((planted & (sole_heights(robot, out) > LEVEL_HEIGHT)).any(axis=1))[0]
+    if not len(frames):
+        return out
+    data, near = mujoco.MjData(robot.own), mujoco.MjData(robot.near)
+    feet = _feet_points(robot)
+    before = out[frames].copy()
+    for _ in range(iterations):
+        low = sole_heights(robot, out[frames])
+        high = planted[frames] & (low > LEVEL_HEIGHT / 2)
+        if not high.any():
+            break
+        here = _places(robot, data, out[frames])
+        for f in range(2):  # the high foot's ankle and toe point down by its height
+            here[:, feet[2 * f:2 * f + 2], 2] -= np.where(high[:, f], low[:, f], 0.0)[:, None]
+        held = np.repeat(planted[frames], 2, axis=1).astype(float)
+        weights = SEPARATE_HOLD * _weights(robot, np.zeros((len(frames), 4)))
+        rows = np.repeat(feet, 3) * 3 + np.tile(np.arange(3), 4)
+        weights[:, rows] = _weights(robot, held)[:, rows] * np.repeat(held, 3, axis=1) + weights[:, rows]
+        out[frames], _ = _step(robot, data, out[frames], here, weights, _neighbours(out)[frames],
+                               _contact_rows(robot, near, out[frames]), smooth=LEVEL_SMOOTH)
+    after = out[frames].copy()
+    for share in LEVEL_SHARES:  # a frame whose bodies touch: the largest share of its change that keeps them apart
+        touching = np.nonzero(_touching(robot, data, out[frames]))[0]
+        if not len(touching):
+            break
+        q = before[touching] + share * (after[touching] - before[touching])
+        q[:, 3:7] /= np.linalg.norm(q[:, 3:7], axis=1, keepdims=True)
+        out[frames[touching]] = q
+    return floor_feet(robot, out, planted)
+
+
 def foot_points(robot: Robot, qpos: np.ndarray) -> np.ndarray:
     """(T, 4, 3) the points that stand for the human's left ankle, left toe, right ankle, right toe in (T, nq) poses:
     the ankle sites and the soles' toe points, metres."""
@@ -508,5 +551,5 @@ def retarget(robot: Robot, joints: np.ndarray, fps: float, contacts: np.ndarray 
     qpos = resample_qpos(qpos, fps, out_fps)
     planted = resample(planted.astype(float), fps, out_fps) > 0.5
     qpos = separate(robot, qpos, resample(held.astype(float), fps, out_fps) > 0.5)
-    qpos = floor_feet(robot, qpos, planted)
+    qpos = level_feet(robot, qpos, planted)
     return RobotMotion(robot.name, out_fps, qpos, robot.joint_names, planted, scale)

@@ -17,9 +17,10 @@ from stablemofusion.pipelines.motion_pipeline import MotionPipeline  # noqa: E40
 from stablemofusion.robots.checks import check_motion, limit_violations, self_contacts  # noqa: E402
 from stablemofusion.robots.files import csv_columns, npz_arrays, write_keyframes  # noqa: E402
 from stablemofusion.robots.model import Robot, load_robot, read_joint_map  # noqa: E402
-from stablemofusion.robots.retarget import (_feet_points, _places, _runs, keypoint_targets,  # noqa: E402
-                                            lock_targets, pelvis_axes, planted_feet, resample_qpos, robot_frame,
-                                            separate, sole_heights, solve_poses)
+from stablemofusion.robots.retarget import (LEVEL_HEIGHT, _feet_points, _places, _runs,  # noqa: E402
+                                            floor_feet, keypoint_targets, level_feet, lock_targets, pelvis_axes,
+                                            planted_feet, resample_qpos, robot_frame, separate, sole_heights,
+                                            solve_poses)
 
 ROBOTS = ("g1", "h1")
 
@@ -227,6 +228,30 @@ def test_a_held_foot_stays_put_on_the_floor(waves):
     ankle = _places(robot, mujoco.MjData(robot.own), q)[:, _feet_points(robot)[0]]
     inside = ankle[22:58]
     assert np.abs(inside - inside.mean(axis=0)).max() < 0.01 and abs(inside[:, 2].mean() - robot.rest_ankle) < 0.005
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_a_planted_foot_left_above_the_floor_is_brought_down(name):
+    """Both feet planted, the right leg bent so that its foot is in the air: putting the base on the floor leaves the
+    right sole above it; levelling brings it down (within LEVEL_HEIGHT), the left foot stays on the floor, nothing
+    touches, no joint leaves its range, and a frame whose feet are level is left as it was."""
+    robot = load_robot(name)
+    suffix = "_joint" if name == "g1" else ""
+    knee, hip, ankle = (7 + list(robot.joint_names).index(j + suffix) for j in (
+        "right_knee", "right_hip_pitch", "right_ankle_pitch" if name == "g1" else "right_ankle"))
+    q = np.repeat(robot.rest[None], 6, axis=0)
+    bend = np.linspace(0.6, 0.8, 5)  # the knee bent, hip and ankle half as much back: the foot flat, 3-5 cm up
+    q[1:, knee] += bend
+    q[1:, hip] -= bend / 2
+    q[1:, ankle] -= bend / 2
+    planted = np.ones((6, 2), bool)
+    floored = floor_feet(robot, q, planted)
+    assert (sole_heights(robot, floored)[1:, 1] > 0.02).all()
+    level = level_feet(robot, q, planted)
+    low = sole_heights(robot, level)
+    assert np.abs(low).max() <= LEVEL_HEIGHT and low.min() >= -1e-9
+    assert (self_contacts(robot, level) == 0).all() and limit_violations(robot, level) == 0
+    np.testing.assert_array_equal(level[0], floored[0])
 
 
 def test_the_files_hold_the_trajectory(tmp_path, waves):

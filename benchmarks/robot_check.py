@@ -61,7 +61,9 @@ def check(args) -> None:
                 "planted_sole_height_cm_p95_max": [round(100 * pct([r["planted_sole_height_m"] for r in rows], q), 2)
                                                     for q in (95, 100)],
                 "planted_frames_over_2cm_share": round(float(np.mean(np.concatenate(
-                    [r["planted_sole_height_m"] for r in rows]) > 0.02)), 4),
+                    [r["planted_sole_height_m"] for r in rows]) > 0.02)), 5),
+                "planted_frames_over_2cm_of": [int(sum((r["planted_sole_height_m"] > 0.02).sum() for r in rows)),
+                                               int(sum(len(r["planted_sole_height_m"]) for r in rows))],
                 "sole_below_floor_cm_max": round(100 * max(r["sole_below_floor_m"] for r in rows), 2),
                 "slide_mps_median_p95_robot": [round(pct([r["robot_slide_mps"] for r in rows], q), 3) for q in (50, 95)],
                 "slide_mps_median_p95_human_scaled": [round(pct([r["human_slide_mps"] for r in rows], q), 3)

@@ -467,11 +467,15 @@ def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, ite
 def floor_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray) -> np.ndarray:
     """(T, nq) poses with the base moved up or down per frame so that the lowest sole of a planted foot touches the
     floor (z = 0) and no sole is below it."""
-    low = sole_heights(robot, qpos)
-    standing = np.where(planted, low, np.inf).min(axis=1)
     out = qpos.copy()
-    out[:, 2] += np.maximum(np.where(np.isfinite(standing), -standing, 0.0), -low.min(axis=1))
+    out[:, 2] += _floor_shift(sole_heights(robot, qpos), planted)
     return out
+
+
+def _floor_shift(low: np.ndarray, planted: np.ndarray) -> np.ndarray:
+    """(T,) how far :func:`floor_feet` moves each base up, from the soles' heights ``low`` (T, 2) and ``planted``."""
+    standing = np.where(planted, low, np.inf).min(axis=1)
+    return np.maximum(np.where(np.isfinite(standing), -standing, 0.0), -low.min(axis=1))
 
 
 def level_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray, iterations: int = LEVEL_ITERATIONS) -> np.ndarray:
@@ -481,8 +485,10 @@ def level_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray, iterations: 
     joint pulled toward its neighbours', the robot's own bodies kept ``CLEARANCE`` apart (:func:`_contact_rows`); the
     base then floored again. A frame whose levelled pose still makes them touch takes the largest of
     ``LEVEL_SHARES`` of its change that does not (none of it at worst)."""
-    out = floor_feet(robot, qpos, planted)
-    frames = np.nonzero((planted & (sole_heights(robot, out) > LEVEL_HEIGHT)).any(axis=1))[0]
+    out, low = qpos.copy(), sole_heights(robot, qpos)
+    shift = _floor_shift(low, planted)
+    out[:, 2] += shift  # floor_feet (the base moved up: every sole with it)
+    frames = np.nonzero((planted & (low + shift[:, None] > LEVEL_HEIGHT)).any(axis=1))[0]
     if not len(frames):
         return out
     data, near = mujoco.MjData(robot.own), mujoco.MjData(robot.near)
@@ -510,7 +516,8 @@ def level_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray, iterations: 
         q = before[touching] + share * (after[touching] - before[touching])
         q[:, 3:7] /= np.linalg.norm(q[:, 3:7], axis=1, keepdims=True)
         out[frames[touching]] = q
-    return floor_feet(robot, out, planted)
+    out[frames] = floor_feet(robot, out[frames], planted[frames])
+    return out
 
 
 def foot_points(robot: Robot, qpos: np.ndarray) -> np.ndarray:

@@ -51,9 +51,11 @@ class TextToMotionPipeline:
         base = None if per_item else base_seed(seed)
         # the batches of one window each (a length the model predicts is within one), and each item's seed and
         # stream there: its noise's, and its length's quantile in the length model's distribution
-        long = [i for i in range(n) if one[i] and i not in unknown and frames_for(secs[i], frs[i], b.fps,
-                                                                                   b.min_frames) > b.max_frames]
-        short = [i for i in range(n) if one[i] and i not in long]
+        predicted = set(unknown)
+        over = [one[i] and i not in predicted and frames_for(secs[i], frs[i], b.fps, b.min_frames) > b.max_frames
+                for i in range(n)]
+        long = [i for i in range(n) if over[i]]
+        short = [i for i in range(n) if one[i] and not over[i]]
         batches = [short[a:a + settings.batch_size] for a in range(0, len(short), settings.batch_size)]
         draw = {i: (seed[i], 0) if per_item else (base + k, j) for k, idx in enumerate(batches)
                 for j, i in enumerate(idx)}

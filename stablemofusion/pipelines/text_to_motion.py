@@ -31,8 +31,9 @@ class TextToMotionPipeline:
     def __call__(self, prompts: str | list[str], *, seconds: float | list[float] | None = None,
                  frames: int | list[int] | None = None, seed: int | list[int] | None = None,
                  settings: Settings = Settings(), progress: bool = False, path=None) -> list[MotionResult]:
-        """``seconds``/``frames``: one value or one per prompt; with neither, the model's length estimate (or
-        the default length); ``path``: a root path to follow (:class:`~stablemofusion.core.path_plan.Waypoints` or its
+        """``seconds``/``frames``: one value or one per prompt; with neither, a length the length model gives for
+        the item's seed and stream (its distribution's quantile at :func:`~stablemofusion.core.noise.length_level`;
+        else the default length); ``path``: a root path to follow (:class:`~stablemofusion.core.path_plan.Waypoints` or its
         JSON form, one for all or one per prompt), its length the motion's unless one is given. ``seed``: one for
         all (batch k uses ``seed + k``, a long item i ``seed + i``) or one per prompt (each motion independent of
         those it is batched with); None: a fresh one, reported."""

@@ -49,6 +49,9 @@ TOLERANCE = 1e-3  # rad (or m): a pass stops when no coordinate of any frame mov
 POSTURE_WEIGHT = 1e-3  # pulls redundant joints (waist, wrists) toward the reference pose
 DAMPING = 1e-2
 MAX_STEP = 0.4  # rad (or m) one iteration may move any coordinate
+PIN_DRIFT = 0.005  # m a held ankle or toe point may be off its hold's place before pin_feet moves its frame
+PIN_ITERATIONS = 2
+PIN_HOLD = 1.0  # how much the rest of a pose being pinned holds to its place (times the usual weights)
 LEVEL_HEIGHT = 0.015  # m: a planted foot's lowest sole point higher than this is brought down (level_feet)
 LEVEL_ITERATIONS = 4
 LEVEL_SHARES = (0.75, 0.5, 0.25, 0.0)  # of a levelling change tried in turn where the whole of it makes bodies touch
@@ -427,6 +430,43 @@ def lock_targets(spots: np.ndarray, held: np.ndarray, fps: float, ankle_height: 
     return spots + share[..., None] * (anchors - spots), share
 
 
+def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, iterations: int = PIN_ITERATIONS) -> np.ndarray:
+    """(T, nq) poses (at ``fps``) whose held ankles and toe points (``held`` (T, 4): left ankle, left toe, right
+    ankle, right toe) are moved on the floor plane to their hold's mean place, eased in and out
+    (:func:`lock_targets`; their heights left as they are), in the frames where one is more than ``PIN_DRIFT`` off
+    it: those points held firmly there (their held weights, eased with the lock), the rest to where it was (its
+    usual weights times ``PIN_HOLD``), each joint pulled toward its neighbours', the robot's own bodies kept apart
+    (:func:`_contact_rows`); ``iterations`` steps."""
+    data, near = mujoco.MjData(robot.own), mujoco.MjData(robot.near)
+    feet = _feet_points(robot)
+    spots = _places(robot, data, qpos)[:, feet]
+    targets, share = lock_targets(spots, held, fps, robot.rest_ankle)
+    targets[..., 2] = spots[..., 2]
+    frames = np.nonzero((np.linalg.norm((targets - spots)[..., :2], axis=-1) > PIN_DRIFT).any(axis=1))[0]
+    out = qpos.copy()
+    if not len(frames):
+        return out
+    rows = np.repeat(feet, 3) * 3 + np.tile(np.arange(3), 4)
+    weights = PIN_HOLD * _weights(robot, np.zeros((len(frames), 4)))
+    weights[:, rows] += _weights(robot, share[frames])[:, rows] * np.repeat(share[frames], 3, axis=1)
+    here = _places(robot, data, out[frames])  # the rest held to where it was
+    here[:, feet] = targets[frames]
+    for _ in range(iterations):
+        out[frames], change = _step(robot, data, out[frames], here, weights, _neighbours(out)[frames],
+                                    _contact_rows(robot, near, out[frames]), smooth=SEPARATE_SMOOTH)
+        if change.max() < TOLERANCE:
+            break
+    # a frame whose standing feet end further from level with each other (one sole higher than the other by
+    # LEVEL_HEIGHT more than before: more than level_feet mends) keeps its pose: the lock asked for more than the legs
+    # reach
+    both = (held[frames][:, 0::2] | held[frames][:, 1::2]).all(axis=1)  # (F,) both feet standing
+    spread = [np.where(both, np.abs(h[:, 0] - h[:, 1]), 0.0)
+              for h in (sole_heights(robot, qpos[frames]), sole_heights(robot, out[frames]))]
+    worse = spread[1] > spread[0] + LEVEL_HEIGHT
+    out[frames[worse]] = qpos[frames[worse]]
+    return out
+
+
 def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, iterations: int = SEPARATE_ITERATIONS,
              rounds: int = 9) -> np.ndarray:
     """(T, nq) poses in which the robot's own bodies overlap pushed apart: each from its own pose, the targets its
@@ -557,6 +597,8 @@ def retarget(robot: Robot, joints: np.ndarray, fps: float, contacts: np.ndarray 
     qpos = solve_poses(robot, targets, toes, pelvis_axes(joints), held, fps)
     qpos = resample_qpos(qpos, fps, out_fps)
     planted = resample(planted.astype(float), fps, out_fps) > 0.5
-    qpos = separate(robot, qpos, resample(held.astype(float), fps, out_fps) > 0.5)
+    held = resample(held.astype(float), fps, out_fps) > 0.5
+    qpos = pin_feet(robot, qpos, held, out_fps)
+    qpos = separate(robot, qpos, held)
     qpos = level_feet(robot, qpos, planted)
     return RobotMotion(robot.name, out_fps, qpos, robot.joint_names, planted, scale)

@@ -18,7 +18,7 @@ from stablemofusion.robots.checks import check_motion, limit_violations, self_co
 from stablemofusion.robots.files import csv_columns, npz_arrays, write_keyframes  # noqa: E402
 from stablemofusion.robots.model import Robot, load_robot, read_joint_map  # noqa: E402
 from stablemofusion.robots.retarget import (LEVEL_HEIGHT, _feet_points, _places, _runs,  # noqa: E402
-                                            floor_feet, keypoint_targets, level_feet, lock_targets, pelvis_axes,
+                                            floor_feet, keypoint_targets, level_feet, lock_targets, pelvis_axes, pin_feet,
                                             planted_feet, resample_qpos, robot_frame, separate, sole_heights,
                                             solve_poses)
 
@@ -252,6 +252,26 @@ def test_a_planted_foot_left_above_the_floor_is_brought_down(name):
     assert np.abs(low).max() <= LEVEL_HEIGHT and low.min() >= -1e-9
     assert (self_contacts(robot, level) == 0).all() and limit_violations(robot, level) == 0
     np.testing.assert_array_equal(level[0], floored[0])
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_held_feet_are_pinned_to_their_holds_place(name):
+    """The base gliding 6 cm forward over 25 frames at 50 Hz, the legs as they are: the feet glide with it. With
+    both feet held the whole time, pinning keeps every held ankle and toe point within 1 cm of one place on the
+    floor plane, nothing touches and no joint leaves its range; feet not held are left where they are."""
+    robot = load_robot(name)
+    q = np.repeat(robot.rest[None], 25, axis=0)
+    q[:, 0] += np.linspace(0.0, 0.06, 25)
+    d = mujoco.MjData(robot.own)
+    feet = _feet_points(robot)
+    before = _places(robot, d, q)[:, feet, :2]
+    held = np.ones((25, 4), bool)
+    pinned = pin_feet(robot, q, held, 50.0)
+    after = _places(robot, d, pinned)[:, feet, :2]
+    assert np.linalg.norm(before - before.mean(axis=0), axis=-1).max() > 0.025
+    assert np.linalg.norm(after - after.mean(axis=0), axis=-1).max() < 0.01
+    assert (self_contacts(robot, pinned) == 0).all() and limit_violations(robot, pinned) == 0
+    np.testing.assert_array_equal(pin_feet(robot, q, np.zeros((25, 4), bool), 50.0), q)
 
 
 def test_the_files_hold_the_trajectory(tmp_path, waves):

@@ -410,6 +410,19 @@ def _feet_points(robot: Robot) -> np.ndarray:
     return np.array([names.index("left_ankle"), K, names.index("right_ankle"), K + 1])
 
 
+def _feet_rows(robot: Robot) -> np.ndarray:
+    """(12,) the rows (x, y, z) of the left ankle, left toe, right ankle and right toe points among the (3P,) rows of
+    :func:`_weights`."""
+    return np.repeat(_feet_points(robot), 3) * 3 + np.tile(np.arange(3), 4)
+
+
+def _firm_feet(robot: Robot, loose: np.ndarray, share: np.ndarray) -> np.ndarray:
+    """(F, 3P) weights ``loose`` with the feet points' rows raised by their held weights times ``share`` (F, 4)."""
+    rows, out = _feet_rows(robot), loose.copy()
+    out[:, rows] += _weights(robot, share)[:, rows] * np.repeat(share, 3, axis=1)
+    return out
+
+
 def lock_targets(spots: np.ndarray, held: np.ndarray, fps: float, ankle_height: float) -> tuple[np.ndarray, np.ndarray]:
     """Foot locking, as games do it: (T, 4, 3) targets for the ankles and toe points at ``spots`` (T, 4, 3; left
     ankle, left toe, right ankle, right toe, metres, at ``fps``) that keep each one held (``held`` (T, 4)) at its
@@ -446,9 +459,7 @@ def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, itera
     out = qpos.copy()
     if not len(frames):
         return out
-    rows = np.repeat(feet, 3) * 3 + np.tile(np.arange(3), 4)
-    weights = PIN_HOLD * _weights(robot, np.zeros((len(frames), 4)))
-    weights[:, rows] += _weights(robot, share[frames])[:, rows] * np.repeat(share[frames], 3, axis=1)
+    weights = _firm_feet(robot, PIN_HOLD * _weights(robot, np.zeros((len(frames), 4))), share[frames])
     here = _places(robot, data, out[frames])  # the rest held to where it was
     here[:, feet] = targets[frames]
     for _ in range(iterations):
@@ -487,7 +498,7 @@ def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, ite
         weights = SEPARATE_HOLD * _weights(robot, np.zeros((len(window), 4)))
         if held is not None and round < rounds // 2:  # a standing foot stays where it stands (until the last rounds)
             firm = _weights(robot, held[window].astype(float))
-            rows = np.repeat(_feet_points(robot), 3) * 3 + np.tile(np.arange(3), 4)
+            rows = _feet_rows(robot)
             weights[:, rows] = np.where(np.repeat(held[window], 3, axis=1), firm[:, rows], weights[:, rows])
         moving = np.arange(len(window))  # the window's frames still being moved
         for _ in range(iterations if reach else 4 * iterations):
@@ -542,10 +553,8 @@ def level_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray, iterations: 
         here = _places(robot, data, out[frames])
         for f in range(2):  # the high foot's ankle and toe point down by its height
             here[:, feet[2 * f:2 * f + 2], 2] -= np.where(high[:, f], low[:, f], 0.0)[:, None]
-        held = np.repeat(planted[frames], 2, axis=1).astype(float)
-        weights = SEPARATE_HOLD * _weights(robot, np.zeros((len(frames), 4)))
-        rows = np.repeat(feet, 3) * 3 + np.tile(np.arange(3), 4)
-        weights[:, rows] = _weights(robot, held)[:, rows] * np.repeat(held, 3, axis=1) + weights[:, rows]
+        weights = _firm_feet(robot, SEPARATE_HOLD * _weights(robot, np.zeros((len(frames), 4))),
+                             np.repeat(planted[frames], 2, axis=1).astype(float))
         out[frames], _ = _step(robot, data, out[frames], here, weights, _neighbours(out)[frames],
                                _contact_rows(robot, near, out[frames]), smooth=LEVEL_SMOOTH)
     after = out[frames].copy()

@@ -452,7 +452,8 @@ def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, itera
     (:func:`_contact_rows`); ``iterations`` steps."""
     data, near = mujoco.MjData(robot.own), mujoco.MjData(robot.near)
     feet = _feet_points(robot)
-    spots = _places(robot, data, qpos)[:, feet]
+    places = _places(robot, data, qpos)
+    spots = places[:, feet]
     targets, share = lock_targets(spots, held, fps, robot.rest_ankle)
     targets[..., 2] = spots[..., 2]
     frames = np.nonzero((np.linalg.norm((targets - spots)[..., :2], axis=-1) > PIN_DRIFT).any(axis=1))[0]
@@ -460,7 +461,7 @@ def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, itera
     if not len(frames):
         return out
     weights = _firm_feet(robot, PIN_HOLD * _weights(robot, np.zeros((len(frames), 4))), share[frames])
-    here = _places(robot, data, out[frames])  # the rest held to where it was
+    here = places[frames]  # the rest held to where it was
     here[:, feet] = targets[frames]
     for _ in range(iterations):
         out[frames], change = _step(robot, data, out[frames], here, weights, _neighbours(out)[frames],

@@ -49,12 +49,13 @@ def chain_of(model, root: int) -> Chain:
 class Poses:
     """Many poses' kinematics: each body's world rotation ``rot`` (T, B, 3, 3) and position ``pos`` (T, B, 3), each
     velocity coordinate's world axis ``axis`` (T, nv, 3) and a point on it ``origin`` (T, nv, 3), metres (the free
-    joint's: the world's axes then the base's own, through the base)."""
+    joint's: the world's axes then the base's own, through the base), and ``moment`` (T, nv, 3) axis x origin."""
 
     rot: np.ndarray
     pos: np.ndarray
     axis: np.ndarray
     origin: np.ndarray
+    moment: np.ndarray
 
 
 def forward(model, data, chain: Chain, qpos: np.ndarray, each=None) -> Poses:
@@ -74,7 +75,16 @@ def forward(model, data, chain: Chain, qpos: np.ndarray, each=None) -> Poses:
     base, at = rot[:, chain.root], pos[:, chain.root, None]
     axes = np.concatenate([np.broadcast_to(np.eye(3), (T, 3, 3)), np.swapaxes(base, 1, 2), axis[:, 1:]], axis=1)
     origins = np.concatenate([np.repeat(at, 6, axis=1), anchor[:, 1:]], axis=1)
-    return Poses(rot, pos, axes, origins)
+    return Poses(rot, pos, axes, origins, _cross(axes, origins))
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(..., 3) a x b (numpy's ``cross`` costs more than the product at these sizes)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
 
 
 def points(poses: Poses, bodies: np.ndarray, local: np.ndarray) -> np.ndarray:
@@ -93,9 +103,19 @@ def jacobians(chain: Chain, poses: Poses, at: np.ndarray, bodies: np.ndarray, dt
     skew[:, 1, 0], skew[:, 2, 0], skew[:, 0, 1] = -a[..., 2], a[..., 1], a[..., 2]
     skew[:, 2, 1], skew[:, 0, 2], skew[:, 1, 2] = -a[..., 0], -a[..., 1], a[..., 0]
     out = (at.astype(dtype) @ skew.reshape(T, 3, -1)).reshape(T, P, 3, chain.nv)
-    out -= np.cross(a, poses.origin).astype(dtype).transpose(0, 2, 1)[:, None]
+    out -= poses.moment.astype(dtype).transpose(0, 2, 1)[:, None]
     out[..., chain.translating] = np.swapaxes(a[:, None, chain.translating], 2, 3)
     out *= np.broadcast_to(chain.moves[bodies].astype(dtype), (T, P, chain.nv))[:, :, None, :]
+    return out
+
+
+def height_jacobians(chain: Chain, poses: Poses, at: np.ndarray, bodies: np.ndarray) -> np.ndarray:
+    """(T, P, nv) the rows of :func:`jacobians` for the height (z) alone: a turning coordinate's
+    (axis x (point - origin))_z, a translating one's the axis's z."""
+    a = poses.axis
+    out = a[:, None, :, 0] * at[..., 1:2] - a[:, None, :, 1] * at[..., 0:1] - poses.moment[:, None, :, 2]
+    out[..., chain.translating] = a[:, None, chain.translating, 2]
+    out *= chain.moves[bodies]
     return out
 
 

@@ -284,7 +284,7 @@ def _step(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.
         for f, sole in enumerate(robot.soles):
             body = np.full(len(sole.points), sole.body)
             points = kin.points(poses, body, sole.points)
-            rows = kin.jacobians(chain, poses, points, body)[:, :, 2]
+            rows = kin.height_jacobians(chain, poses, points, body)
             floor.append((np.where(lifted[:, f, None], points[..., 2] - sole.radius, np.inf), rows))
     diagonal = np.full(nv, DAMPING)
     diagonal[6:] += POSTURE_WEIGHT
@@ -297,7 +297,8 @@ def _step(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.
     # joints at a limit that the gradient pushes past it: held there (an active set), the others solved
     stuck = ((q <= lo + 1e-9) & (g[:, 6:] < 0)) | ((q >= hi - 1e-9) & (g[:, 6:] > 0))
     free = np.concatenate([np.ones((T, 6), bool), ~stuck], axis=1)
-    a = a * (free[:, :, None] & free[:, None, :]) + np.eye(nv) * ~free[:, :, None]
+    some = np.nonzero(stuck.any(axis=1))[0]  # a stuck joint's row and column: the identity's
+    a[some] = a[some] * (free[some, :, None] & free[some, None, :]) + np.eye(nv) * ~free[some, :, None]
     dq = np.linalg.solve(a, (g * free)[..., None])[..., 0]
     # a lifted sole point that is, or would be, below the floor: held on it (the constraint made active), solved again
     under = [(height < 0) | (height + np.einsum("tsv,tv->ts", rows, dq) < 0) for height, rows in floor]

@@ -55,10 +55,22 @@ def test_per_pose_bodies_give_each_pose_its_own_points_jacobian():
     for t in range(3):
         for p in range(2):
             alone = kin.jacobians(robot.chain, kin.Poses(*(x[t:t + 1] for x in (poses.rot, poses.pos, poses.axis,
-                                                                                  poses.origin))),
+                                                                                  poses.origin, poses.moment))),
                                   at[t:t + 1, p:p + 1], bodies[t, p:p + 1])
             assert np.allclose(jac[t, p], alone[0, 0], rtol=0, atol=1e-12)
     assert not jac[0, 1].any() and not jac[1, 0].any()
+
+
+def test_height_jacobians_are_the_jacobians_height_rows():
+    robot = load_robot("g1")
+    m = robot.model
+    q = random_poses(robot, 4, seed=5)
+    poses = kin.forward(m, mujoco.MjData(m), robot.chain, q)
+    bodies = np.array([0, 3, 7, 12, 20])
+    at = np.random.default_rng(6).normal(size=(4, 5, 3))
+    want = kin.jacobians(robot.chain, poses, at, bodies)[:, :, 2]
+    assert np.allclose(kin.height_jacobians(robot.chain, poses, at, bodies), want, rtol=0, atol=1e-12)
+    assert not kin.height_jacobians(robot.chain, poses, at, bodies)[:, 0].any()
 
 
 def test_integration_matches_mujoco():

@@ -32,6 +32,7 @@ TOE_WEIGHT = 5.0
 BASE_WEIGHT = 2.0  # the floating base turned as the human pelvis (two points 0.2 m off its origin)
 BASE_LEVER = 0.2
 CLEARANCE = 0.01  # m the retarget pushes the robot's own bodies apart to (interpolated frames lie between)
+BUILT_CLEARANCE = 0.001  # m a pair of geoms already near at the reference pose is pushed apart to where it overlaps
 COLLISION_WEIGHT = 200.0  # of a contact's or a lifted sole's row, against the targets' weights
 COARSE_STRIDE = 2  # the first pass solves every COARSE_STRIDE-th frame,
 COARSE_ITERATIONS = 6  # this many iterations from the reference pose,
@@ -209,7 +210,8 @@ def _contact_rows(robot: Robot, data, qpos: np.ndarray) -> tuple[np.ndarray, np.
     contact on ``data`` (an ``MjData`` of ``robot.own``: where they overlap; of ``robot.near``: up to ``NEAR``
     apart), each pair of geoms once, at its closest point, as functions of the velocity coordinates; and the
     changes (T, C) wanted of them: up to ``CLEARANCE`` where closer, none where farther (a near pair is kept from
-    closing in; a pair already that near at the reference pose only kept from overlapping). Rows of zeros where a
+    closing in; a pair already that near at the reference pose only kept from overlapping: pushed to
+    ``BUILT_CLEARANCE`` where it does). Rows of zeros where a
     pose has fewer than C."""
     m = data.model
     found = []  # (frame, geoms, distances, points, normals) of every pose with contacts
@@ -236,7 +238,7 @@ def _contact_rows(robot: Robot, data, qpos: np.ndarray) -> tuple[np.ndarray, np.
     C = int(slot.max()) + 1 if len(keep) else 1
     at, normal, bodies, more = np.zeros((T, C, 3)), np.zeros((T, C, 3)), np.zeros((T, C, 2), int), np.zeros((T, C))
     at[f, slot], normal[f, slot], bodies[f, slot] = points[keep], normals[keep], m.geom_bodyid[geoms[keep]]
-    more[f, slot] = np.maximum(np.where(built[keep], 0.0, CLEARANCE) - dist[keep], 0.0)
+    more[f, slot] = np.maximum(np.where(built[keep], BUILT_CLEARANCE, CLEARANCE) - dist[keep], 0.0)
     jac = kin.jacobians(robot.chain, poses, np.concatenate([at, at], 1),
                         np.concatenate([bodies[..., 0], bodies[..., 1]], 1))
     return np.einsum("tck,tckv->tcv", normal, jac[:, C:] - jac[:, :C]), more
@@ -255,18 +257,30 @@ def _touching(robot: Robot, data, qpos: np.ndarray) -> np.ndarray:
     return out
 
 
+def _touching_poses(robot: Robot, data, qpos: np.ndarray) -> tuple[kin.Poses, np.ndarray]:
+    """:func:`_touching` of (T, nq) poses and, from the same kinematics, their :class:`~.kinematics.Poses`."""
+    out = np.zeros(len(qpos), dtype=bool)
+
+    def check(t: int, data) -> None:
+        mujoco.mj_collision(data.model, data)
+        out[t] = data.ncon > 0 and count_self_contacts(data.model, data) > 0
+
+    return kin.forward(data.model, data, robot.chain, qpos, check), out
+
+
 def _step(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.ndarray, pull: np.ndarray | None = None,
           contacts: tuple[np.ndarray, np.ndarray] | None = None, smooth: float = SMOOTH_WEIGHT,
-          lifted: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+          lifted: np.ndarray | None = None, poses: kin.Poses | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One damped Gauss-Newton step of every pose (T, nq) toward its ``wanted`` (T, P, 3) points, rows weighted by
     ``weights`` (T, 3P): redundant joints pulled a little toward the reference pose, joints toward ``pull`` (T, J)
     where given (by ``smooth``), the distances of ``contacts`` (rows, increases: :func:`_contact_rows`) pushed up,
     the soles of ``lifted`` (T, 2) feet (left, right: those not standing) kept from going below the floor, joints at
-    a limit and pushed past it held there (an active set), no coordinate moved more than ``MAX_STEP``. Returns the new
-    poses (joints clipped to their ranges) and each pose's largest coordinate change (T,)."""
+    a limit and pushed past it held there (an active set), no coordinate moved more than ``MAX_STEP``; ``poses`` the
+    poses' kinematics if already known. Returns the new poses (joints clipped to their ranges) and each pose's largest
+    coordinate change (T,)."""
     chain, T = robot.chain, len(qpos)
     nv = chain.nv
-    poses = kin.forward(data.model, data, chain, qpos)
+    poses = kin.forward(data.model, data, chain, qpos) if poses is None else poses
     bodies, local = _layout(robot)
     at = kin.points(poses, bodies, local)
     jac = kin.jacobians(chain, poses, at, bodies, np.float32)  # a search direction: single precision will do
@@ -334,15 +348,17 @@ def _iterate(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: 
     (T, 2) feet kept above the floor; stops early once no coordinate moves more than ``TOLERANCE``."""
     apart = np.zeros(len(qpos), bool)
     for _ in range(iterations):
-        contacts = None
+        contacts = poses = None
         if near is not None:
-            apart |= _touching(robot, data, qpos)
+            poses, now = _touching_poses(robot, data, qpos)
+            apart |= now
             touching = np.nonzero(apart)[0]
             if len(touching):
                 rows, more = _contact_rows(robot, near, qpos[touching])
                 contacts = (np.zeros((len(qpos),) + rows.shape[1:]), np.zeros((len(qpos), rows.shape[1])))
                 contacts[0][touching], contacts[1][touching] = rows, more
-        qpos, change = _step(robot, data, qpos, wanted, weights, _neighbours(qpos), contacts, lifted=lifted)
+        qpos, change = _step(robot, data, qpos, wanted, weights, _neighbours(qpos), contacts, lifted=lifted,
+                             poses=poses)
         if change.max() < TOLERANCE:
             break
     return qpos
@@ -449,8 +465,9 @@ def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, itera
     ankle, right toe) are moved on the floor plane to their hold's mean place, eased in and out
     (:func:`lock_targets`; their heights left as they are), in the frames where one is more than ``PIN_DRIFT`` off
     it: those points held firmly there (their held weights, eased with the lock), the rest to where it was (its
-    usual weights times ``PIN_HOLD``), each joint pulled toward its neighbours', the robot's own bodies kept apart
-    (:func:`_contact_rows`); ``iterations`` steps."""
+    usual weights times ``PIN_HOLD``), each joint pulled toward its neighbours'; ``iterations`` steps, a frame whose
+    step makes the robot's own bodies touch stepped again from where it was with them kept apart
+    (:func:`_contact_rows`)."""
     data, near = mujoco.MjData(robot.own), mujoco.MjData(robot.near)
     feet = _feet_points(robot)
     places = _places(robot, data, qpos)
@@ -465,8 +482,13 @@ def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, itera
     here = places[frames]  # the rest held to where it was
     here[:, feet] = targets[frames]
     for _ in range(iterations):
-        out[frames], change = _step(robot, data, out[frames], here, weights, _neighbours(out)[frames],
-                                    _contact_rows(robot, near, out[frames]), smooth=SEPARATE_SMOOTH)
+        now, pull = out[frames], _neighbours(out)[frames]
+        step, change = _step(robot, data, now, here, weights, pull, smooth=SEPARATE_SMOOTH)
+        hit = np.nonzero(_touching(robot, data, step))[0]  # a step that makes bodies touch: taken again, kept apart
+        if len(hit):
+            step[hit], change[hit] = _step(robot, data, now[hit], here[hit], weights[hit], pull[hit],
+                                           _contact_rows(robot, near, now[hit]), smooth=SEPARATE_SMOOTH)
+        out[frames] = step
         if change.max() < TOLERANCE:
             break
     # a frame whose standing feet end further from level with each other (one sole higher than the other by
@@ -482,13 +504,14 @@ def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, itera
 
 def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, iterations: int = SEPARATE_ITERATIONS,
              rounds: int = 9) -> np.ndarray:
-    """(T, nq) poses in which the robot's own bodies overlap pushed apart: each from its own pose, the targets its
-    current places, held loosely so that nothing else moves more than it must, the ankles and toe points of ``held``
-    (T, 4) feet firmly. First with the frames around them, every joint pulled toward its neighbours'
+    """(T, nq) poses in which the robot's own bodies overlap pushed apart (their pairs up to ``NEAR`` apart pushed out
+    to ``CLEARANCE``: :func:`_contact_rows` on ``robot.near``, until none overlap): each from its own pose, the
+    targets its current places, held loosely so that nothing else moves more than it must, the ankles and toe points
+    of ``held`` (T, 4) feet firmly. First with the frames around them, every joint pulled toward its neighbours'
     (``SEPARATE_SMOOTH``), so that no joint jumps (``iterations``); then up to ``rounds`` - 1 rounds of the frames
     still touching alone (four times as many iterations each), each from where the last one stopped, the standing
     feet held loosely too in the second half of the rounds (no overlap is left for a foot's sake)."""
-    data = mujoco.MjData(robot.own)
+    data, near = mujoco.MjData(robot.own), mujoco.MjData(robot.near)
     out, T = qpos.copy(), len(qpos)
     close = np.nonzero(_touching(robot, data, out))[0]
     for round in range(rounds):
@@ -504,15 +527,14 @@ def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, ite
             weights[:, rows] = np.where(np.repeat(held[window], 3, axis=1), firm[:, rows], weights[:, rows])
         moving = np.arange(len(window))  # the window's frames still being moved
         for _ in range(iterations if reach else 4 * iterations):
-            rows, more = _contact_rows(robot, data, out[window[moving]])
-            now = (more > 0).any(axis=1)  # the frames whose bodies touch
+            frames = window[moving]
+            out[frames], _ = _step(robot, data, out[frames], here[moving], weights[moving], _neighbours(out)[frames],
+                                   _contact_rows(robot, near, out[frames]), SEPARATE_SMOOTH if reach else 0.0)
+            now = _touching(robot, data, out[frames])
             if not now.any():
                 break
             if not reach:  # alone: a frame pushed apart is left there
-                moving, rows, more = moving[now], rows[now], more[now]
-            frames = window[moving]
-            out[frames], _ = _step(robot, data, out[frames], here[moving], weights[moving], _neighbours(out)[frames],
-                                   (rows, more), SEPARATE_SMOOTH if reach else 0.0)
+                moving = moving[now]
         close = window[_touching(robot, data, out[window])]
     return out
 

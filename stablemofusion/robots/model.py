@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import json
+import threading
 from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
@@ -136,6 +137,7 @@ class Robot:
         self.own.geom_contype[fixed], self.own.geom_conaffinity[fixed] = 0, 0
         self.near = copy.deepcopy(self.own)  # and its contacts reported NEAR apart, not only where bodies overlap
         self.near.geom_margin[:] = NEAR
+        self._scratch = threading.local()
         data = mujoco.MjData(m)
         self.rest = self.neutral()
         self.rest_near = self._near_pairs(self.rest)
@@ -158,6 +160,14 @@ class Robot:
         self.rest_ankle = float(at["left_ankle"][2] - low)
         self.rest_toe = data.xmat[self.soles[0].body].reshape(3, 3) @ self.soles[0].toe \
             + data.xpos[self.soles[0].body] - at["left_ankle"]
+
+    def scratch(self) -> tuple:
+        """This thread's ``MjData`` of ``own`` and of ``near``, made once per thread (making one costs about as much
+        as a pose's kinematics and collisions 30 times over): working space that no call keeps between calls."""
+        data = getattr(self._scratch, "data", None)
+        if data is None:
+            data = self._scratch.data = (mujoco.MjData(self.own), mujoco.MjData(self.near))
+        return data
 
     def _near_pairs(self, qpos: np.ndarray) -> np.ndarray:
         """(ngeom, ngeom) bool: the pairs of the robot's own geoms nearer than ``NEAR`` in the pose ``qpos`` (at the

@@ -199,7 +199,11 @@ def _weights(robot: Robot, share: np.ndarray) -> np.ndarray:
 def _places(robot: Robot, data, qpos: np.ndarray) -> np.ndarray:
     """(T, P, 3) the :func:`_layout` points of (T, nq) poses (kinematics on ``data``, an ``MjData`` of the robot's
     model or a copy), the base's two as offsets from the base."""
-    poses = kin.forward(data.model, data, robot.chain, qpos)
+    return _places_of(robot, kin.forward(data.model, data, robot.chain, qpos))
+
+
+def _places_of(robot: Robot, poses: kin.Poses) -> np.ndarray:
+    """:func:`_places` from the poses' kinematics."""
     at = kin.points(poses, *_layout(robot))
     at[:, -2:] -= poses.pos[:, robot.free_body, None]
     return at
@@ -394,7 +398,7 @@ def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.nd
     q[:, :2] = targets[:, list(robot.human_names).index("pelvis"), :2]
     q[:, 3:7] = matrix_to_quat(np.swapaxes(axes, 1, 2))
     keys = np.unique(np.concatenate([np.arange(0, T, COARSE_STRIDE), [T - 1]]))
-    data, near = mujoco.MjData(robot.own), mujoco.MjData(robot.near)
+    data, near = robot.scratch()
     lifted = ~(held[:, 0::2] | held[:, 1::2])  # a foot not standing: its sole kept above the floor
     q[keys] = _iterate(robot, data, q[keys], wanted[keys], weights[keys], coarse_iterations, lifted=lifted[keys])
     q = _between(q[keys], keys, np.arange(T))
@@ -468,9 +472,10 @@ def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, itera
     usual weights times ``PIN_HOLD``), each joint pulled toward its neighbours'; ``iterations`` steps, a frame whose
     step makes the robot's own bodies touch stepped again from where it was with them kept apart
     (:func:`_contact_rows`)."""
-    data, near = mujoco.MjData(robot.own), mujoco.MjData(robot.near)
+    data, near = robot.scratch()
     feet = _feet_points(robot)
-    places = _places(robot, data, qpos)
+    poses = kin.forward(robot.own, data, robot.chain, qpos)
+    places = _places_of(robot, poses)
     spots = places[:, feet]
     targets, share = lock_targets(spots, held, fps, robot.rest_ankle)
     targets[..., 2] = spots[..., 2]
@@ -496,7 +501,7 @@ def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, itera
     # reach
     both = (held[frames][:, 0::2] | held[frames][:, 1::2]).all(axis=1)  # (F,) both feet standing
     spread = [np.where(both, np.abs(h[:, 0] - h[:, 1]), 0.0)
-              for h in (sole_heights(robot, qpos[frames]), sole_heights(robot, out[frames]))]
+              for h in (_soles_of(robot, poses)[frames], sole_heights(robot, out[frames]))]
     worse = spread[1] > spread[0] + LEVEL_HEIGHT
     out[frames[worse]] = qpos[frames[worse]]
     return out
@@ -511,7 +516,7 @@ def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, ite
     (``SEPARATE_SMOOTH``), so that no joint jumps (``iterations``); then up to ``rounds`` - 1 rounds of the frames
     still touching alone (four times as many iterations each), each from where the last one stopped, the standing
     feet held loosely too in the second half of the rounds (no overlap is left for a foot's sake)."""
-    data, near = mujoco.MjData(robot.own), mujoco.MjData(robot.near)
+    data, near = robot.scratch()
     out, T = qpos.copy(), len(qpos)
     close = np.nonzero(_touching(robot, data, out))[0]
     for round in range(rounds):
@@ -566,21 +571,22 @@ def level_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray, iterations: 
     frames = np.nonzero((planted & (low + shift[:, None] > LEVEL_HEIGHT)).any(axis=1))[0]
     if not len(frames):
         return out
-    data, near = mujoco.MjData(robot.own), mujoco.MjData(robot.near)
+    data, near = robot.scratch()
     feet = _feet_points(robot)
     before = out[frames].copy()
     for _ in range(iterations):
-        low = sole_heights(robot, out[frames])
+        poses = kin.forward(robot.own, data, robot.chain, out[frames])
+        low = _soles_of(robot, poses)
         high = planted[frames] & (low > LEVEL_HEIGHT / 2)
         if not high.any():
             break
-        here = _places(robot, data, out[frames])
+        here = _places_of(robot, poses)
         for f in range(2):  # the high foot's ankle and toe point down by its height
             here[:, feet[2 * f:2 * f + 2], 2] -= np.where(high[:, f], low[:, f], 0.0)[:, None]
         weights = _firm_feet(robot, SEPARATE_HOLD * _weights(robot, np.zeros((len(frames), 4))),
                              np.repeat(planted[frames], 2, axis=1).astype(float))
         out[frames], _ = _step(robot, data, out[frames], here, weights, _neighbours(out)[frames],
-                               _contact_rows(robot, near, out[frames]), smooth=LEVEL_SMOOTH)
+                               _contact_rows(robot, near, out[frames]), smooth=LEVEL_SMOOTH, poses=poses)
     after = out[frames].copy()
     for share in LEVEL_SHARES:  # a frame whose bodies touch: the largest share of its change that keeps them apart
         touching = np.nonzero(_touching(robot, data, out[frames]))[0]
@@ -596,12 +602,16 @@ def level_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray, iterations: 
 def foot_points(robot: Robot, qpos: np.ndarray) -> np.ndarray:
     """(T, 4, 3) the points that stand for the human's left ankle, left toe, right ankle, right toe in (T, nq) poses:
     the ankle sites and the soles' toe points, metres."""
-    return _places(robot, mujoco.MjData(robot.own), qpos)[:, _feet_points(robot)]
+    return _places(robot, robot.scratch()[0], qpos)[:, _feet_points(robot)]
 
 
 def sole_heights(robot: Robot, qpos: np.ndarray) -> np.ndarray:
     """(T, 2) each foot's lowest sole point above the floor (m), left and right, in (T, nq) poses."""
-    poses = kin.forward(robot.own, mujoco.MjData(robot.own), robot.chain, qpos)
+    return _soles_of(robot, kin.forward(robot.own, robot.scratch()[0], robot.chain, qpos))
+
+
+def _soles_of(robot: Robot, poses: kin.Poses) -> np.ndarray:
+    """:func:`sole_heights` from the poses' kinematics."""
     return np.stack([(kin.points(poses, np.full(len(f.points), f.body), f.points)[..., 2] - f.radius).min(axis=1)
                      for f in robot.soles], axis=1)
 

@@ -389,8 +389,9 @@ def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.nd
     (:func:`lock_targets`) and those frames solved again (``LOCK_ITERATIONS``); then every frame, the ones between
     started halfway (``iterations``); then the frames whose own bodies still overlap (``SETTLE_ITERATIONS`` at
     most). Held feet weigh more; a foot that does not stand is kept above the floor; each frame's joints are pulled
-    toward its neighbours'; joints stay inside their ranges; once the robot's own bodies overlap in a frame, they
-    are pushed apart and kept apart (:func:`_iterate`)."""
+    toward its neighbours'; joints stay inside their ranges; in the pass over every frame, once the robot's own
+    bodies overlap in a frame, they are pushed apart and kept apart (:func:`_iterate`; the passes over the key
+    frames leave that to it)."""
     T = len(targets)
     held = np.zeros((T, 4), bool) if held is None else np.asarray(held, bool)
     wanted, weights = _wanted(targets, toes, axes), _weights(robot, held.astype(float))
@@ -406,7 +407,7 @@ def solve_poses(robot: Robot, targets: np.ndarray, toes: np.ndarray, axes: np.nd
         feet = _feet_points(robot)
         wanted[:, feet], share = lock_targets(_places(robot, data, q)[:, feet], held, fps, robot.rest_ankle)
         weights = _weights(robot, np.maximum(held, share))
-        q[keys] = _iterate(robot, data, q[keys], wanted[keys], weights[keys], LOCK_ITERATIONS, near, lifted[keys])
+        q[keys] = _iterate(robot, data, q[keys], wanted[keys], weights[keys], LOCK_ITERATIONS, lifted=lifted[keys])
         q = _between(q[keys], keys, np.arange(T))
     q = _iterate(robot, data, q, wanted, weights, iterations, near, lifted)
     close = np.nonzero(_touching(robot, data, q))[0]

@@ -470,13 +470,13 @@ def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, itera
     ankle, right toe) are moved on the floor plane to their hold's mean place, eased in and out
     (:func:`lock_targets`; their heights left as they are), in the frames where one is more than ``PIN_DRIFT`` off
     it: those points held firmly there (their held weights, eased with the lock), the rest to where it was (its
-    usual weights times ``PIN_HOLD``), each joint pulled toward its neighbours'; ``iterations`` steps, a frame whose
-    step makes the robot's own bodies touch stepped again from where it was with them kept apart
-    (:func:`_contact_rows`)."""
+    usual weights times ``PIN_HOLD``), each joint pulled toward its neighbours'; up to ``iterations`` steps of the
+    frames still that far off, a frame whose step makes the robot's own bodies touch stepped again from where it was
+    with them kept apart (:func:`_contact_rows`)."""
     data, near = robot.scratch()
     feet = _feet_points(robot)
     poses = kin.forward(robot.own, data, robot.chain, qpos)
-    places = _places_of(robot, poses)
+    places, low = _places_of(robot, poses), _soles_of(robot, poses)
     spots = places[:, feet]
     targets, share = lock_targets(spots, held, fps, robot.rest_ankle)
     targets[..., 2] = spots[..., 2]
@@ -487,22 +487,28 @@ def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, itera
     weights = _firm_feet(robot, PIN_HOLD * _weights(robot, np.zeros((len(frames), 4))), share[frames])
     here = places[frames]  # the rest held to where it was
     here[:, feet] = targets[frames]
+    moving = np.arange(len(frames))  # the frames still more than PIN_DRIFT off (their places in ``frames``)
     for _ in range(iterations):
-        now, pull = out[frames], _neighbours(out)[frames]
-        step, change = _step(robot, data, now, here, weights, pull, smooth=SEPARATE_SMOOTH)
-        hit = np.nonzero(_touching(robot, data, step))[0]  # a step that makes bodies touch: taken again, kept apart
+        at, pull = frames[moving], _neighbours(out)[frames[moving]]
+        now, goal, weight = out[at], here[moving], weights[moving]
+        step, change = _step(robot, data, now, goal, weight, pull, smooth=SEPARATE_SMOOTH)
+        poses, touching = _touching_poses(robot, data, step)
+        hit = np.nonzero(touching)[0]  # a step that makes bodies touch: taken again, kept apart
         if len(hit):
-            step[hit], change[hit] = _step(robot, data, now[hit], here[hit], weights[hit], pull[hit],
+            step[hit], change[hit] = _step(robot, data, now[hit], goal[hit], weight[hit], pull[hit],
                                            _contact_rows(robot, near, now[hit]), smooth=SEPARATE_SMOOTH)
-        out[frames] = step
-        if change.max() < TOLERANCE:
+        out[at] = step
+        off = (np.linalg.norm((_places_of(robot, poses)[:, feet] - goal[:, feet])[..., :2], axis=-1)
+               > PIN_DRIFT).any(axis=1) | touching
+        moving = moving[off & (change >= TOLERANCE)]
+        if not len(moving):
             break
     # a frame whose standing feet end further from level with each other (one sole higher than the other by
     # LEVEL_HEIGHT more than before: more than level_feet mends) keeps its pose: the lock asked for more than the legs
     # reach
     both = (held[frames][:, 0::2] | held[frames][:, 1::2]).all(axis=1)  # (F,) both feet standing
     spread = [np.where(both, np.abs(h[:, 0] - h[:, 1]), 0.0)
-              for h in (_soles_of(robot, poses)[frames], sole_heights(robot, out[frames]))]
+              for h in (low[frames], sole_heights(robot, out[frames]))]
     worse = spread[1] > spread[0] + LEVEL_HEIGHT
     out[frames[worse]] = qpos[frames[worse]]
     return out

@@ -10,9 +10,12 @@
    joints kept inside their ranges, the robot's own bodies pushed apart where they overlap;
 5. :func:`resample_qpos`: the trajectory at the control rate (50 Hz), angles linearly, the base quaternion by
    normalised linear interpolation;
-6. :func:`separate`: frames in which the robot's own bodies still overlap pushed apart, standing feet held;
-7. :func:`floor_feet`: the floating base raised or lowered so that a planted foot's sole is on the floor and no
-   sole goes below it.
+6. :func:`pin_feet`: the frames whose held ankles or toe points drifted off their holds in between solved again;
+7. :func:`separate`: frames in which the robot's own bodies still overlap pushed apart, standing feet held;
+8. :func:`level_feet`: the floating base raised or lowered so that a planted foot's sole is on the floor and no
+   sole goes below it (:func:`floor_feet`), a planted foot still above it brought down.
+
+The MuJoCo data each step works on is the robot's per-thread scratch (:meth:`~.model.Robot.scratch`).
 """
 
 from __future__ import annotations
@@ -516,13 +519,13 @@ def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, itera
 
 def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, iterations: int = SEPARATE_ITERATIONS,
              rounds: int = 9) -> np.ndarray:
-    """(T, nq) poses in which the robot's own bodies overlap pushed apart (their pairs up to ``NEAR`` apart pushed out
-    to ``CLEARANCE``: :func:`_contact_rows` on ``robot.near``, until none overlap): each from its own pose, the
-    targets its current places, held loosely so that nothing else moves more than it must, the ankles and toe points
-    of ``held`` (T, 4) feet firmly. First with the frames around them, every joint pulled toward its neighbours'
-    (``SEPARATE_SMOOTH``), so that no joint jumps (``iterations``); then up to ``rounds`` - 1 rounds of the frames
-    still touching alone (four times as many iterations each), each from where the last one stopped, the standing
-    feet held loosely too in the second half of the rounds (no overlap is left for a foot's sake)."""
+    """(T, nq) poses in which the robot's own bodies overlap pushed apart (:func:`_contact_rows`), until none
+    overlap: each from its own pose, the targets its current places, held loosely so that nothing else moves more
+    than it must, the ankles and toe points of ``held`` (T, 4) feet firmly. First with the frames around them, every
+    joint pulled toward its neighbours' (``SEPARATE_SMOOTH``), so that no joint jumps, every pair up to ``NEAR``
+    apart kept from closing in (``iterations``); then up to ``rounds`` - 1 rounds of the frames still touching alone,
+    only the overlapping pairs pushed (four times as many iterations each), each from where the last one stopped, the
+    standing feet held loosely too in the second half of the rounds (no overlap is left for a foot's sake)."""
     data, near = robot.scratch()
     out, T = qpos.copy(), len(qpos)
     close = np.nonzero(_touching(robot, data, out))[0]
@@ -541,7 +544,7 @@ def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, ite
         for _ in range(iterations if reach else 4 * iterations):
             frames = window[moving]
             out[frames], _ = _step(robot, data, out[frames], here[moving], weights[moving], _neighbours(out)[frames],
-                                   _contact_rows(robot, near, out[frames]), SEPARATE_SMOOTH if reach else 0.0)
+                                   _contact_rows(robot, near if reach else data, out[frames]), SEPARATE_SMOOTH if reach else 0.0)
             now = _touching(robot, data, out[frames])
             if not now.any():
                 break

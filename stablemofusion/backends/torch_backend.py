@@ -129,7 +129,8 @@ class TorchBackend:
         new.model, new._engines, new.variants = model, {}, {}
         new.adapters = self.adapters + tuple(a.info.name for a in adapters)
         if self.known_actions is not None:
-            new.known_actions = self.known_actions.with_taught([a.info.actions for a in adapters])
+            new.known_actions = self.known_actions.with_taught([a.info.actions for a in adapters],
+                                                               [[c for _, c in a.info.clips] for a in adapters])
         return new
 
     def add_variants(self, adapters) -> None:

@@ -231,11 +231,12 @@ def user_warnings():
     import warnings
 
     from ..core.final import (EngineWarning, LengthClampedWarning, NotEnglishWarning, OutOfDomainWarning,
-                              WeakActionWarning)
+                              TaughtCaptionWarning, WeakActionWarning)
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         yield
-    shown = (EngineWarning, LengthClampedWarning, NotEnglishWarning, OutOfDomainWarning, WeakActionWarning)
+    shown = (EngineWarning, LengthClampedWarning, NotEnglishWarning, OutOfDomainWarning, TaughtCaptionWarning,
+             WeakActionWarning)
     for w in dict.fromkeys(str(c.message) for c in caught if issubclass(c.category, shown)):
         print(f"smf: warning: {w}", file=sys.stderr)

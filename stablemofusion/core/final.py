@@ -27,6 +27,11 @@ class WeakActionWarning(UserWarning):
     """A prompt's closest known action is one the model draws badly (few clips taught it; it is generated anyway)."""
 
 
+class TaughtCaptionWarning(UserWarning):
+    """A prompt clearly closest to a move an adapter taught is answered with the nearest caption of that move's clips
+    (what the adapter draws surely)."""
+
+
 class NotEnglishWarning(UserWarning):
     """A prompt does not look like English (another script, another language's words, no words): the model knows
     English prompts only (it is generated anyway)."""

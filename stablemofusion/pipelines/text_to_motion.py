@@ -9,8 +9,8 @@ from tqdm import tqdm
 
 from ..backends.base import Backend
 from ..core.errors import SMFError
-from ..core.final import (NotEnglishWarning, WeakActionWarning, asked_frames, check_batch_request, clamp_message,
-                          frames_for)
+from ..core.final import (NotEnglishWarning, TaughtCaptionWarning, WeakActionWarning, asked_frames, check_batch_request,
+                          clamp_message, frames_for)
 from ..core.language import language_message, not_english
 from ..core.limits import DEFAULT_SECONDS, LENGTH_MULTIPLE, base_seed
 from ..core.noise import length_level
@@ -73,6 +73,11 @@ class TextToMotionPipeline:
         for i, d in zip(single, b.domains([asked[i] for i in single]) if single else []):
             domains[i] = d
         weak = self.weak([asked[i] for i in single], [domains[i] for i in single])
+        # a prompt clearly closest to a move an adapter taught: its model is given that move's nearest clip caption
+        # (a motion longer than one window keeps path words it has: its timeline reads them from its prompt)
+        routable = [i for i in single if not over[i] or paths.words[i] is None]
+        answers = self.answered([prompts[i] for i in routable], [domains[i] for i in routable])
+        said = [answers.get(prompts[i], asked[i]) if i in set(routable) else asked[i] for i in range(n)]
         results: list[MotionResult | None] = [None] * n
         # 3. timelines: prompts of several parts, each part its own segment (a length given, or an explicit path's,
         # shared among them), and motions longer than one window
@@ -80,23 +85,29 @@ class TextToMotionPipeline:
             total = given[i] if given[i] is not None or paths.explicit[i] is None else \
                 paths.explicit[i].seconds(prompts[i])
             segments = self.segments(parts[i], total, frs[i], seed[i] if per_item else base + i)
-            r = TimelinePipeline(b)(segments, seed=seed[i] if per_item else base + i, settings=request,
+            own = PromptPaths.read(parts[i])
+            checks = b.domains(own.asked)
+            answers = self.answered(parts[i], checks)  # a part without path words answered with a taught caption
+            told = [(answers[p] if p in answers and own.words[k] is None else p, s)
+                    for k, (p, s) in enumerate(segments)]
+            r = TimelinePipeline(b)(told, seed=seed[i] if per_item else base + i, settings=request,
                                     path=paths.explicit[i])
-            checks = b.domains(PromptPaths.read(parts[i]).asked)
             r.prompt, r.sequence = prompts[i], segments
             r.domain = min(checks, key=lambda d: d.similarity) if None not in checks else None
             r.warnings = [d.message(p) for d, p in zip(checks, parts[i]) if d is not None and d.out_of_domain]
             r.warnings += list(self.weak(parts[i], checks).values())
+            r.warnings += [d.answer_message(p) for d, p, (t, _) in zip(checks, parts[i], told) if t != p]
             results[i] = r
         for i in long:
-            r = TimelinePipeline(b)([(prompts[i], lengths[i] / b.fps)], seed=seed[i] if per_item else base + i,
+            r = TimelinePipeline(b)([(prompts[i] if said[i] == asked[i] else said[i], lengths[i] / b.fps)],
+                                    seed=seed[i] if per_item else base + i,
                                     settings=request, path=paths.explicit[i])
             r.prompt, r.domain = prompts[i], domains[i]
             results[i] = r
         # 4. denoise the others in batches
         for k, idx in enumerate(tqdm(batches, desc="generate", unit="batch", disable=not progress)):
             batch_seed = [seed[i] for i in idx] if per_item else base + k
-            raw = b.raw_features([asked[i] for i in idx], [lengths[i] for i in idx], settings, batch_seed)
+            raw = b.raw_features([said[i] for i in idx], [lengths[i] for i in idx], settings, batch_seed)
             # 5. post-process: each path followed, the final stage of the batch's motions (their rigid fits together)
             bent = [follow(raw[j, :lengths[i]], paths.words[i], paths.explicit[i], b.fps) for j, i in enumerate(idx)]
             finished = b.finish_many([f for f, _ in bent], settings.footskate, settings.footskate_options)
@@ -116,6 +127,8 @@ class TextToMotionPipeline:
                 r.warnings.append(domains[i].message(asked[i]))
             if asked[i] in weak:
                 r.warnings.append(weak[asked[i]])
+            if said[i] != asked[i]:
+                r.warnings.append(domains[i].answer_message(prompts[i]))
             wanted = asked_frames(given[i], frs[i], b.fps)
             if wanted is not None and abs(wanted - r.frames) >= LENGTH_MULTIPLE:  # not a rounding to whole steps
                 r.warnings.append(clamp_message(wanted, r.frames, b.fps))
@@ -144,6 +157,16 @@ class TextToMotionPipeline:
                 if wholes[0].closest[0][1] >= ONE_ACTION_SIMILARITY:
                     parts[i] = [prompts[i]]
         return parts
+
+    def answered(self, prompts: list[str], domains: list) -> dict[str, str]:
+        """Prompt -> the taught caption it is answered with (``DomainCheck.answer``), each warned once
+        (:class:`~stablemofusion.core.final.TaughtCaptionWarning`)."""
+        out = {}
+        for p, d in zip(prompts, domains):
+            if d is not None and d.answer is not None and p not in out:
+                out[p] = d.answer
+                warnings.warn(d.answer_message(p), TaughtCaptionWarning, stacklevel=4)
+        return out
 
     def weak(self, prompts: list[str], domains: list) -> dict[str, str]:
         """Prompt -> a warning, for the in-domain prompts whose closest known action the model draws badly (its

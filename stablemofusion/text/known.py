@@ -35,17 +35,22 @@ MAX_EMBEDDINGS_BYTES = 64 * 2**20  # a larger embeddings file is not read (the e
 # a prompt this similar (cosine of sentence embeddings) to a caption an adapter was taught is in domain
 # (benchmarks/adapt_check.py measures it on held-out prompts of the taught action and on foreign ones)
 TAUGHT_SIMILARITY = 0.6
+# a prompt whose closest action is one an adapter taught, by this much (cosine) over the next closest action, is
+# answered with the nearest of the captions of that action's own clips: an adapter draws its move surely for them, and
+# seldom for other words (chosen on the development prompts of benchmarks/adapt: docs/adapters.md)
+TAUGHT_MARGIN = 0.1
 
 
 @dataclass(frozen=True)
 class DomainCheck:
     """``similarity``: the in-domain score (the detector's, or the closest action's cosine similarity for an
     actions file without a detector); ``closest``: the (label, cosine similarity) of the closest actions, best
-    first."""
+    first; ``answer``: the caption of an adapter's clip the prompt is answered with (``TAUGHT_MARGIN``), else None."""
 
     similarity: float
     closest: tuple[tuple[str, float], ...]
     out_of_domain: bool
+    answer: str | None = None
 
     def to_dict(self, prompt: str) -> dict:
         """JSON fields for a result: similarity, closest actions, and a one-line warning when out of domain."""
@@ -53,7 +58,14 @@ class DomainCheck:
                "closest_actions": [[label, round(sim, 4)] for label, sim in self.closest]}
         if self.out_of_domain:
             out["warning"] = self.message(prompt)
+        if self.answer is not None:
+            out["answered_as"] = self.answer
         return out
+
+    def answer_message(self, prompt: str) -> str:
+        """One warning line: the prompt is answered with a taught caption."""
+        return (f"{prompt!r} is answered as {self.answer!r}: its closest action, {self.closest[0][0]}, is one an adapter "
+                f"taught, and an adapter draws its move surely only for its clips' captions")
 
     def message(self, prompt: str) -> str:
         """One warning line with one figure, the in-domain score the decision used (the closest actions by
@@ -78,22 +90,32 @@ class KnownActions:
         self._emb: np.ndarray | None = None if embeddings is None else np.asarray(embeddings, np.float32)
         self._owner = np.asarray([i for i, examples in enumerate(actions.values()) for _ in examples])
         self.taught: dict[str, list[str]] = {}  # actions adapters added: label -> their captions
+        self.taught_clips: dict[str, list[str]] = {}  # label -> the captions of its clips alone (no paraphrases)
         self._taught_emb: np.ndarray | None = None
+        self._clips_emb: dict[str, np.ndarray] = {}
 
-    def with_taught(self, taught: list[dict[str, list[str]]]) -> "KnownActions":
+    def with_taught(self, taught: list[dict[str, list[str]]],
+                    clips: list[list[str]] | None = None) -> "KnownActions":
         """A copy that also knows adapters' actions (each a dict label -> captions): a prompt at least
         TAUGHT_SIMILARITY similar (cosine) to one of their captions is in domain, and they count among the
-        closest actions."""
+        closest actions. ``clips``: each adapter's clip captions (its captions less the paraphrases), what a prompt
+        clearly closest to its action is answered with (``DomainCheck.answer``)."""
         import copy
 
         new = copy.copy(self)
         new.taught = {k: list(v) for k, v in self.taught.items()}
-        for actions in taught:
+        new.taught_clips = {k: list(v) for k, v in self.taught_clips.items()}
+        for k, actions in enumerate(taught):
+            own = set(clips[k]) if clips is not None else set()
             for label, captions in actions.items():
                 if not captions:
                     raise SMFError(f"adapter action {label!r} has no captions")
                 new.taught.setdefault(label, []).extend(captions)
-        new._taught_emb = None
+                mine = [c for c in dict.fromkeys(captions) if c in own]
+                if mine:
+                    new.taught_clips.setdefault(label, []).extend(c for c in mine
+                                                                  if c not in new.taught_clips.get(label, []))
+        new._taught_emb, new._clips_emb = None, {}
         return new
 
     @classmethod
@@ -230,8 +252,19 @@ class KnownActions:
             out_of_domain = score < self.threshold
             if out_of_domain and self.taught and float(row[len(self.actions):].max()) >= TAUGHT_SIMILARITY:
                 out_of_domain = False  # the score stays the base model's: the adapter's caption decided
-            out.append(DomainCheck(score, closest, out_of_domain))
+            answer = self._answer(emb[b], closest)
+            out.append(DomainCheck(score, closest, out_of_domain, None if answer == prompts[b] else answer))
         return out
+
+    def _answer(self, emb: np.ndarray, closest: tuple[tuple[str, float], ...]) -> str | None:
+        """The nearest clip caption of the taught action ``closest`` names first, where it leads the next closest
+        action by ``TAUGHT_MARGIN``; else None."""
+        label = closest[0][0] if closest else None
+        if label not in self.taught_clips or (len(closest) > 1 and closest[0][1] - closest[1][1] < TAUGHT_MARGIN):
+            return None
+        if label not in self._clips_emb:
+            self._clips_emb[label] = self.embed(self.taught_clips[label])
+        return self.taught_clips[label][int(np.argmax(self._clips_emb[label] @ emb))]
 
     def check(self, prompt: str) -> DomainCheck:
         return self.check_many([prompt])[0]

@@ -6,6 +6,7 @@ from __future__ import annotations
 import shutil
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -175,6 +176,18 @@ def test_adapt_writes_an_adapter_that_loads_and_resumes_exactly(base, clip_folde
     teacher = MotionPipeline.from_pretrained(base, teacher=True, device="cpu", adapter=tmp_path / "run.safetensors")
     assert teacher.adapters == ("run",)
     assert "run" in adapted.known_actions.taught and not pipe.known_actions.taught
+    # a prompt clearly closest to the taught action: its model is given the nearest clip caption, and it says so
+    from stablemofusion.core.final import TaughtCaptionWarning
+
+    with pytest.warns(TaughtCaptionWarning, match="is answered as"):
+        said = adapted(["a man is walking"], seconds=2, seed=0, footskate="off")[0]
+    assert said.domain.answer in {c for clip in clips for c in clip.captions}
+    assert any("is answered as" in w for w in said.warnings)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", TaughtCaptionWarning)  # a clip's own caption is answered as itself: no warning
+        own = adapted([said.domain.answer], seconds=2, seed=0, footskate="off")[0]
+    np.testing.assert_array_equal(said.joints, own.joints)
+    assert pipe(["a man is walking"], seconds=2, seed=0, footskate="off")[0].domain.answer is None
 
     # the portable runtime: the graphs of the adapted model make its motions and know its captions
     from stablemofusion.cli.main import main

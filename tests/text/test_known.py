@@ -270,3 +270,23 @@ def test_the_warning_names_one_figure_the_one_the_decision_used():
     message = check.message("a boxer throws punches")
     assert re.findall(r"\d+\.\d+", message) == ["0.49"] and "in-domain score 0.49" in message
     assert "punch, kick" in message and check.to_dict("x")["warning"] == message.replace("a boxer throws punches", "x")
+
+
+def test_a_prompt_clearly_closest_to_a_taught_action_is_answered_with_its_nearest_clip_caption(bandai):
+    """An adapter's captions (its clips' and their paraphrases): a paraphrase clearly closest to its action is
+    answered with the nearest clip caption, never a paraphrase; a prompt of another action, or one the margin does
+    not separate, keeps its own words; without the clips' captions nothing is answered."""
+    from stablemofusion.text.known import TAUGHT_MARGIN
+
+    clips = ["an elderly person hops on one leg", "a person hops on one leg"]
+    taught = {"hop": clips + ["a person bounces on one foot", "an old person springs on one foot"]}
+    known = bandai.with_taught([taught], [clips + ["a person waves"]])
+    assert known.taught_clips == {"hop": clips}
+    d = known.check("an old man bounces on one foot")
+    assert d.closest[0][0] == "hop" and d.closest[0][1] - d.closest[1][1] >= TAUGHT_MARGIN
+    assert d.answer == "an elderly person hops on one leg"
+    assert d.to_dict("x")["answered_as"] == d.answer and d.answer in d.answer_message("x")
+    for prompt in ("a person waves with the right hand", "an old man walks slowly forward"):
+        assert known.check(prompt).answer is None, prompt
+    assert bandai.with_taught([taught]).check("an old man bounces on one foot").answer is None
+    assert bandai.check("an old man bounces on one foot").answer is None

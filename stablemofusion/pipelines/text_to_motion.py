@@ -87,9 +87,9 @@ class TextToMotionPipeline:
             segments = self.segments(parts[i], total, frs[i], seed[i] if per_item else base + i)
             own = PromptPaths.read(parts[i])
             checks = b.domains(own.asked)
-            answers = self.answered(parts[i], checks)  # a part without path words answered with a taught caption
-            told = [(answers[p] if p in answers and own.words[k] is None else p, s)
-                    for k, (p, s) in enumerate(segments)]
+            plain = [k for k in range(len(parts[i])) if own.words[k] is None]  # a part without path words: answered
+            answers = self.answered([parts[i][k] for k in plain], [checks[k] for k in plain])  # with a taught caption
+            told = [(answers.get(p, p), s) for p, s in segments]
             r = TimelinePipeline(b)(told, seed=seed[i] if per_item else base + i, settings=request,
                                     path=paths.explicit[i])
             r.prompt, r.sequence = prompts[i], segments

@@ -218,8 +218,7 @@ def _contact_rows(robot: Robot, data, qpos: np.ndarray) -> tuple[np.ndarray, np.
     apart), each pair of geoms once, at its closest point, as functions of the velocity coordinates; and the
     changes (T, C) wanted of them: up to ``CLEARANCE`` where closer, none where farther (a near pair is kept from
     closing in; a pair already that near at the reference pose only kept from overlapping: pushed to
-    ``BUILT_CLEARANCE`` where it does). Rows of zeros where a
-    pose has fewer than C."""
+    ``BUILT_CLEARANCE`` where it does). Rows of zeros where a pose has fewer than C."""
     m = data.model
     found = []  # (frame, geoms, distances, points, normals) of every pose with contacts
 
@@ -543,8 +542,9 @@ def separate(robot: Robot, qpos: np.ndarray, held: np.ndarray | None = None, ite
         moving = np.arange(len(window))  # the window's frames still being moved
         for _ in range(iterations if reach else 4 * iterations):
             frames = window[moving]
+            pairs = _contact_rows(robot, near if reach else data, out[frames])  # alone: the overlapping pairs only
             out[frames], _ = _step(robot, data, out[frames], here[moving], weights[moving], _neighbours(out)[frames],
-                                   _contact_rows(robot, near if reach else data, out[frames]), SEPARATE_SMOOTH if reach else 0.0)
+                                   pairs, SEPARATE_SMOOTH if reach else 0.0)
             now = _touching(robot, data, out[frames])
             if not now.any():
                 break

@@ -64,8 +64,8 @@ class DomainCheck:
 
     def answer_message(self, prompt: str) -> str:
         """One warning line: the prompt is answered with a taught caption."""
-        return (f"{prompt!r} is answered as {self.answer!r}: its closest action, {self.closest[0][0]}, is one an adapter "
-                f"taught, and an adapter draws its move surely only for its clips' captions")
+        return (f"{prompt!r} is answered as {self.answer!r}: its closest action, {self.closest[0][0]}, is one an "
+                f"adapter taught, and an adapter draws its move surely only for its clips' captions")
 
     def message(self, prompt: str) -> str:
         """One warning line with one figure, the in-domain score the decision used (the closest actions by

@@ -4,7 +4,7 @@ turned about, circles close, timelines bend their own segments, and the torch pa
 
 from __future__ import annotations
 
-import math
+import warnings
 
 import numpy as np
 import pytest
@@ -66,7 +66,32 @@ def test_bent_features_face_where_the_words_say(pipe, prompt):
     spec = parse_path(prompt)
     r = pipe(prompt, seed=3, footskate="off")[0]
     assert abs(hips_turn(r.joints) - spec.angle) < 3.0
-    assert math.isclose(len(r.joints) / r.fps, spec.seconds, abs_tol=0.2)
+
+
+def test_a_path_words_length_spreads_across_seeds_as_the_length_model_spreads_the_prompts(pipe):
+    """Path words give their kind's length; each seed takes its own share of it, as the length model spreads the
+    prompt's lengths (the seed's level over the median): whole steps, no clamp warning, alone as in a batch; the part
+    of a prompt of several parts the same way (its stream); a length given is kept."""
+    from stablemofusion.core.final import LengthClampedWarning
+    from stablemofusion.core.limits import LENGTH_MULTIPLE
+    from stablemofusion.core.noise import length_level
+    from stablemofusion.core.sequence_plan import spread_seconds
+
+    prompt, b = "a man walks in a circle", pipe.backend
+    spec = parse_path(prompt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", LengthClampedWarning)
+        alone = [pipe(prompt, seed=s, footskate="off")[0].frames for s in range(6)]
+    batch = [r.frames for r in pipe([prompt] * 6, seed=list(range(6)), footskate="off")]
+    assert alone == batch and len(set(alone)) >= 3 and all(f % LENGTH_MULTIPLE == 0 for f in alone)
+    mid = b.predict_seconds([prompt], [0.5])[0]
+    for s, frames in enumerate(alone):
+        at = b.predict_seconds([prompt], [length_level(s, 0)])[0]
+        want = spread_seconds(spec.seconds, at, mid, b.fps, b.min_frames, b.max_frames, LENGTH_MULTIPLE)
+        assert frames == round(want * b.fps)
+    parts = {pipe(f"{prompt} then waves", seed=s, footskate="off")[0].sequence[0][1] for s in range(4)}
+    assert len(parts) >= 2
+    assert pipe(prompt, seconds=5, seed=1, footskate="off")[0].frames == 100
 
 
 def test_a_circle_closes_and_with_cleanup_the_turn_stays_close(pipe):

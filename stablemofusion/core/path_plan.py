@@ -16,7 +16,8 @@ holds); :func:`bend` then changes only the root's heading in the raw features, b
 
 Features are body-relative (velocities in the body's frame), so a new heading carries the root's path with it;
 the footskate cleanup of the final stage then pins the feet. Bending costs no sampling step: a path prompt takes
-the time of the same prompt without its path words. Without a length, a path gets its kind's (``seconds``).
+the time of the same prompt without its path words. Without a length, a path gets its kind's (``seconds``), spread
+across seeds by the pipeline (:func:`~stablemofusion.core.sequence_plan.spread_seconds`).
 """
 
 from __future__ import annotations

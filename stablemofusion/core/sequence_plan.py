@@ -63,6 +63,16 @@ def share_seconds(total: float, own: list[float], minimum: float = 0.0) -> list[
         short |= under
 
 
+def spread_seconds(seconds: float, at: float, median: float, fps: float, shortest: int, longest: int,
+                   multiple: int) -> float:
+    """A length from path words for one seed (s): ``seconds`` (the words' kind's) times the length model's length
+    for the seed over its median for the same prompt (``at``, ``median``, s), so that seeds spread as the model
+    spreads the prompt's lengths; whole multiples of ``multiple`` frames at ``fps``, from ``shortest`` to
+    ``longest`` frames (rounded inward to multiples)."""
+    frames = round(seconds * at / median * fps / multiple) * multiple
+    return min(max(frames, -(-shortest // multiple) * multiple), longest // multiple * multiple) / fps
+
+
 def sequence_lexicon() -> dict:
     """What the JavaScript runtime needs to split a prompt as :func:`split_sequence` does (the page's and Node.js's
     ``splitSequence``): the patterns (JavaScript reads them with the ``i`` flag), the default subject, the most
@@ -72,4 +82,5 @@ def sequence_lexicon() -> dict:
             "one_action_similarity": ONE_ACTION_SIMILARITY}
 
 
-__all__ = ["DEFAULT_SUBJECT", "MAX_PARTS", "ONE_ACTION_SIMILARITY", "split_sequence", "share_seconds", "sequence_lexicon"]
+__all__ = ["DEFAULT_SUBJECT", "MAX_PARTS", "ONE_ACTION_SIMILARITY", "split_sequence", "share_seconds", "spread_seconds",
+           "sequence_lexicon"]

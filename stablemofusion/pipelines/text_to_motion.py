@@ -16,7 +16,7 @@ from ..core.limits import DEFAULT_SECONDS, LENGTH_MULTIPLE, base_seed
 from ..core.noise import length_level
 from ..core.path_plan import PromptPaths, follow, placed
 from ..core.reliability import weak_action, weak_message
-from ..core.sequence_plan import ONE_ACTION_SIMILARITY, share_seconds, split_sequence
+from ..core.sequence_plan import ONE_ACTION_SIMILARITY, share_seconds, split_sequence, spread_seconds
 from ..core.result import MotionResult
 from ..core.settings import Settings
 from .timeline import TimelinePipeline
@@ -33,7 +33,7 @@ class TextToMotionPipeline:
                  settings: Settings = Settings(), progress: bool = False, path=None) -> list[MotionResult]:
         """``seconds``/``frames``: one value or one per prompt; with neither, a length the length model gives for
         the item's seed and stream (its distribution's quantile at :func:`~stablemofusion.core.noise.length_level`;
-        else the default length); ``path``: a root path to follow (:class:`~stablemofusion.core.path_plan.Waypoints` or its
+        else the default length; path words' length spread across seeds the same way); ``path``: a root path to follow (:class:`~stablemofusion.core.path_plan.Waypoints` or its
         JSON form, one for all or one per prompt), its length the motion's unless one is given. ``seed``: one for
         all (batch k uses ``seed + k``, a long item i ``seed + i``) or one per prompt (each motion independent of
         those it is batched with); None: a fresh one, reported."""
@@ -49,10 +49,13 @@ class TextToMotionPipeline:
         paths = PromptPaths.read(prompts, path)
         given, (asked, secs) = list(secs), (paths.asked, paths.seconds(prompts, secs, frs))
         unknown = [i for i in range(n) if secs[i] is None and frs[i] is None and one[i]]
+        worded = [i for i in range(n) if secs[i] is not None and given[i] is None and frs[i] is None and one[i]
+                  and paths.explicit[i] is None] if b.has_length_model else []  # a length from path words
         base = None if per_item else base_seed(seed)
-        # the batches of one window each (a length the model predicts is within one), and each item's seed and
-        # stream there: its noise's, and its length's quantile in the length model's distribution
-        predicted = set(unknown)
+        # the batches of one window each (a length the model predicts is within one, or spreads from path words),
+        # and each item's seed and stream there: its noise's, and its length's quantile in the length model's
+        # distribution
+        predicted = set(unknown) | set(worded)
         over = [one[i] and i not in predicted and frames_for(secs[i], frs[i], b.fps, b.min_frames) > b.max_frames
                 for i in range(n)]
         long = [i for i in range(n) if over[i]]
@@ -64,6 +67,11 @@ class TextToMotionPipeline:
             levels = [length_level(*draw[i]) for i in unknown]
             for i, s in zip(unknown, b.predict_seconds([prompts[i] for i in unknown], levels)):
                 secs[i] = s
+        if worded:  # each seed its own length, as the model spreads the prompt's
+            texts, levels = [prompts[i] for i in worded], [length_level(*draw[i]) for i in worded]
+            median = b.predict_seconds(texts, [0.5] * len(texts))
+            for i, at, mid in zip(worded, b.predict_seconds(texts, levels), median):
+                secs[i] = spread_seconds(secs[i], at, mid, b.fps, b.min_frames, b.max_frames, LENGTH_MULTIPLE)
         lengths = [frames_for(s, f, b.fps, b.min_frames) if one[i] else 0 for i, (s, f) in enumerate(zip(secs, frs))]
         foreign = {p: why for p in dict.fromkeys(prompts) if (why := not_english(p)) is not None}
         for p, why in foreign.items():
@@ -182,16 +190,23 @@ class TextToMotionPipeline:
 
     def segments(self, parts: list[str], seconds: float | None, frames: int | None,
                  seed: int) -> list[tuple[str, float]]:
-        """The (prompt, seconds) segments of a prompt's parts: each part as long as its path words say, else as the
-        length model predicts (part k at the level of stream k of the timeline's ``seed``; else the default
+        """The (prompt, seconds) segments of a prompt's parts: each part as long as its path words say (spread as the
+        length model spreads the part's lengths: :func:`~stablemofusion.core.sequence_plan.spread_seconds`), else as
+        the length model predicts (part k at the level of stream k of the timeline's ``seed``; else the default
         length); a length given for the whole prompt shared among them in those proportions."""
         b = self.b
         own = PromptPaths.read(parts).seconds(parts, [None] * len(parts), [None] * len(parts))
         todo = [k for k, s in enumerate(own) if s is None]
+        worded = [k for k, s in enumerate(own) if s is not None]
         if todo and b.has_length_model:
             levels = [length_level(seed, k) for k in todo]
             for k, s in zip(todo, b.predict_seconds([parts[k] for k in todo], levels)):
                 own[k] = s
+        if worded and b.has_length_model:  # a part's length from path words, spread as the model spreads the part's
+            texts, levels = [parts[k] for k in worded], [length_level(seed, k) for k in worded]
+            median = b.predict_seconds(texts, [0.5] * len(texts))
+            for k, at, mid in zip(worded, b.predict_seconds(texts, levels), median):
+                own[k] = spread_seconds(own[k], at, mid, b.fps, b.min_frames, b.max_frames, LENGTH_MULTIPLE)
         own = [DEFAULT_SECONDS if s is None else s for s in own]
         total = frames / b.fps if frames is not None else seconds
         shortest = b.min_frames / b.fps

@@ -33,6 +33,14 @@ export function splitSequence(prompt, q) {
   return out;
 }
 
+// A length from path words for one seed (s): `seconds` (the words' kind's) times the length model's length for the
+// seed over its median for the same prompt (`at`, `median`, s), whole multiples of `multiple` frames at `fps`, from
+// `shortest` to `longest` frames (rounded inward to multiples): spread_seconds.
+export function spreadSeconds(seconds, at, median, fps, shortest, longest, multiple) {
+  const frames = roundHalfEven(seconds * at / median * fps / multiple) * multiple;
+  return Math.min(Math.max(frames, Math.ceil(shortest / multiple) * multiple), Math.floor(longest / multiple) * multiple) / fps;
+}
+
 // `total` seconds shared among parts in proportion to their `own` lengths, each at least `minimum` where the total
 // allows it: share_seconds.
 export function shareSeconds(total, own, minimum = 0) {

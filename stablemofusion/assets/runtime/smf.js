@@ -8,7 +8,7 @@
 import { normal, uniform } from './noise.js';
 import { parsePath, placeJoints, readWaypoints, waypointSeconds } from './paths.js';
 import { bvhText, recentre } from './motion.js';
-import { planWindows, roundHalfEven, shareSeconds, splitSequence } from './sequence.js';
+import { planWindows, roundHalfEven, shareSeconds, splitSequence, spreadSeconds } from './sequence.js';
 
 const SCRIPTS = ['Cyrillic', 'Greek', 'Arabic', 'Hebrew', 'Devanagari', 'Thai', 'Armenian', 'Georgian', 'Bengali',
   'Tamil', 'Ethiopic'];
@@ -145,10 +145,22 @@ export class MotionRuntime {
   // The length model's frames for an encoding, within the model's range: its distribution's quantile at the level of
   // the seed's stream (the Python's predict_seconds with length_level(seed, stream)).
   async predicted(enc, seed, stream = 0) {
+    return this.quantile(enc, uniform(seed, { stream, draw: this.info.length_draw }));
+  }
+
+  // The length model's frames for an encoding at a `level` of its distribution (0.5: the median), within the range.
+  async quantile(enc, level) {
     const i = this.info, T = this.ort.Tensor;
-    const level = Float32Array.of(uniform(seed, { stream, draw: i.length_draw }));
-    const out = await this.sessions.length.run({ tokens: enc.tokens, mask: this.mask(enc.L), level: new T('float32', level, [1]) });
+    const out = await this.sessions.length.run({ tokens: enc.tokens, mask: this.mask(enc.L),
+      level: new T('float32', Float32Array.of(level), [1]) });
     return Math.min(Math.max(Math.trunc(Number(out.frames.data[0])), i.min_frames), i.max_frames);
+  }
+
+  // A length from path words for a seed and stream: spread as the length model spreads the text's (spread_seconds).
+  async spread(seconds, enc, seed, stream = 0) {
+    const i = this.info;
+    return spreadSeconds(seconds, (await this.predicted(enc, seed, stream)) / i.fps, (await this.quantile(enc, 0.5)) / i.fps,
+      i.fps, i.min_frames, i.max_frames, i.length_multiple);
   }
 
   // The length of a motion in frames: `seconds` rounded as every runtime rounds it, or the length model's for the seed.
@@ -222,7 +234,8 @@ export class MotionRuntime {
     const specs = parts.map((p) => parsePath(p, i.paths));
     const own = [];
     for (let k = 0; k < parts.length; k++) {
-      own.push(specs[k]?.seconds ?? (await this.predicted(await this.encode(parts[k]), seed, k)) / i.fps);
+      const enc = await this.encode(parts[k]);
+      own.push(specs[k]?.seconds ? await this.spread(specs[k].seconds, enc, seed, k) : (await this.predicted(enc, seed, k)) / i.fps);
     }
     const shortest = i.min_frames / i.fps;
     const shared = total === null ? own : shareSeconds(total, own, shortest);
@@ -303,8 +316,10 @@ export class MotionRuntime {
       spec = i.paths ? parsePath(prompt, i.paths) : null;
       const enc = await this.encode(spec ? spec.prompt : prompt);
       domain = await this.domain(enc);
-      const own = wp ? waypointSeconds(wp, prompt, i.paths, i.fps, i.length_multiple) : spec && spec.seconds;
-      n = await this.frames(spec ? await this.encode(prompt) : enc, unset && own ? own : seconds, seed);
+      const whole = spec ? await this.encode(prompt) : enc;  // the length model reads the whole prompt
+      const own = wp ? waypointSeconds(wp, prompt, i.paths, i.fps, i.length_multiple)
+        : spec && spec.seconds && unset ? await this.spread(spec.seconds, whole, seed) : null;
+      n = await this.frames(whole, unset && own ? own : seconds, seed);
       // 2. denoise
       features = await this.sample(enc, n, seed);
       const weak = this.weakWarning(prompt, domain);

@@ -325,8 +325,8 @@ def export_onnx(model_path: str | Path | None, out: str | Path, *, text_encoder_
                 from ..text.known import TAUGHT_SIMILARITY
 
                 np.save(tmp / "taught.npy", known.embed([c for caps in known.taught.values() for c in caps]))
-                manifest["actions"].update(taught=known.taught, taught_embeddings="taught.npy",
-                                           taught_similarity=TAUGHT_SIMILARITY)
+                manifest["actions"].update(taught=known.taught, taught_clips=known.taught_clips,
+                                           taught_embeddings="taught.npy", taught_similarity=TAUGHT_SIMILARITY)
             if known.detector is not None:
                 _export(_OODGraph(known.detector), (torch.randn(3, 384),), tmp / "ood.onnx", ["sentence"], ["score"],
                         {"sentence": {0: "B"}, "score": {0: "B"}})

@@ -218,7 +218,10 @@ class PortableGraphs:
         known = KnownActions(a["actions"], a["threshold"], text_cache, top=int(a["top"]),
                              detector=self if self._ood is not None else None,
                              embeddings=np.load(self.folder / a["embeddings"]))
-        return known.with_taught([a["taught"]]) if a.get("taught") else known  # graphs of an adapted model
+        if not a.get("taught"):
+            return known
+        clips = [c for captions in (a.get("taught_clips") or {}).values() for c in captions]
+        return known.with_taught([a["taught"]], [clips])  # graphs of an adapted model
 
     def scores(self, sentence: np.ndarray) -> np.ndarray:
         """(B,) the out-of-domain detector's in-domain scores of unit sentence embeddings (B, C)."""

@@ -28,6 +28,7 @@ from ..core.sequence_plan import sequence_lexicon
 from ..core.timeline_plan import DEFAULT_OVERLAP, TAIL
 from ..core.limits import LENGTH_MULTIPLE, MAX_PROMPT_CHARS, MAX_SECONDS
 from ..core.noise import LENGTH_DRAW
+from ..text.known import TAUGHT_MARGIN
 from ..motion.rigid import DEFAULT_FIT
 from ..motion.skeleton import get_skeleton
 
@@ -64,6 +65,11 @@ def web_description(graphs) -> dict:
     actions = manifest["actions"]
     # an adapted model's actions ("taught") come after the base's, in the same arrays
     groups = list(actions["actions"].items()) + list((actions.get("taught") or {}).items())
+    # a taught action's clip captions, each with its row among the examples: what a prompt clearly closest to the
+    # action is answered with (text/known.py: DomainCheck.answer)
+    starts = np.cumsum([0] + [len(examples) for _, examples in groups]).tolist()
+    answers = {name: [[starts[g] + examples.index(c), c] for c in (actions.get("taught_clips") or {}).get(name, [])]
+               for g, (name, examples) in enumerate(groups) if g >= len(actions["actions"])}
     return {
         "fps": m.fps, "min_frames": m.min_frames, "max_frames": m.max_frames, "length_multiple": LENGTH_MULTIPLE,
         "pad_multiple": m.pad_multiple, "motion_dim": m.dim, "guidance": m.guidance, "sampler": m.sampler,
@@ -88,7 +94,8 @@ def web_description(graphs) -> dict:
         "actions": {"names": [name for name, _ in groups], "threshold": actions["threshold"], "top": int(actions["top"]),
                     "owner": [i for i, (_, examples) in enumerate(groups) for _ in examples],
                     "embeddings": "actions.bin", "taught_from": len(actions["actions"]),
-                    "taught_similarity": actions.get("taught_similarity", 1.0)},
+                    "taught_similarity": actions.get("taught_similarity", 1.0),
+                    "answers": {name: rows for name, rows in answers.items() if rows}, "taught_margin": TAUGHT_MARGIN},
         "tokenizer": "tokenizer.json",
         "files": {name: f"{name}.onnx" for name in SITE_GRAPHS + FINAL_STAGE}, "final_stage": list(FINAL_STAGE),
         "licence": MODEL_LICENCE,

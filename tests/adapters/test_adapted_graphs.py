@@ -18,6 +18,7 @@ from stablemofusion.cli.main import main
 CLIPS = ("dataset-2_walk-turn-left_normal_001", "dataset-1_walk_normal_001")
 CAPTION = "a person hops on one leg"
 FOREIGN = "a person plays the violin"
+PARAPHRASE = "someone hops along on one foot"  # clearly closest to the taught action: answered with CAPTION
 
 
 @pytest.fixture(scope="module")
@@ -58,6 +59,10 @@ def test_adapted_graphs_make_the_adapted_models_motions(adapted_graphs):
     for prompt, outside in ((CAPTION, False), (FOREIGN, True)):
         assert rt.known_actions.check(prompt).out_of_domain is outside
         assert torch_pipe.known_actions.check(prompt).out_of_domain is outside
+    # a paraphrase is answered with the clip's caption on both: the caption's motion, and a warning saying so
+    said = rt([PARAPHRASE], seconds=4, seed=3, footskate="off")[0]
+    assert said.domain.answer == torch_pipe([PARAPHRASE], seconds=4, seed=3, footskate="off")[0].domain.answer == CAPTION
+    assert np.abs(said.joints - got).max() < 1e-6 and any("is answered as" in w for w in said.warnings)
 
 
 @pytest.mark.skipif(shutil.which("node") is None, reason="needs Node.js for the JavaScript runtime")
@@ -71,6 +76,16 @@ def test_the_adapted_page_knows_the_taught_captions(adapted_graphs, tmp_path):
         out = subprocess.run(["node", str(site / "runtime" / "generate.mjs"), prompt, "--seconds", "2", "--footskate",
                               "off"], capture_output=True, text=True, timeout=300, check=True)
         assert json.loads(out.stdout)["outOfDomain"] is outside, prompt
+    # a paraphrase answered with the clip's caption, as the Python runtime answers it: the same motion and warning
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
+
+    out = subprocess.run(["node", str(site / "runtime" / "generate.mjs"), PARAPHRASE, "--seconds", "2", "--seed", "3",
+                          "--footskate", "off"], capture_output=True, text=True, timeout=300, check=True)
+    got = json.loads(out.stdout)
+    want = MotionPipeline.from_pretrained(graphs, backend="onnx", threads=1)([PARAPHRASE], seconds=2, seed=3,
+                                                                             footskate="off")[0]
+    assert want.domain.answer == CAPTION and np.abs(np.asarray(got["joints"]) - want.joints).max() < 5e-6
+    assert [w for w in got["warnings"] if "is answered as" in w] == [w for w in want.warnings if "is answered as" in w]
 
 
 BLENDER_SCRIPT = r"""

@@ -125,8 +125,9 @@ export class MotionRuntime {
     return { joints: Float64Array.from(out.joints_out.data), held: this.perFoot(out.held, T) };
   }
 
-  // The closest known actions, the in-domain score and whether the prompt is out of domain.
-  async domain(enc) {
+  // The closest known actions, the in-domain score, whether the prompt is out of domain, and the clip caption of a
+  // taught action the prompt is answered with (`asked`: the text encoded; text/known.py's DomainCheck.answer).
+  async domain(enc, asked) {
     const a = this.info.actions, C = enc.sentence.length;
     const best = new Array(a.names.length).fill(-1);
     a.owner.forEach((k, e) => {
@@ -139,7 +140,28 @@ export class MotionRuntime {
     const score = out.score.data[0];
     // an adapter's actions (after taught_from): a prompt close to one of their captions is in domain
     const taught = best.slice(a.taught_from ?? best.length).some((s) => s >= a.taught_similarity);
-    return { similarity: score, closest: order, outOfDomain: score < a.threshold && !taught };
+    return { similarity: score, closest: order, outOfDomain: score < a.threshold && !taught, answer: this.answer(enc, order, asked) };
+  }
+
+  // The nearest clip caption of the taught action closest to the prompt, where it leads the next closest by the
+  // taught margin, and it is not the prompt itself; else null.
+  answer(enc, order, asked) {
+    const a = this.info.actions, C = enc.sentence.length;
+    const clips = a.answers?.[order[0]?.[0]];
+    if (!clips || (order.length > 1 && order[0][1] - order[1][1] < a.taught_margin)) return null;
+    let best = -Infinity, caption = null;
+    for (const [row, text] of clips) {
+      let s = 0;
+      for (let c = 0; c < C; c++) s += enc.sentence[c] * this.actions[row * C + c];
+      if (s > best) [best, caption] = [s, text];
+    }
+    return caption === asked ? null : caption;
+  }
+
+  // The warning of a prompt answered with a taught caption (DomainCheck.answer_message).
+  answerWarning(prompt, domain) {
+    return `'${prompt}' is answered as '${domain.answer}': its closest action, ${domain.closest[0][0]}, is one an adapter ` +
+      "taught, and an adapter draws its move surely only for its clips' captions";
   }
 
   // The length model's frames for an encoding, within the model's range: its distribution's quantile at the level of
@@ -315,23 +337,30 @@ export class MotionRuntime {
     if (parts.length === 1) {
       spec = i.paths ? parsePath(prompt, i.paths) : null;
       const enc = await this.encode(spec ? spec.prompt : prompt);
-      domain = await this.domain(enc);
+      domain = await this.domain(enc, spec ? spec.prompt : prompt);
       const whole = spec ? await this.encode(prompt) : enc;  // the length model reads the whole prompt
       const own = wp ? waypointSeconds(wp, prompt, i.paths, i.fps, i.length_multiple)
         : spec && spec.seconds && unset ? await this.spread(spec.seconds, whole, seed) : null;
       n = await this.frames(whole, unset && own ? own : seconds, seed);
-      // 2. denoise
-      features = await this.sample(enc, n, seed);
+      // 2. denoise (a prompt answered with a taught caption: the caption)
+      features = await this.sample(domain.answer ? await this.encode(domain.answer) : enc, n, seed);
       const weak = this.weakWarning(prompt, domain);
       if (weak) warnings.push(weak);
+      if (domain.answer) warnings.push(this.answerWarning(prompt, domain));
     } else {
       segs = await this.segments(parts, !unset ? Number(seconds) : wp ? waypointSeconds(wp, prompt, i.paths, i.fps, i.length_multiple) : null, seed);
       const domains = [];
-      for (const s of segs) domains.push(await this.domain(await this.encode(s.asked)));
+      for (const s of segs) domains.push(await this.domain(await this.encode(s.asked), s.asked));
       domain = domains.reduce((a, d) => (d.similarity < a.similarity ? d : a));
       for (const [k, d] of domains.entries()) {
         const weak = this.weakWarning(segs[k].prompt, d);
         if (weak && !warnings.includes(weak)) warnings.push(weak);
+      }
+      for (const [k, d] of domains.entries()) {  // a part without path words answered with a taught caption
+        if (d.answer && !segs[k].spec) {
+          segs[k].asked = d.answer;
+          warnings.push(this.answerWarning(segs[k].prompt, d));
+        }
       }
       n = segs.reduce((a, s) => a + s.frames, 0);
       // 2. denoise window after window, each continuing the motion so far

@@ -33,8 +33,9 @@ class TextToMotionPipeline:
                  settings: Settings = Settings(), progress: bool = False, path=None) -> list[MotionResult]:
         """``seconds``/``frames``: one value or one per prompt; with neither, a length the length model gives for
         the item's seed and stream (its distribution's quantile at :func:`~stablemofusion.core.noise.length_level`;
-        else the default length; path words' length spread across seeds the same way); ``path``: a root path to follow (:class:`~stablemofusion.core.path_plan.Waypoints` or its
-        JSON form, one for all or one per prompt), its length the motion's unless one is given. ``seed``: one for
+        else the default length; path words' length spread across seeds the same way); ``path``: a root path to
+        follow (:class:`~stablemofusion.core.path_plan.Waypoints` or its JSON form, one for all or one per prompt),
+        its length the motion's unless one is given. ``seed``: one for
         all (batch k uses ``seed + k``, a long item i ``seed + i``) or one per prompt (each motion independent of
         those it is batched with); None: a fresh one, reported."""
         b, request = self.b, settings
@@ -63,15 +64,10 @@ class TextToMotionPipeline:
         batches = [short[a:a + settings.batch_size] for a in range(0, len(short), settings.batch_size)]
         draw = {i: (seed[i], 0) if per_item else (base + k, j) for k, idx in enumerate(batches)
                 for j, i in enumerate(idx)}
-        if unknown and b.has_length_model:
-            levels = [length_level(*draw[i]) for i in unknown]
-            for i, s in zip(unknown, b.predict_seconds([prompts[i] for i in unknown], levels)):
-                secs[i] = s
-        if worded:  # each seed its own length, as the model spreads the prompt's
-            texts, levels = [prompts[i] for i in worded], [length_level(*draw[i]) for i in worded]
-            median = b.predict_seconds(texts, [0.5] * len(texts))
-            for i, at, mid in zip(worded, b.predict_seconds(texts, levels), median):
-                secs[i] = spread_seconds(secs[i], at, mid, b.fps, b.min_frames, b.max_frames, LENGTH_MULTIPLE)
+        drawn = unknown + worded if b.has_length_model else []
+        for i, s in zip(drawn, self.drawn_seconds([prompts[i] for i in drawn], [length_level(*draw[i]) for i in drawn],
+                                                  [secs[i] for i in drawn])):
+            secs[i] = s
         lengths = [frames_for(s, f, b.fps, b.min_frames) if one[i] else 0 for i, (s, f) in enumerate(zip(secs, frs))]
         foreign = {p: why for p in dict.fromkeys(prompts) if (why := not_english(p)) is not None}
         for p, why in foreign.items():
@@ -83,9 +79,9 @@ class TextToMotionPipeline:
         weak = self.weak([asked[i] for i in single], [domains[i] for i in single])
         # a prompt clearly closest to a move an adapter taught: its model is given that move's nearest clip caption
         # (a motion longer than one window keeps path words it has: its timeline reads them from its prompt)
-        routable = [i for i in single if not over[i] or paths.words[i] is None]
-        answers = self.answered([prompts[i] for i in routable], [domains[i] for i in routable])
-        said = [answers.get(prompts[i], asked[i]) if i in set(routable) else asked[i] for i in range(n)]
+        routable = {i for i in single if not over[i] or paths.words[i] is None}
+        answers = self.answered([prompts[i] for i in sorted(routable)], [domains[i] for i in sorted(routable)])
+        said = [answers.get(prompts[i], asked[i]) if i in routable else asked[i] for i in range(n)]
         results: list[MotionResult | None] = [None] * n
         # 3. timelines: prompts of several parts, each part its own segment (a length given, or an explicit path's,
         # shared among them), and motions longer than one window
@@ -166,6 +162,20 @@ class TextToMotionPipeline:
                     parts[i] = [prompts[i]]
         return parts
 
+    def drawn_seconds(self, texts: list[str], levels: list[float], worded: list[float | None]) -> list[float]:
+        """Each text's length (s) at its level of the length model's distribution; where its path words give a length
+        (``worded``), that length spread as the model spreads the text's
+        (:func:`~stablemofusion.core.sequence_plan.spread_seconds`)."""
+        b = self.b
+        if not texts:
+            return []
+        out = b.predict_seconds(texts, levels)
+        spread = [k for k, w in enumerate(worded) if w is not None]
+        median = b.predict_seconds([texts[k] for k in spread], [0.5] * len(spread)) if spread else []
+        for k, mid in zip(spread, median):
+            out[k] = spread_seconds(worded[k], out[k], mid, b.fps, b.min_frames, b.max_frames, LENGTH_MULTIPLE)
+        return out
+
     def answered(self, prompts: list[str], domains: list) -> dict[str, str]:
         """Prompt -> the taught caption it is answered with (``DomainCheck.answer``), each warned once
         (:class:`~stablemofusion.core.final.TaughtCaptionWarning`)."""
@@ -196,17 +206,8 @@ class TextToMotionPipeline:
         length); a length given for the whole prompt shared among them in those proportions."""
         b = self.b
         own = PromptPaths.read(parts).seconds(parts, [None] * len(parts), [None] * len(parts))
-        todo = [k for k, s in enumerate(own) if s is None]
-        worded = [k for k, s in enumerate(own) if s is not None]
-        if todo and b.has_length_model:
-            levels = [length_level(seed, k) for k in todo]
-            for k, s in zip(todo, b.predict_seconds([parts[k] for k in todo], levels)):
-                own[k] = s
-        if worded and b.has_length_model:  # a part's length from path words, spread as the model spreads the part's
-            texts, levels = [parts[k] for k in worded], [length_level(seed, k) for k in worded]
-            median = b.predict_seconds(texts, [0.5] * len(texts))
-            for k, at, mid in zip(worded, b.predict_seconds(texts, levels), median):
-                own[k] = spread_seconds(own[k], at, mid, b.fps, b.min_frames, b.max_frames, LENGTH_MULTIPLE)
+        if b.has_length_model:
+            own = self.drawn_seconds(parts, [length_level(seed, k) for k in range(len(parts))], own)
         own = [DEFAULT_SECONDS if s is None else s for s in own]
         total = frames / b.fps if frames is not None else seconds
         shortest = b.min_frames / b.fps

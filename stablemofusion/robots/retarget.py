@@ -253,14 +253,19 @@ def _contact_rows(robot: Robot, data, qpos: np.ndarray) -> tuple[np.ndarray, np.
 def _touching(robot: Robot, data, qpos: np.ndarray) -> np.ndarray:
     """(T,) bool: the poses in which two of the robot's own bodies overlap (kinematics and collisions on ``data``,
     an ``MjData`` of ``robot.own``)."""
-    m = data.model
     out = np.zeros(len(qpos), dtype=bool)
     for t in range(len(qpos)):
         data.qpos[:] = qpos[t]
-        mujoco.mj_kinematics(m, data)
-        mujoco.mj_collision(m, data)
-        out[t] = data.ncon > 0 and count_self_contacts(m, data) > 0
+        mujoco.mj_kinematics(data.model, data)
+        out[t] = _overlap(data)
     return out
+
+
+def _overlap(data) -> bool:
+    """Whether two of the robot's own bodies overlap in ``data``'s pose (its kinematics computed; collisions found
+    here)."""
+    mujoco.mj_collision(data.model, data)
+    return data.ncon > 0 and count_self_contacts(data.model, data) > 0
 
 
 def _touching_poses(robot: Robot, data, qpos: np.ndarray) -> tuple[kin.Poses, np.ndarray]:
@@ -268,8 +273,7 @@ def _touching_poses(robot: Robot, data, qpos: np.ndarray) -> tuple[kin.Poses, np
     out = np.zeros(len(qpos), dtype=bool)
 
     def check(t: int, data) -> None:
-        mujoco.mj_collision(data.model, data)
-        out[t] = data.ncon > 0 and count_self_contacts(data.model, data) > 0
+        out[t] = _overlap(data)
 
     return kin.forward(data.model, data, robot.chain, qpos, check), out
 
@@ -467,7 +471,8 @@ def lock_targets(spots: np.ndarray, held: np.ndarray, fps: float, ankle_height: 
     return spots + share[..., None] * (anchors - spots), share
 
 
-def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float, iterations: int = PIN_ITERATIONS) -> np.ndarray:
+def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float,
+             iterations: int = PIN_ITERATIONS) -> np.ndarray:
     """(T, nq) poses (at ``fps``) whose held ankles and toe points (``held`` (T, 4): left ankle, left toe, right
     ankle, right toe) are moved on the floor plane to their hold's mean place, eased in and out
     (:func:`lock_targets`; their heights left as they are), in the frames where one is more than ``PIN_DRIFT`` off

@@ -92,7 +92,6 @@ class KnownActions:
         self.taught: dict[str, list[str]] = {}  # actions adapters added: label -> their captions
         self.taught_clips: dict[str, list[str]] = {}  # label -> the captions of its clips alone (no paraphrases)
         self._taught_emb: np.ndarray | None = None
-        self._clips_emb: dict[str, np.ndarray] = {}
 
     def with_taught(self, taught: list[dict[str, list[str]]],
                     clips: list[list[str]] | None = None) -> "KnownActions":
@@ -115,7 +114,7 @@ class KnownActions:
                 if mine:
                     new.taught_clips.setdefault(label, []).extend(c for c in mine
                                                                   if c not in new.taught_clips.get(label, []))
-        new._taught_emb, new._clips_emb = None, {}
+        new._taught_emb = None
         return new
 
     @classmethod
@@ -262,9 +261,11 @@ class KnownActions:
         label = closest[0][0] if closest else None
         if label not in self.taught_clips or (len(closest) > 1 and closest[0][1] - closest[1][1] < TAUGHT_MARGIN):
             return None
-        if label not in self._clips_emb:
-            self._clips_emb[label] = self.embed(self.taught_clips[label])
-        return self.taught_clips[label][int(np.argmax(self._clips_emb[label] @ emb))]
+        # the clip captions' rows among the taught captions' embeddings (taught_similarities made them)
+        labels = list(self.taught)
+        start = sum(len(self.taught[name]) for name in labels[:labels.index(label)])
+        rows = [start + self.taught[label].index(c) for c in self.taught_clips[label]]
+        return self.taught_clips[label][int(np.argmax(self._taught_emb[rows] @ emb))]
 
     def check(self, prompt: str) -> DomainCheck:
         return self.check_many([prompt])[0]

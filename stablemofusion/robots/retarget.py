@@ -37,9 +37,9 @@ BASE_LEVER = 0.2
 CLEARANCE = 0.01  # m the retarget pushes the robot's own bodies apart to (interpolated frames lie between)
 BUILT_CLEARANCE = 0.001  # m a pair of geoms already near at the reference pose is pushed apart to where it overlaps
 COLLISION_WEIGHT = 200.0  # of a contact's or a lifted sole's row, against the targets' weights
-COARSE_STRIDE = 2  # the first pass solves every COARSE_STRIDE-th frame,
-COARSE_ITERATIONS = 6  # this many iterations from the reference pose,
-LOCK_ITERATIONS = 3  # then this many with the feet locked (the frames between interpolated),
+COARSE_STRIDE = 3  # the first pass solves every COARSE_STRIDE-th frame,
+COARSE_ITERATIONS = 3  # this many iterations from the reference pose,
+LOCK_ITERATIONS = 2  # then this many with the feet locked (the frames between interpolated),
 ITERATIONS = 1  # then every frame this many
 SETTLE_ITERATIONS = 6  # at most, then of the frames whose own bodies are still too close
 SEPARATE_ITERATIONS = 6  # at most, per round of pushing the robot's own bodies apart at the control rate
@@ -55,6 +55,7 @@ DAMPING = 1e-2
 MAX_STEP = 0.4  # rad (or m) one iteration may move any coordinate
 PIN_DRIFT = 0.005  # m a held ankle or toe point may be off its hold's place before pin_feet moves its frame
 PIN_ITERATIONS = 2
+PIN_SHARE = 0.5  # a lock eased in or out moves its point's frame only from this share of it on (the nearer half)
 PIN_HOLD = 1.0  # how much the rest of a pose being pinned holds to its place (times the usual weights)
 LEVEL_HEIGHT = 0.015  # m: a planted foot's lowest sole point higher than this is brought down (level_feet)
 LEVEL_ITERATIONS = 4
@@ -476,10 +477,10 @@ def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float,
     """(T, nq) poses (at ``fps``) whose held ankles and toe points (``held`` (T, 4): left ankle, left toe, right
     ankle, right toe) are moved on the floor plane to their hold's mean place, eased in and out
     (:func:`lock_targets`; their heights left as they are), in the frames where one is more than ``PIN_DRIFT`` off
-    it: those points held firmly there (their held weights, eased with the lock), the rest to where it was (its
-    usual weights times ``PIN_HOLD``), each joint pulled toward its neighbours'; up to ``iterations`` steps of the
-    frames still that far off, a frame whose step makes the robot's own bodies touch stepped again from where it was
-    with them kept apart (:func:`_contact_rows`)."""
+    it and eased at least ``PIN_SHARE`` in: those points held firmly there (their held weights, eased with the
+    lock), the rest to where it was (its usual weights times ``PIN_HOLD``), each joint pulled toward its
+    neighbours'; up to ``iterations`` steps of the frames still that far off, a frame whose step makes the robot's
+    own bodies touch stepped again from where it was with them kept apart (:func:`_contact_rows`)."""
     data, near = robot.scratch()
     feet = _feet_points(robot)
     poses = kin.forward(robot.own, data, robot.chain, qpos)
@@ -487,7 +488,8 @@ def pin_feet(robot: Robot, qpos: np.ndarray, held: np.ndarray, fps: float,
     spots = places[:, feet]
     targets, share = lock_targets(spots, held, fps, robot.rest_ankle)
     targets[..., 2] = spots[..., 2]
-    frames = np.nonzero((np.linalg.norm((targets - spots)[..., :2], axis=-1) > PIN_DRIFT).any(axis=1))[0]
+    off = (np.linalg.norm((targets - spots)[..., :2], axis=-1) > PIN_DRIFT) & (share >= PIN_SHARE)
+    frames = np.nonzero(off.any(axis=1))[0]
     out = qpos.copy()
     if not len(frames):
         return out
@@ -601,7 +603,8 @@ def level_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray, iterations: 
         weights = _firm_feet(robot, SEPARATE_HOLD * _weights(robot, np.zeros((len(frames), 4))),
                              np.repeat(planted[frames], 2, axis=1).astype(float))
         out[frames], _ = _step(robot, data, out[frames], here, weights, _neighbours(out)[frames],
-                               _contact_rows(robot, near, out[frames]), smooth=LEVEL_SMOOTH, poses=poses)
+                               _contact_rows(robot, near, out[frames]), smooth=LEVEL_SMOOTH,
+                               lifted=~planted[frames], poses=poses)
     after = out[frames].copy()
     for share in LEVEL_SHARES:  # a frame whose bodies touch: the largest share of its change that keeps them apart
         touching = np.nonzero(_touching(robot, data, out[frames]))[0]

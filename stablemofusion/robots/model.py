@@ -21,6 +21,7 @@ from .mj import mujoco
 BUILT_IN = ("g1", "h1")  # shipped in assets/robots/<name>/scene.xml (decimated meshes, BSD-3-Clause, Unitree)
 FOOT_JOINTS = ("left_ankle", "right_ankle")
 NEAR = 0.02  # m: two of the robot's own bodies this close are near each other (``Robot.near`` reports them)
+FOOT_CLEARANCE = 0.02  # m kept between the two soles' inner edges by the ankles' targets (``Robot.min_gap``)
 
 
 def require_mujoco() -> None:
@@ -93,7 +94,8 @@ class Robot:
     """An MJCF humanoid with a free joint at its root, read once: ``model`` (MuJoCo), ``joint_names`` and
     ``ranges`` (J, 2) rad of its hinge joints in qpos order, the sites ``sites`` (K,) driven by the human joints
     ``human`` (K,) with ``weights`` (K,), the two feet's ``soles``, ``leg`` (hip to knee to ankle at rest, m) and
-    ``rest_ankle`` (ankle site above the sole, flat footed, m); ``chain`` its tree for kinematics of many poses at
+    ``rest_ankle`` (ankle site above the sole, flat footed, m), ``min_gap`` (how far apart sideways its ankles stay
+    so that the soles keep ``FOOT_CLEARANCE`` between them, m); ``chain`` its tree for kinematics of many poses at
     once; ``own`` the model for its self-contacts (the world's geoms collide with nothing), ``near`` the same reporting
     them up to ``NEAR`` apart (slower), ``rest_near`` the pairs of geoms that near at the reference pose."""
 
@@ -158,6 +160,10 @@ class Robot:
                                f"robot's {'right' if side > 0 else 'left'} side at rest; map {joint} to a site on "
                                f"its {joint.split('_')[0]} side (--robot-map)")
         self.rest_ankle = float(at["left_ankle"][2] - low)
+        # how far apart sideways the ankles must stay for the soles not to meet: each sole's inner edge from its ankle
+        inner = [s * (at[j][1] - edge) for s, j, edge in zip(
+            (1.0, -1.0), FOOT_JOINTS, (self._sole_side(data, self.soles[0], min), self._sole_side(data, self.soles[1], max)))]
+        self.min_gap = float(sum(inner)) + FOOT_CLEARANCE
         self.rest_toe = data.xmat[self.soles[0].body].reshape(3, 3) @ self.soles[0].toe \
             + data.xpos[self.soles[0].body] - at["left_ankle"]
 
@@ -250,6 +256,12 @@ class Robot:
         if not pts:
             return np.zeros((0, 3)), np.zeros(0)
         return np.concatenate(pts), np.concatenate(rad)
+
+    @staticmethod
+    def _sole_side(data, sole: Sole, side) -> float:
+        """A sole's edge along y (m) in ``data``'s pose: ``side`` min (its right edge) or max (its left)."""
+        y = (data.xmat[sole.body].reshape(3, 3) @ sole.points.T).T[:, 1] + data.xpos[sole.body][1]
+        return float(side(y - sole.radius) if side is min else side(y + sole.radius))
 
     def sole_heights(self, data, sole: Sole) -> np.ndarray:
         """(P,) m: the sole points' lowest heights above the floor (z = 0) in ``data``'s pose."""

@@ -3,7 +3,8 @@
 1. :func:`robot_frame`: HumanML3D's Y-up, +Z-forward joints into MuJoCo's Z-up, +X-forward frame;
 2. :func:`planted_feet`: the frames each foot stands (the cleanup's holds, else the kinematic contacts);
 3. :func:`keypoint_targets`: the human joints scaled to the robot's leg length, raised so that a planted ankle sits
-   at the robot's ankle height, and each foot's toe point from the human foot's heading and pitch;
+   at the robot's ankle height, the ankles kept far enough apart for the robot's soles (:func:`feet_apart`), and
+   each foot's toe point from the human foot's heading and pitch;
 4. :func:`solve_poses`: every frame at once, damped Gauss-Newton on the weighted target errors (the robot's
    kinematics from MuJoCo, its Jacobians for all frames together: :mod:`.kinematics`), held feet locked
    (:func:`lock_targets`: each held ankle and toe kept at its hold's mean place on the floor, eased in and out),
@@ -123,7 +124,8 @@ def keypoint_targets(robot: Robot, joints: np.ndarray, planted: np.ndarray,
     """The robot's targets from (T, 22, 3) HumanML3D joints: (T, K, 3) site targets (the robot's ``human`` joints),
     (T, 2, 3) toe points (left, right) in MuJoCo's frame, metres, and the scale (robot leg / human leg). ``planted``
     (T, 2) the frames each foot stands; ``held`` (T, 4) the held ankles and toes, whose targets are put on the floor
-    (an ankle at the robot's standing ankle height, a toe point at 0)."""
+    (an ankle at the robot's standing ankle height, a toe point at 0). Ankles nearer than the robot's ``min_gap``
+    (feet side by side) are moved apart sideways, each by half the lack, their toe points with them."""
     p = robot_frame(joints)
     leg = np.linalg.norm(p[:, 1] - p[:, 4], axis=-1) + np.linalg.norm(p[:, 4] - p[:, 7], axis=-1)
     scale = robot.leg / float(np.median(leg))
@@ -142,6 +144,10 @@ def keypoint_targets(robot: Robot, joints: np.ndarray, planted: np.ndarray,
     offset = np.stack([forward * np.cos(yaw) - r[1] * np.sin(yaw), forward * np.sin(yaw) + r[1] * np.cos(yaw), up], -1)
     ankle_targets = scale * ankles
     ankle_targets[..., 2] += lift
+    shift = feet_apart(ankle_targets, p[:, 1] - p[:, 2], robot.min_gap)
+    ankle_targets += np.stack([shift, -shift], axis=1)
+    for f, name in enumerate(("left_ankle", "right_ankle")):
+        targets[:, list(robot.human_names).index(name)] = ankle_targets[:, f]
     toe_targets = ankle_targets + offset
     if held is not None:
         for f, name in enumerate(("left_ankle", "right_ankle")):
@@ -149,6 +155,19 @@ def keypoint_targets(robot: Robot, joints: np.ndarray, planted: np.ndarray,
             targets[held[:, 2 * f], k, 2] = robot.rest_ankle
             toe_targets[held[:, 2 * f + 1], f, 2] = 0.0
     return targets, toe_targets, scale
+
+
+def feet_apart(ankles: np.ndarray, side: np.ndarray, gap: float) -> np.ndarray:
+    """(T, 3) how far to move the left ankle (the right one the opposite way) so that the (T, 2, 3) left and right
+    ankles are at least ``gap`` apart on the floor plane (m), along (T, 3) the body's left direction ``side`` (only
+    its floor-plane part counts): zero where they are, else half the lack each."""
+    left = side * np.array([1.0, 1.0, 0.0])
+    left /= np.linalg.norm(left, axis=-1, keepdims=True)
+    d = (ankles[:, 0] - ankles[:, 1]) * np.array([1.0, 1.0, 0.0])
+    lateral = (d * left).sum(-1)
+    along = np.linalg.norm(d - lateral[:, None] * left, axis=-1)
+    need = np.sqrt(np.maximum(gap ** 2 - along ** 2, 0.0))
+    return (np.maximum(need - lateral, 0.0) / 2)[:, None] * left
 
 
 def pelvis_axes(joints: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ from stablemofusion.robots.checks import check_motion, limit_violations, self_co
 from stablemofusion.robots.files import csv_columns, npz_arrays, write_keyframes  # noqa: E402
 from stablemofusion.robots.model import Robot, load_robot, read_joint_map  # noqa: E402
 from stablemofusion.robots.retarget import (LEVEL_HEIGHT, _feet_points, _places, _runs,  # noqa: E402
-                                            floor_feet, keypoint_targets, level_feet, lock_targets, pelvis_axes, pin_feet,
+                                            feet_apart, floor_feet, keypoint_targets, level_feet, lock_targets, pelvis_axes, pin_feet,
                                             planted_feet, resample_qpos, robot_frame, separate, sole_heights,
                                             solve_poses)
 
@@ -252,6 +252,51 @@ def test_a_planted_foot_left_above_the_floor_is_brought_down(name):
     assert np.abs(low).max() <= LEVEL_HEIGHT and low.min() >= -1e-9
     assert (self_contacts(robot, level) == 0).all() and limit_violations(robot, level) == 0
     np.testing.assert_array_equal(level[0], floored[0])
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_a_planted_foot_is_brought_down_past_a_lifted_foot_on_the_floor(name):
+    """The right foot planted but bent up, the left one not planted and flat on the floor (a shuffling swing foot):
+    the left sole sets the base's height, and levelling must bend the right leg down, not lower the whole body (the
+    left foot would go through the floor and the base be raised again)."""
+    robot = load_robot(name)
+    suffix = "_joint" if name == "g1" else ""
+    knee, hip, ankle = (7 + list(robot.joint_names).index(j + suffix) for j in (
+        "right_knee", "right_hip_pitch", "right_ankle_pitch" if name == "g1" else "right_ankle"))
+    q = np.repeat(robot.rest[None], 4, axis=0)
+    q[:, knee] += 0.6
+    q[:, hip] -= 0.3
+    q[:, ankle] -= 0.3
+    planted = np.tile([False, True], (4, 1))
+    assert (sole_heights(robot, floor_feet(robot, q, planted))[:, 1] > 0.02).all()
+    low = sole_heights(robot, level_feet(robot, q, planted))
+    assert (low[:, 1] <= LEVEL_HEIGHT).all() and low.min() >= -1e-9
+
+
+def test_feet_side_by_side_are_moved_apart_to_the_gap_and_others_left():
+    side = np.tile([0.0, 1.0, 0.3], (4, 1))  # left is +y (its height part does not count)
+    ankles = np.array([[[0, 0.02, 0.1], [0, -0.02, 0.1]],  # 4 cm apart side by side: 6 cm short of 10
+                       [[0, 0.2, 0.1], [0, -0.2, 0.1]],  # far apart
+                       [[0.3, 0.0, 0.1], [0, 0.0, 0.1]],  # one ahead of the other by more than the gap
+                       [[0, -0.01, 0.1], [0, 0.01, 0.1]]])  # crossed, side by side
+    shift = feet_apart(ankles, side, 0.1)
+    np.testing.assert_allclose(shift[0], [0, 0.03, 0], atol=1e-12)
+    np.testing.assert_allclose(shift[1:3], 0, atol=1e-12)
+    np.testing.assert_allclose(shift[3], [0, 0.06, 0], atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_the_ankles_targets_stay_apart_for_the_soles(name, waves):
+    """Feet together in the motion: the ankles' targets (and their toe points) are the robot's min_gap apart."""
+    robot = load_robot(name)
+    joints = np.array(waves.joints, dtype=float)
+    mid = (joints[:, 7] + joints[:, 8]) / 2
+    joints[:, 7, [0, 2]], joints[:, 8, [0, 2]] = mid[:, [0, 2]], mid[:, [0, 2]]  # both ankles at one place
+    targets, toes, _ = keypoint_targets(robot, joints, np.ones((len(joints), 2), bool))
+    names = list(robot.human_names)
+    gap = targets[:, names.index("left_ankle"), :2] - targets[:, names.index("right_ankle"), :2]
+    np.testing.assert_allclose(np.linalg.norm(gap, axis=-1), robot.min_gap, rtol=1e-9)
+    assert 0.05 < robot.min_gap < 0.2
 
 
 @pytest.mark.parametrize("name", ROBOTS)

@@ -161,9 +161,9 @@ class Robot:
                                f"its {joint.split('_')[0]} side (--robot-map)")
         self.rest_ankle = float(at["left_ankle"][2] - low)
         # how far apart sideways the ankles must stay for the soles not to meet: each sole's inner edge from its ankle
-        inner = [s * (at[j][1] - edge) for s, j, edge in zip(
-            (1.0, -1.0), FOOT_JOINTS, (self._sole_side(data, self.soles[0], min), self._sole_side(data, self.soles[1], max)))]
-        self.min_gap = float(sum(inner)) + FOOT_CLEARANCE
+        inner_left = at["left_ankle"][1] - self._sole_edges(data, self.soles[0])[0]
+        inner_right = self._sole_edges(data, self.soles[1])[1] - at["right_ankle"][1]
+        self.min_gap = float(inner_left + inner_right) + FOOT_CLEARANCE
         self.rest_toe = data.xmat[self.soles[0].body].reshape(3, 3) @ self.soles[0].toe \
             + data.xpos[self.soles[0].body] - at["left_ankle"]
 
@@ -258,10 +258,10 @@ class Robot:
         return np.concatenate(pts), np.concatenate(rad)
 
     @staticmethod
-    def _sole_side(data, sole: Sole, side) -> float:
-        """A sole's edge along y (m) in ``data``'s pose: ``side`` min (its right edge) or max (its left)."""
+    def _sole_edges(data, sole: Sole) -> tuple[float, float]:
+        """A sole's right and left edges (lowest and highest y, m) in ``data``'s pose."""
         y = (data.xmat[sole.body].reshape(3, 3) @ sole.points.T).T[:, 1] + data.xpos[sole.body][1]
-        return float(side(y - sole.radius) if side is min else side(y + sole.radius))
+        return float((y - sole.radius).min()), float((y + sole.radius).max())
 
     def sole_heights(self, data, sole: Sole) -> np.ndarray:
         """(P,) m: the sole points' lowest heights above the floor (z = 0) in ``data``'s pose."""

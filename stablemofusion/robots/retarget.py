@@ -162,7 +162,7 @@ def feet_apart(ankles: np.ndarray, side: np.ndarray, gap: float) -> np.ndarray:
     ankles are at least ``gap`` apart on the floor plane (m), along (T, 3) the body's left direction ``side`` (only
     its floor-plane part counts): zero where they are, else half the lack each."""
     left = side * np.array([1.0, 1.0, 0.0])
-    left /= np.linalg.norm(left, axis=-1, keepdims=True)
+    left /= np.maximum(np.linalg.norm(left, axis=-1, keepdims=True), 1e-9)
     d = (ankles[:, 0] - ankles[:, 1]) * np.array([1.0, 1.0, 0.0])
     lateral = (d * left).sum(-1)
     along = np.linalg.norm(d - lateral[:, None] * left, axis=-1)

@@ -18,9 +18,9 @@ from stablemofusion.robots.checks import check_motion, limit_violations, self_co
 from stablemofusion.robots.files import csv_columns, npz_arrays, write_keyframes  # noqa: E402
 from stablemofusion.robots.model import Robot, load_robot, read_joint_map  # noqa: E402
 from stablemofusion.robots.retarget import (LEVEL_HEIGHT, _feet_points, _places, _runs,  # noqa: E402
-                                            feet_apart, floor_feet, keypoint_targets, level_feet, lock_targets, pelvis_axes, pin_feet,
-                                            planted_feet, resample_qpos, robot_frame, separate, sole_heights,
-                                            solve_poses)
+                                            feet_apart, floor_feet, keypoint_targets, level_feet, lock_targets,
+                                            pelvis_axes, pin_feet, planted_feet, resample_qpos, robot_frame,
+                                            separate, sole_heights, solve_poses)
 
 ROBOTS = ("g1", "h1")
 

@@ -29,7 +29,7 @@ from ..footskate.contacts import kinematic_contacts
 from ..motion.resample import resample
 from ..motion.rotation import matrix_to_quat
 from . import kinematics as kin
-from .model import Robot, mujoco
+from .model import FOOT_JOINTS, Robot, mujoco
 
 CONTROL_FPS = 50.0
 TOE_WEIGHT = 5.0
@@ -142,16 +142,12 @@ def keypoint_targets(robot: Robot, joints: np.ndarray, planted: np.ndarray,
     r = robot.rest_toe
     forward, up = r[0] * np.cos(tilt) - r[2] * np.sin(tilt), r[0] * np.sin(tilt) + r[2] * np.cos(tilt)
     offset = np.stack([forward * np.cos(yaw) - r[1] * np.sin(yaw), forward * np.sin(yaw) + r[1] * np.cos(yaw), up], -1)
-    ankle_targets = scale * ankles
-    ankle_targets[..., 2] += lift
-    shift = feet_apart(ankle_targets, p[:, 1] - p[:, 2], robot.min_gap)
-    ankle_targets += np.stack([shift, -shift], axis=1)
-    for f, name in enumerate(("left_ankle", "right_ankle")):
-        targets[:, list(robot.human_names).index(name)] = ankle_targets[:, f]
-    toe_targets = ankle_targets + offset
+    feet = [list(robot.human_names).index(name) for name in FOOT_JOINTS]  # the ankles' targets among the sites'
+    shift = feet_apart(targets[:, feet], p[:, 1] - p[:, 2], robot.min_gap)
+    targets[:, feet] += np.stack([shift, -shift], axis=1)
+    toe_targets = targets[:, feet] + offset
     if held is not None:
-        for f, name in enumerate(("left_ankle", "right_ankle")):
-            k = list(robot.human_names).index(name)
+        for f, k in enumerate(feet):
             targets[held[:, 2 * f], k, 2] = robot.rest_ankle
             toe_targets[held[:, 2 * f + 1], f, 2] = 0.0
     return targets, toe_targets, scale

@@ -22,6 +22,7 @@ The MuJoCo data each step works on is the robot's per-thread scratch (:meth:`~.m
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -187,13 +188,15 @@ def count_self_contacts(model, data) -> int:
     return int(((bodies > 0).all(axis=1) & (data.contact.dist[:n] < 0)).sum())
 
 
+@lru_cache(maxsize=8)
 def _layout(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     """The points the solve moves: (P,) bodies and (P, 3) places in their frames, the driven sites, the two soles'
-    toe points (left, right), then two points ``BASE_LEVER`` along the base's left and up axes."""
+    toe points (left, right), then two points ``BASE_LEVER`` along the base's left and up axes (read-only)."""
     m = robot.model
     bodies = np.concatenate([m.site_bodyid[robot.sites], [f.body for f in robot.soles], [robot.free_body] * 2])
     local = np.concatenate([m.site_pos[robot.sites], [f.toe for f in robot.soles],
                             [[0.0, BASE_LEVER, 0.0], [0.0, 0.0, BASE_LEVER]]])
+    bodies.flags.writeable = local.flags.writeable = False  # made once per robot, shared by every call
     return bodies, local
 
 
@@ -269,10 +272,10 @@ def _contact_rows(robot: Robot, data, qpos: np.ndarray) -> tuple[np.ndarray, np.
 def _touching(robot: Robot, data, qpos: np.ndarray) -> np.ndarray:
     """(T,) bool: the poses in which two of the robot's own bodies overlap (kinematics and collisions on ``data``,
     an ``MjData`` of ``robot.own``)."""
-    out = np.zeros(len(qpos), dtype=bool)
+    out, q, model = np.zeros(len(qpos), dtype=bool), data.qpos, data.model
     for t in range(len(qpos)):
-        data.qpos[:] = qpos[t]
-        mujoco.mj_kinematics(data.model, data)
+        q[:] = qpos[t]
+        mujoco.mj_kinematics(model, data)
         out[t] = _overlap(data)
     return out
 
@@ -339,7 +342,7 @@ def _step(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.
     free = np.concatenate([np.ones((T, 6), bool), ~stuck], axis=1)
     some = np.nonzero(stuck.any(axis=1))[0]  # a stuck joint's row and column: the identity's
     a[some] = a[some] * (free[some, :, None] & free[some, None, :]) + np.eye(nv) * ~free[some, :, None]
-    dq = np.linalg.solve(a, (g * free)[..., None])[..., 0]
+    dq = kin.solve_spd(a, g * free)
     # a lifted sole point that is, or would be, below the floor: held on it (the constraint made active), solved again
     under = [(height < 0) | (height + np.einsum("tsv,tv->ts", rows, dq) < 0) for height, rows in floor]
     again = np.nonzero(np.any([u.any(axis=1) for u in under], axis=0))[0] if floor else np.zeros(0, int)
@@ -348,7 +351,7 @@ def _step(robot: Robot, data, qpos: np.ndarray, wanted: np.ndarray, weights: np.
             r = rows[again] * u[again, :, None] * free[again, None]
             a[again] += COLLISION_WEIGHT * np.matmul(np.swapaxes(r, 1, 2), r)
             g[again] -= COLLISION_WEIGHT * np.einsum("tsv,ts->tv", r, np.where(u[again], height[again], 0.0))
-        dq[again] = np.linalg.solve(a[again], (g[again] * free[again])[..., None])[..., 0]
+        dq[again] = kin.solve_spd(a[again], g[again] * free[again])
     change = np.abs(dq).max(axis=1)
     dq *= np.minimum(1.0, MAX_STEP / np.maximum(change, 1e-12))[:, None]
     out = kin.integrate(qpos, dq)

@@ -598,8 +598,9 @@ def level_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray, iterations: 
     ``LEVEL_HEIGHT`` above the floor (``planted`` (T, 2): left, right) is brought down to it: its ankle and toe
     point lowered by that height, the other planted foot held where it is, the rest held loosely to its place, each
     joint pulled toward its neighbours', the robot's own bodies kept ``CLEARANCE`` apart (:func:`_contact_rows`); the
-    base then floored again. A frame whose levelled pose still makes them touch takes the largest of
-    ``LEVEL_SHARES`` of its change that does not (none of it at worst)."""
+    base then floored again. A frame whose levelled pose makes them touch is stepped again (up to ``iterations``
+    times, its pairs pushed apart); one still touching takes the largest of ``LEVEL_SHARES`` of its change that does not
+    (none of it at worst)."""
     out, low = qpos.copy(), sole_heights(robot, qpos)
     shift = _floor_shift(low, planted)
     out[:, 2] += shift  # floor_feet (the base moved up: every sole with it)
@@ -609,20 +610,31 @@ def level_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray, iterations: 
     data, near = robot.scratch()
     feet = _feet_points(robot)
     before = out[frames].copy()
-    for _ in range(iterations):
-        poses = kin.forward(robot.own, data, robot.chain, out[frames])
+
+    def step(at: np.ndarray, always: bool = False) -> bool:  # one levelling step of the frames ``at``
+        poses = kin.forward(robot.own, data, robot.chain, out[at])
         low = _soles_of(robot, poses)
-        high = planted[frames] & (low > LEVEL_HEIGHT / 2)
-        if not high.any():
-            break
+        high = planted[at] & (low > LEVEL_HEIGHT / 2)
+        if not (always or high.any()):
+            return False  # no foot to bring down: not stepped
         here = _places_of(robot, poses)
         for f in range(2):  # the high foot's ankle and toe point down by its height
             here[:, feet[2 * f:2 * f + 2], 2] -= np.where(high[:, f], low[:, f], 0.0)[:, None]
-        weights = _firm_feet(robot, SEPARATE_HOLD * _weights(robot, np.zeros((len(frames), 4))),
-                             np.repeat(planted[frames], 2, axis=1).astype(float))
-        out[frames], _ = _step(robot, data, out[frames], here, weights, _neighbours(out)[frames],
-                               _contact_rows(robot, near, out[frames]), smooth=LEVEL_SMOOTH,
-                               lifted=~planted[frames], poses=poses)
+        weights = _firm_feet(robot, SEPARATE_HOLD * _weights(robot, np.zeros((len(at), 4))),
+                             np.repeat(planted[at], 2, axis=1).astype(float))
+        out[at], _ = _step(robot, data, out[at], here, weights, _neighbours(out)[at], _contact_rows(robot, near, out[at]),
+                           smooth=LEVEL_SMOOTH, lifted=~planted[at], poses=poses)
+        return True
+
+    for _ in range(iterations):
+        if not step(frames):
+            break
+    touching = frames[_touching(robot, data, out[frames])]
+    for _ in range(iterations):  # levelled frames whose bodies touch: stepped again, their pairs pushed apart
+        if not len(touching):
+            break
+        step(touching, always=True)
+        touching = touching[_touching(robot, data, out[touching])]
     after = out[frames].copy()
     for share in LEVEL_SHARES:  # a frame whose bodies touch: the largest share of its change that keeps them apart
         touching = np.nonzero(_touching(robot, data, out[frames]))[0]

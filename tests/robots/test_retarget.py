@@ -254,6 +254,25 @@ def test_a_planted_foot_left_above_the_floor_is_brought_down(name):
     np.testing.assert_array_equal(level[0], floored[0])
 
 
+
+def test_a_levelled_foot_that_would_touch_the_other_leg_is_stepped_apart_not_left_up():
+    """Both feet planted, the G1's right leg bent 7.5 cm up and turned in toward the left one: bringing the foot
+    down makes the legs touch, so the levelled frame is stepped again with them pushed apart (the foot ends on the
+    floor) rather than taking only a share of the change (which left the sole 2.1 cm up)."""
+    robot = load_robot("g1")
+    index = {name: 7 + k for k, name in enumerate(robot.joint_names)}
+    q = np.repeat(robot.rest[None], 3, axis=0)
+    for joint, turn in (("right_knee", 0.98), ("right_hip_pitch", -0.49), ("right_ankle_pitch", -0.49),
+                        ("right_hip_roll", 0.47), ("left_hip_roll", -0.07), ("right_hip_yaw", 0.33),
+                        ("left_hip_yaw", 0.37)):
+        q[:, index[joint + "_joint"]] += turn
+    planted = np.ones((3, 2), bool)
+    assert (sole_heights(robot, floor_feet(robot, q, planted))[:, 1] > 0.07).all()
+    level = level_feet(robot, q, planted)
+    low = sole_heights(robot, level)
+    assert np.abs(low).max() <= LEVEL_HEIGHT and low.min() >= -1e-9
+    assert (self_contacts(robot, level) == 0).all() and limit_violations(robot, level) == 0
+
 @pytest.mark.parametrize("name", ROBOTS)
 def test_a_planted_foot_is_brought_down_past_a_lifted_foot_on_the_floor(name):
     """The right foot planted but bent up, the left one not planted and flat on the floor (a shuffling swing foot):

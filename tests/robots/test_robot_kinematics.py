@@ -83,3 +83,18 @@ def test_integration_matches_mujoco():
         want = q[t].copy()
         mujoco.mj_integratePos(m, want, dq[t], 1.0)
         assert np.abs(want - got[t]).max() < 1e-12
+
+
+def test_solve_spd_solves_each_system_and_leaves_the_matrices():
+    """Symmetric positive definite systems the size of the G1's (35 velocity coordinates), solved one by one by
+    MuJoCo's Cholesky: the same answers as numpy's LU, the matrices untouched (the solve adds rows to some and solves
+    them again)."""
+    rng = np.random.default_rng(0)
+    rows = rng.normal(size=(7, 60, 35))
+    a = np.swapaxes(rows, 1, 2) @ rows + 0.01 * np.eye(35)
+    b = rng.normal(size=(7, 35))
+    kept = a.copy()
+    x = kin.solve_spd(a, b)
+    np.testing.assert_allclose(x, np.linalg.solve(a, b[..., None])[..., 0], rtol=1e-8, atol=1e-10)
+    np.testing.assert_array_equal(a, kept)
+    assert kin.solve_spd(a[:0], b[:0]).shape == (0, 35)

@@ -478,15 +478,22 @@ def lock_targets(spots: np.ndarray, held: np.ndarray, fps: float, ankle_height: 
     T = len(spots)
     anchors, share = spots.copy(), np.zeros((T, 4))
     blend = max(1, round(LOCK_BLEND * fps))
+    t = np.arange(T)
     for j in range(4):
-        for a, b in _runs(held[:, j]):
-            spot = np.array([*spots[a:b, j, :2].mean(axis=0), ankle_height if j % 2 == 0 else 0.0])
-            anchors[a:b, j], share[a:b, j] = spot, 1.0
-            for k in range(1, blend + 1):  # eased in before the hold and out after it
-                ease = 1 - k / (blend + 1)
-                for t in (a - k, b - 1 + k):
-                    if 0 <= t < T and ease > share[t, j]:
-                        anchors[t, j], share[t, j] = spot, ease
+        runs = _runs(held[:, j])
+        if not runs:
+            continue
+        starts, stops = (np.array(x) for x in zip(*runs))
+        spot = np.array([[*spots[a:b, j, :2].mean(axis=0), ankle_height if j % 2 == 0 else 0.0] for a, b in runs])
+        before = np.searchsorted(starts, t, side="right") - 1  # the last hold starting at or before each frame
+        after = before + 1  # the first starting after it
+        gap_before = np.where(before >= 0, t - (stops[before.clip(0)] - 1), T)  # frames since its last (0: inside)
+        gap_after = np.where(after < len(runs), starts[after.clip(max=len(runs) - 1)] - t, T)
+        nearer = np.where(gap_before <= gap_after, before, after)  # a tie goes to the earlier hold
+        gap = np.minimum(np.maximum(gap_before, 0), gap_after)
+        eased = gap <= blend  # inside a hold (gap 0) or eased in before it or out after it
+        anchors[eased, j] = spot[nearer[eased]]
+        share[eased, j] = 1 - gap[eased] / (blend + 1)
     return spots + share[..., None] * (anchors - spots), share
 
 

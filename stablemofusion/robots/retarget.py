@@ -629,8 +629,8 @@ def level_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray, iterations: 
             here[:, feet[2 * f:2 * f + 2], 2] -= np.where(high[:, f], low[:, f], 0.0)[:, None]
         weights = _firm_feet(robot, SEPARATE_HOLD * _weights(robot, np.zeros((len(at), 4))),
                              np.repeat(planted[at], 2, axis=1).astype(float))
-        out[at], _ = _step(robot, data, out[at], here, weights, _neighbours(out)[at], _contact_rows(robot, near, out[at]),
-                           smooth=LEVEL_SMOOTH, lifted=~planted[at], poses=poses)
+        out[at], _ = _step(robot, data, out[at], here, weights, _neighbours(out)[at],
+                           _contact_rows(robot, near, out[at]), smooth=LEVEL_SMOOTH, lifted=~planted[at], poses=poses)
         return True
 
     for _ in range(iterations):

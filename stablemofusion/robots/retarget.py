@@ -636,20 +636,20 @@ def level_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray, iterations: 
     for _ in range(iterations):
         if not step(frames):
             break
-    touching = frames[_touching(robot, data, out[frames])]
+    touching = np.nonzero(_touching(robot, data, out[frames]))[0]  # places among ``frames``
     for _ in range(iterations):  # levelled frames whose bodies touch: stepped again, their pairs pushed apart
         if not len(touching):
             break
-        step(touching, always=True)
-        touching = touching[_touching(robot, data, out[touching])]
+        step(frames[touching], always=True)
+        touching = touching[_touching(robot, data, out[frames[touching]])]
     after = out[frames].copy()
     for share in LEVEL_SHARES:  # a frame whose bodies touch: the largest share of its change that keeps them apart
-        touching = np.nonzero(_touching(robot, data, out[frames]))[0]
         if not len(touching):
             break
         q = before[touching] + share * (after[touching] - before[touching])
         q[:, 3:7] /= np.linalg.norm(q[:, 3:7], axis=1, keepdims=True)
         out[frames[touching]] = q
+        touching = touching[_touching(robot, data, q)]
     out[frames] = floor_feet(robot, out[frames], planted[frames])
     return out
 

@@ -603,11 +603,12 @@ def _floor_shift(low: np.ndarray, planted: np.ndarray) -> np.ndarray:
 def level_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray, iterations: int = LEVEL_ITERATIONS) -> np.ndarray:
     """(T, nq) poses (on the floor: :func:`floor_feet`) in which a planted foot whose lowest sole point is more than
     ``LEVEL_HEIGHT`` above the floor (``planted`` (T, 2): left, right) is brought down to it: its ankle and toe
-    point lowered by that height, the other planted foot held where it is, the rest held loosely to its place, each
-    joint pulled toward its neighbours', the robot's own bodies kept ``CLEARANCE`` apart (:func:`_contact_rows`); the
-    base then floored again. A frame whose levelled pose makes them touch is stepped again (up to ``iterations``
-    times, its pairs pushed apart); one still touching takes the largest of ``LEVEL_SHARES`` of its change that does not
-    (none of it at worst)."""
+    point lowered by that height, the other planted foot held where it is, no sole let below the floor (a foot
+    standing on its toe's edge would sink and the base go up again), the rest held loosely to its place, each joint
+    pulled toward its neighbours', the robot's own bodies kept ``CLEARANCE`` apart (:func:`_contact_rows`); the base
+    then floored again. A frame whose levelled pose makes them touch is stepped again, its pairs pushed apart, until
+    they are apart and no planted foot is high (up to ``iterations`` times); one still touching takes the largest of
+    ``LEVEL_SHARES`` of its change that does not (none of it at worst)."""
     out, low = qpos.copy(), sole_heights(robot, qpos)
     shift = _floor_shift(low, planted)
     out[:, 2] += shift  # floor_feet (the base moved up: every sole with it)
@@ -629,19 +630,25 @@ def level_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray, iterations: 
             here[:, feet[2 * f:2 * f + 2], 2] -= np.where(high[:, f], low[:, f], 0.0)[:, None]
         weights = _firm_feet(robot, SEPARATE_HOLD * _weights(robot, np.zeros((len(at), 4))),
                              np.repeat(planted[at], 2, axis=1).astype(float))
-        out[at], _ = _step(robot, data, out[at], here, weights, _neighbours(out)[at],
-                           _contact_rows(robot, near, out[at]), smooth=LEVEL_SMOOTH, lifted=~planted[at], poses=poses)
+        out[at], _ = _step(robot, data, out[at], here, weights, _neighbours(out)[at],  # every sole kept up (lifted)
+                           _contact_rows(robot, near, out[at]), smooth=LEVEL_SMOOTH, lifted=np.ones_like(planted[at]),
+                           poses=poses)
         return True
 
     for _ in range(iterations):
         if not step(frames):
             break
     touching = np.nonzero(_touching(robot, data, out[frames]))[0]  # places among ``frames``
-    for _ in range(iterations):  # levelled frames whose bodies touch: stepped again, their pairs pushed apart
-        if not len(touching):
+    redo = touching  # levelled frames whose bodies touch: stepped again, pairs pushed apart, until apart and level
+    for _ in range(iterations):
+        if not len(redo):
             break
-        step(frames[touching], always=True)
-        touching = touching[_touching(robot, data, out[frames[touching]])]
+        step(frames[redo], always=True)
+        poses, now = _touching_poses(robot, data, out[frames[redo]])
+        low, standing = _soles_of(robot, poses), planted[frames[redo]]
+        high = (standing & (low + _floor_shift(low, standing)[:, None] > LEVEL_HEIGHT)).any(axis=1)
+        touching = np.union1d(np.setdiff1d(touching, redo), redo[now])
+        redo = redo[now | high]
     after = out[frames].copy()
     for share in LEVEL_SHARES:  # a frame whose bodies touch: the largest share of its change that keeps them apart
         if not len(touching):

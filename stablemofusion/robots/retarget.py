@@ -638,17 +638,18 @@ def level_feet(robot: Robot, qpos: np.ndarray, planted: np.ndarray, iterations: 
     for _ in range(iterations):
         if not step(frames):
             break
-    touching = np.nonzero(_touching(robot, data, out[frames]))[0]  # places among ``frames``
-    redo = touching  # levelled frames whose bodies touch: stepped again, pairs pushed apart, until apart and level
+    # levelled frames whose bodies touch: stepped again, their pairs pushed apart, until apart and level
+    touch = _touching(robot, data, out[frames])  # (len(frames),)
+    redo = np.nonzero(touch)[0]  # places among ``frames``
     for _ in range(iterations):
         if not len(redo):
             break
         step(frames[redo], always=True)
-        poses, now = _touching_poses(robot, data, out[frames[redo]])
+        poses, touch[redo] = _touching_poses(robot, data, out[frames[redo]])
         low, standing = _soles_of(robot, poses), planted[frames[redo]]
         high = (standing & (low + _floor_shift(low, standing)[:, None] > LEVEL_HEIGHT)).any(axis=1)
-        touching = np.union1d(np.setdiff1d(touching, redo), redo[now])
-        redo = redo[now | high]
+        redo = redo[touch[redo] | high]
+    touching = np.nonzero(touch)[0]
     after = out[frames].copy()
     for share in LEVEL_SHARES:  # a frame whose bodies touch: the largest share of its change that keeps them apart
         if not len(touching):

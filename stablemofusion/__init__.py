@@ -4,7 +4,7 @@
 torch backend where PyTorch is installed, else on the exported graphs with ONNX Runtime.
 """
 
-__version__ = "0.4.7"  # CHANGELOG.md: what each version changed
+__version__ = "0.4.8"  # CHANGELOG.md: what each version changed
 __all__ = ["MotionPipeline", "MotionResult", "RigidMotion", "__version__"]
 
 

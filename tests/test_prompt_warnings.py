@@ -69,3 +69,18 @@ def test_prompts_of_actions_the_model_draws_badly_are_warned_with_why():
         assert any("draws badly (it was taught by" in w for w in r.warnings)
     assert not any("draws badly" in w for w in pipe(["a person walks forward", "a person waves both hands"],
                                                    seconds=2, seed=0)[0].warnings)
+
+
+@pytest.mark.parametrize("prompt", ["a tough, manly soldier thrusts his right fist high overhead",
+                                    "a confident model struts down the runway"])
+def test_prompts_of_actions_drawn_well_are_not_taken_for_weak_ones(prompt):
+    """A fist raised overhead is a raise (the lexicon's examples), not a punch; a prompt no known action is close to
+    (every one under WEAK_FLOOR) names none: neither is warned as an action the model draws badly."""
+    from stablemofusion.core.reliability import WEAK_FLOOR, weak_action
+    from stablemofusion.pipelines.motion_pipeline import MotionPipeline
+
+    pipe = MotionPipeline.from_pretrained(backend="onnx", threads=1)
+    domain = pipe.backend.domains([prompt])[0]
+    assert weak_action(domain, pipe.backend.reliability) is None
+    assert domain.closest[0][0] == "raise-up-right-hand" or domain.closest[0][1] < WEAK_FLOOR
+    assert not any("draws badly" in w for w in pipe(prompt, seconds=2, seed=0)[0].warnings)

@@ -14,11 +14,12 @@ from .folders import CONFIG, companion_file
 RELIABILITY_FILE = "reliability.json"
 MAX_RELIABILITY_BYTES = 1 << 20
 # how much closer (cosine similarity) a prompt must be to an action drawn badly than to every action drawn well to be
-# warned about: the smallest margin that warns none of the other prompts of the held-out lexicon probe and of
-# benchmarks/prompts_weak_dev.jsonl ("a person waves" is a little closer to calling than to waving);
-# benchmarks/weak_warnings.py, docs/prompts.md
+# warned about, and how close at least (below, every known action is a poor match and the closest names none): the
+# smallest margin, with the floor, that warns none of the other prompts of the held-out lexicon probe and of
+# benchmarks/prompts_weak_dev.jsonl ("a person waves" is a little closer to calling than to waving; "a confident
+# model struts down the runway" is closest to kicking, at 0.37); benchmarks/weak_warnings.py, docs/prompts.md
 WEAK_MARGIN = 0.06
-
+WEAK_FLOOR = 0.40
 
 @dataclass(frozen=True)
 class ActionReliability:
@@ -52,15 +53,17 @@ def graphs_reliability(graphs_folder: str | Path) -> dict[str, ActionReliability
     return read_reliability(companion_file(folder, RELIABILITY_FILE)) if (folder / CONFIG).is_file() else None
 
 
-def weak_action(domain, table: dict[str, ActionReliability] | None, margin: float = WEAK_MARGIN) -> str | None:
+def weak_action(domain, table: dict[str, ActionReliability] | None, margin: float = WEAK_MARGIN,
+                floor: float = WEAK_FLOOR) -> str | None:
     """The action to warn about for a prompt's domain check: its closest known action when the model draws it badly
-    (``table``) and it is closer than every action drawn well by more than ``margin``; None for an out-of-domain
-    prompt, without a table or a check."""
+    (``table``), it is at least ``floor`` similar and closer than every action drawn well by more than ``margin``;
+    None for an out-of-domain prompt, without a table or a check."""
     if table is None or domain is None or domain.out_of_domain or not domain.closest:
         return None
     action, similarity = domain.closest[0]
     drawn_well = [s for a, s in domain.closest if not (a in table and table[a].weak)]
-    weak = action in table and table[action].weak and similarity - max(drawn_well, default=0.0) > margin
+    weak = (action in table and table[action].weak and similarity >= floor
+            and similarity - max(drawn_well, default=0.0) > margin)
     return action if weak else None
 
 
@@ -71,5 +74,5 @@ def weak_message(prompt: str, action: str, r: ActionReliability) -> str:
             f"clip{'s' if r.clips != 1 else ''}{measured}): the motion may not show it")
 
 
-__all__ = ["ActionReliability", "RELIABILITY_FILE", "WEAK_MARGIN", "graphs_reliability", "read_reliability", "weak_action",
-           "weak_message"]
+__all__ = ["ActionReliability", "RELIABILITY_FILE", "WEAK_FLOOR", "WEAK_MARGIN", "graphs_reliability", "read_reliability",
+           "weak_action", "weak_message"]

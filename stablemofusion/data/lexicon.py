@@ -3,7 +3,9 @@
 A lexicon (``assets/lexicons/<corpus>.json``) holds, per content label, verb-phrase phrasings with marked
 verbs (``<walk> forward``, ``<swing|swings|swinging> {pos} arm``) and, per style label, adjectives,
 adverbs, manner phrases and personas; each list is split into ``train`` (used for training captions) and
-``heldout`` (never used in training: a probe of generalisation to unseen words). ``same_as`` shares one
+``heldout`` (never used in training: a probe of generalisation to unseen words); a content may add ``examples``:
+phrasings the known-action check matches prompts against (:func:`known_actions`) that training never uses (a raised
+fist is a raise, not a punch, though "fist" is a punching word). ``same_as`` shares one
 entry between synonymous labels of two datasets (``elderly`` -> ``old``); left/right contents are written
 once (``-left``) and mirrored. The label tables (which dataset has which labels) are in the same file, and
 ``tempo_free``: the contents whose meaning does not lie in their speed (a slowed wave is a wave; a slowed run is
@@ -27,10 +29,12 @@ _MIRROR_RE_TEMPLATE = r"(?<![A-Za-z])({words})(?![A-Za-z])"
 
 @dataclass(frozen=True)
 class Words:
-    """One list of a lexicon, split into the part training may use and the held-out part."""
+    """One list of a lexicon, split into the part training may use and the held-out part; ``examples``: more
+    phrasings of a content for the known-action check alone (never training captions)."""
 
     train: tuple[str, ...]
     heldout: tuple[str, ...] = ()
+    examples: tuple[str, ...] = ()
 
     def pick(self, heldout: bool) -> tuple[str, ...]:
         return self.heldout if heldout else self.train
@@ -101,9 +105,9 @@ def _words(d: dict | list | None, where: str) -> Words:
         return Words(())
     if isinstance(d, list):
         return Words(tuple(d))
-    if not isinstance(d, dict) or not set(d) <= {"train", "heldout"}:
-        raise SMFError(f"lexicon: {where} must be a list or {{'train': [...], 'heldout': [...]}}")
-    return Words(tuple(d.get("train", ())), tuple(d.get("heldout", ())))
+    if not isinstance(d, dict) or not set(d) <= {"train", "heldout", "examples"}:
+        raise SMFError(f"lexicon: {where} must be a list or {{'train': [...], 'heldout': [...], 'examples': [...]}}")
+    return Words(tuple(d.get("train", ())), tuple(d.get("heldout", ())), tuple(d.get("examples", ())))
 
 
 def _resolve(table: dict, label: str, where: str) -> dict:
@@ -128,7 +132,7 @@ def parse_lexicon(data: dict, name: str = "lexicon") -> Lexicon:
         mirrored = lex.mirror_text(label)
         if mirrored != label and mirrored not in lex.contents:
             w = lex.contents[label]
-            lex.contents[mirrored] = Words(tuple(map(lex.mirror_text, w.train)), tuple(map(lex.mirror_text, w.heldout)))
+            lex.contents[mirrored] = Words(*(tuple(map(lex.mirror_text, part)) for part in (w.train, w.heldout, w.examples)))
     for label in data["styles"]:
         entry = _resolve(data["styles"], label, "style")
         lex.styles[label] = StyleWords(label, *(_words(entry.get(k), f"style {label} {k}") for k in STYLE_KINDS))
@@ -200,10 +204,11 @@ def person_sentence(phrase: str) -> str:
 def known_actions(lex: Lexicon, threshold: float) -> dict:
     """The ``actions.json`` content of a model trained on this lexicon's corpus (see
     :mod:`stablemofusion.text.known`): each content label with "a person ..." sentences made from its
-    training phrasings."""
-    actions = {label: [person_sentence(p) for p in words.train] for label, words in lex.contents.items()}
-    return {"about": f"example sentences per action from the {lex.name} lexicon's training phrasings; a prompt whose "
-                     "best cosine similarity to them is below threshold is out of domain",
+    training phrasings and its ``examples``."""
+    actions = {label: [person_sentence(p) for p in words.train + words.examples]
+               for label, words in lex.contents.items()}
+    return {"about": f"example sentences per action from the {lex.name} lexicon's training phrasings and examples; a "
+                     "prompt whose best cosine similarity to them is below threshold is out of domain",
             "threshold": threshold, "actions": actions}
 
 

@@ -23,7 +23,7 @@ from ..motion.bvh import BVH_ORDER
 from ..motion.gltf import BODY_COLOUR, BONE_RADIUS, DEFAULT_RADIUS, HAND_LENGTH, HEAD_RADIUS
 from ..core.path_plan import KINDS, MAX_PATH_METRES, MAX_PATH_SPEED, MAX_WAYPOINTS, MIN_TRAVEL
 from ..core.language import language_lexicon
-from ..core.reliability import WEAK_MARGIN, graphs_reliability
+from ..core.reliability import WEAK_FLOOR, WEAK_MARGIN, graphs_reliability
 from ..core.sequence_plan import sequence_lexicon
 from ..core.timeline_plan import DEFAULT_OVERLAP, TAIL
 from ..core.limits import LENGTH_MULTIPLE, MAX_PROMPT_CHARS, MAX_SECONDS
@@ -45,10 +45,10 @@ MODEL_LICENCE = ("The model's weights were trained on Bandai-Namco motion captur
 
 def weak_actions(graphs) -> dict:
     """The actions the model draws badly (its folder's reliability table; none without one), with their clips and
-    accuracy, and the margin a prompt must be closer to one of them than to any action drawn well."""
+    accuracy, the margin a prompt must be closer to one of them than to any action drawn well, and how close at least."""
     table = graphs_reliability(graphs.folder) or {}
     weak = {a: {"clips": r.clips, "accuracy": r.accuracy} for a, r in table.items() if r.weak}
-    return {"actions": weak, "margin": WEAK_MARGIN}
+    return {"actions": weak, "margin": WEAK_MARGIN, "floor": WEAK_FLOOR}
 
 
 def web_description(graphs) -> dict:

@@ -85,6 +85,22 @@ def test_heldout_words_never_in_training_captions():
     assert _words(text) & LEX.heldout_words
 
 
+def test_examples_only_in_the_known_actions_never_in_training_captions():
+    """A content's ``examples`` (a raised fist is a raise) widen the known-action check, mirrored like the rest, and
+    never reach a training caption; like the training phrasings they avoid the held-out words."""
+    from stablemofusion.data.lexicon import known_actions
+
+    examples = {label: words.examples for label, words in LEX.contents.items() if words.examples}
+    assert {"raise-up-left-hand", "raise-up-right-hand", "raise-up-both-hands"} <= set(examples)
+    assert examples["raise-up-right-hand"] == tuple(map(LEX.mirror_text, examples["raise-up-left-hand"]))
+    actions = known_actions(LEX, 0.5)["actions"]
+    assert "a person raises their right fist in the air" in actions["raise-up-right-hand"]
+    for label, phrases in examples.items():
+        assert not any(_words(p) & LEX.heldout_words for p in phrases), label
+        captions = {t for style in D2_STYLES for t, _ in captions_for(label, style, n=48, seed=0)}
+        assert not any("fist" in c for c in captions), label
+
+
 def test_at_least_30_structures_and_used():
     assert len(STRUCTURES) >= 30
     assert len(structures_for(LEX, "tired")) >= 30

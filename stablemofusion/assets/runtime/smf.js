@@ -298,13 +298,14 @@ export class MotionRuntime {
   }
 
   // A warning when the closest known action of a prompt's domain is one the model draws badly (its reliability table,
-  // web.json), by the Python's margin; else null.
+  // web.json), by the Python's margin and at least its floor; else null.
   weakWarning(prompt, domain) {
     const i = this.info;
     const weak = i.weak_actions?.actions ?? {};
     const [action, similarity] = domain.closest?.[0] ?? [null, 0];
     const wellDrawn = (domain.closest ?? []).filter(([a]) => !(a in weak)).map(([, s]) => s);
-    if (domain.outOfDomain || !(action in weak) || !(similarity - (wellDrawn.length ? Math.max(...wellDrawn) : 0) > i.weak_actions.margin)) return null;
+    if (domain.outOfDomain || !(action in weak) || !(similarity >= i.weak_actions.floor) ||
+        !(similarity - (wellDrawn.length ? Math.max(...wellDrawn) : 0) > i.weak_actions.margin)) return null;
     const w = weak[action];
     return `"${prompt}" is closest to "${action}", which this model draws badly (it was taught by ${w.clips} ` +
       `clip${w.clips === 1 ? '' : 's'}${w.accuracy === null ? '' : `; ${Math.round(w.accuracy * 100)}% of its motions for ` +

@@ -118,8 +118,8 @@ def text_side_files(folder: Path, *, required: bool) -> dict[str, Path]:
     return found
 
 
-ABOUT = ("closest actions: example sentences per action from the lexicon's training phrasings; out of domain: the "
-         "detector's calibrated in-domain score (similarity) below threshold (stablemofusion.text.domain)")
+ABOUT = ("closest actions: example sentences per action from the lexicon's training phrasings and examples; out of "
+         "domain: the detector's calibrated in-domain score (similarity) below threshold (stablemofusion.text.domain)")
 
 
 def build_known_actions(lexicon: str, encoder: str, *, corpus: Path | None = None, text_cache: Path | None = None,

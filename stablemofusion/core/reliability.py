@@ -74,5 +74,5 @@ def weak_message(prompt: str, action: str, r: ActionReliability) -> str:
             f"clip{'s' if r.clips != 1 else ''}{measured}): the motion may not show it")
 
 
-__all__ = ["ActionReliability", "RELIABILITY_FILE", "WEAK_FLOOR", "WEAK_MARGIN", "graphs_reliability", "read_reliability",
-           "weak_action", "weak_message"]
+__all__ = ["ActionReliability", "RELIABILITY_FILE", "WEAK_FLOOR", "WEAK_MARGIN", "graphs_reliability",
+           "read_reliability", "weak_action", "weak_message"]

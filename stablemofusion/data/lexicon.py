@@ -132,7 +132,8 @@ def parse_lexicon(data: dict, name: str = "lexicon") -> Lexicon:
         mirrored = lex.mirror_text(label)
         if mirrored != label and mirrored not in lex.contents:
             w = lex.contents[label]
-            lex.contents[mirrored] = Words(*(tuple(map(lex.mirror_text, part)) for part in (w.train, w.heldout, w.examples)))
+            lex.contents[mirrored] = Words(*(tuple(map(lex.mirror_text, part))
+                                             for part in (w.train, w.heldout, w.examples)))
     for label in data["styles"]:
         entry = _resolve(data["styles"], label, "style")
         lex.styles[label] = StyleWords(label, *(_words(entry.get(k), f"style {label} {k}") for k in STYLE_KINDS))

@@ -45,7 +45,8 @@ MODEL_LICENCE = ("The model's weights were trained on Bandai-Namco motion captur
 
 def weak_actions(graphs) -> dict:
     """The actions the model draws badly (its folder's reliability table; none without one), with their clips and
-    accuracy, the margin a prompt must be closer to one of them than to any action drawn well, and how close at least."""
+    accuracy, the margin a prompt must be closer to one of them than to any action drawn well, and the floor: how
+    close to it at least (core/reliability.py)."""
     table = graphs_reliability(graphs.folder) or {}
     weak = {a: {"clips": r.clips, "accuracy": r.accuracy} for a, r in table.items() if r.weak}
     return {"actions": weak, "margin": WEAK_MARGIN, "floor": WEAK_FLOOR}

@@ -4,7 +4,7 @@ labelled prompt file. The shipped margin and floor (core/reliability.py's WEAK_M
 held-out lexicon probe and on benchmarks/prompts_weak_dev.jsonl; the free-form dev set and
 benchmarks/prompts_weak_test.jsonl (written before the floor and the lexicon's examples, run once after) are not.
 
-    python benchmarks/weak_warnings.py [--prompts FILE ...] [--margins 0.03 0.05 0.07 0.09] [--floors 0 0.4]
+    python benchmarks/weak_warnings.py [--prompts FILE ...] [--margins 0.03 0.05 0.06 0.07 0.09] [--floors 0 0.4]
 
 Prints one JSON line per file, margin and floor: weak prompts warned, those of them the out-of-domain warning names
 instead (the weak warning is not given with it), other prompts warned (and which).

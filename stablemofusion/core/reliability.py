@@ -21,6 +21,7 @@ MAX_RELIABILITY_BYTES = 1 << 20
 WEAK_MARGIN = 0.06
 WEAK_FLOOR = 0.40
 
+
 @dataclass(frozen=True)
 class ActionReliability:
     """One known action: ``accuracy`` the share of motions for held-out wording judged to be it (None: not

@@ -39,9 +39,9 @@ def main() -> None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             domains = backend.domains([it.prompt for it in items])
+        should = [bool(set(it.contents) & weak) for it in items]
         for margin, floor in ((m, f) for f in args.floors for m in args.margins):
             hit = [weak_action(d, table, margin, floor) is not None for d in domains]
-            should = [bool(set(it.contents) & weak) for it in items]
             print(json.dumps({"file": path.name, "margin": margin, "floor": floor,
                               "weak_warned": f"{sum(h and s for h, s in zip(hit, should))}/{sum(should)}",
                               "weak_out_of_domain": sum(d.out_of_domain for d, s in zip(domains, should) if s),
